@@ -1,0 +1,236 @@
+"""Sky configurations: from one image's car centres to the points ``Q`` and the target ``L``.
+
+Construction (paper, section 3 and appendix A; method notes, section 2):
+
+1. ``E``: fragments ``(car centre, r = z)`` rendered with ``rmin``; cars behind
+   the camera or off screen are dropped.
+2. ``E'`` ("circles"): every active pixel of ``E`` paints the on-screen pixels
+   within ``exp(-d/3) >= 0.25`` (``d <= 3 ln 4``, 57 pixels) with its value,
+   keeping the minimum where circles overlap.
+3. ``Q``: one point per active pixel of ``E'``: the back-projection of the
+   pixel centre at depth ``E'``. Each pixel holds exactly one point.
+4. ``L``: occupancy of ``floor(P(Q + (a, b, 0)))``; points leaving the screen
+   are dropped.
+
+The solver sees ``Q`` (equivalently ``E'``) and ``L``, never the shift.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from itertools import product
+
+import torch
+
+from .camera import APOLLO_CAMERA_5, Camera
+from .errors import SDMInputError
+from .representation import occupancy, render_rmin, screen_pixels
+
+#: The shift of the Sky dataset, metres: theta* = (a, b).
+SKY_SHIFT = (0.517, 0.303)
+
+#: Circle radius in screen pixels: exp(-d/3) >= 0.25  <=>  d <= 3 ln 4.
+CIRCLE_RADIUS = 3 * math.log(4)
+
+
+@dataclass
+class SkyConfiguration:
+    """One configuration of the Sky dataset.
+
+    Attributes:
+        pixels: ``(K, 2)`` int64 active pixels ``(row, col)`` of ``E'``, row-major order.
+        depth: ``(K,)`` float64 depth in metres of each active pixel (the value of ``E'``).
+        target: ``(H, W)`` bool target ``L``.
+        image_id: name of the source image.
+        centres: ``(M, 2)`` int64 active pixels of ``E`` (car centres on screen).
+        centre_depth: ``(M,)`` float64 values of ``E`` there.
+    """
+
+    pixels: torch.Tensor
+    depth: torch.Tensor
+    target: torch.Tensor
+    image_id: str = ""
+    centres: torch.Tensor = field(default_factory=lambda: torch.zeros(0, 2, dtype=torch.int64))
+    centre_depth: torch.Tensor = field(default_factory=lambda: torch.zeros(0, dtype=torch.float64))
+
+    @property
+    def num_points(self) -> int:
+        return int(self.pixels.shape[0])
+
+    def points(self, camera: Camera = APOLLO_CAMERA_5) -> torch.Tensor:
+        """``(K, 3)`` float64 points ``Q`` in metres (pixel centres back-projected)."""
+        return pixel_centre_points(self.pixels, self.depth, camera)
+
+    def circles(self, camera: Camera = APOLLO_CAMERA_5) -> torch.Tensor:
+        """``(H, W)`` float64 representation ``E'`` (depth, 0 where empty)."""
+        image = torch.zeros(camera.screen_shape, dtype=torch.float64)
+        image[self.pixels[:, 0], self.pixels[:, 1]] = self.depth
+        return image
+
+
+def circle_offsets(radius: float = CIRCLE_RADIUS) -> torch.Tensor:
+    """``(n, 2)`` int64 offsets ``(drow, dcol)`` within ``radius`` screen pixels (57 for the default)."""
+    reach = int(math.floor(radius))
+    offsets = [(i, j) for i, j in product(range(-reach, reach + 1), repeat=2) if math.hypot(i, j) <= radius]
+    return torch.tensor(offsets, dtype=torch.int64)
+
+
+def render_centres(centres: torch.Tensor, camera: Camera = APOLLO_CAMERA_5) -> torch.Tensor:
+    """The representation ``E``: car centres as fragments ``(c, r = z)`` with ``rmin``.
+
+    Args:
+        centres: ``(M, 3)`` car centres in metres (camera frame); cars with
+            ``z <= 0`` (behind the camera) and cars off screen are dropped.
+
+    Returns:
+        ``(H, W)`` float64 depth of the nearest car centre per pixel, 0 where empty.
+    """
+    centres = _check_centres(centres)
+    visible = centres[centres[:, 2] > 0]
+    return render_rmin(visible, visible[:, 2], camera)
+
+
+def draw_circles(centre_image: torch.Tensor, radius: float = CIRCLE_RADIUS) -> torch.Tensor:
+    """The representation ``E'``: a disc of each active pixel's value, minimum where discs overlap.
+
+    Args:
+        centre_image: ``(H, W)`` representation ``E`` (0 = empty).
+
+    Returns:
+        ``(H, W)`` representation ``E'``, same dtype.
+    """
+    height, width = centre_image.shape
+    active = centre_image.nonzero()
+    if active.shape[0] == 0:
+        return torch.zeros_like(centre_image)
+    offsets = circle_offsets(radius)
+    painted = (active[:, None, :] + offsets[None, :, :]).reshape(-1, 2)
+    values = centre_image[active[:, 0], active[:, 1]].repeat_interleave(offsets.shape[0])
+    inside = (painted[:, 0] >= 0) & (painted[:, 0] < height) & (painted[:, 1] >= 0) & (painted[:, 1] < width)
+    cells = painted[inside, 0] * width + painted[inside, 1]
+    image = torch.full((height * width,), math.inf, dtype=centre_image.dtype)
+    image.scatter_reduce_(0, cells, values[inside], reduce="amin")
+    image[torch.isinf(image)] = 0
+    return image.view(height, width)
+
+
+def pixel_centre_points(pixels: torch.Tensor, depth: torch.Tensor, camera: Camera = APOLLO_CAMERA_5) -> torch.Tensor:
+    """Back-project pixel centres ``(row + 0.5, col + 0.5)`` at ``depth``.
+
+    Args:
+        pixels: ``(K, 2)`` int64 ``(row, col)``.
+        depth: ``(K,)`` metres, positive.
+
+    Returns:
+        ``(K, 3)`` points in metres, dtype of ``depth``; ``floor(P(q))`` is exactly the pixel.
+    """
+    return camera.backproject(pixels.to(depth.dtype) + 0.5, depth)
+
+
+def shifted_target(points: torch.Tensor, shift: tuple[float, float], camera: Camera = APOLLO_CAMERA_5) -> torch.Tensor:
+    """The target ``L``: occupancy of the points moved by ``(a, b, 0)``.
+
+    Args:
+        points: ``(K, 3)`` points ``Q`` in metres.
+        shift: ``(a, b)`` in metres.
+
+    Returns:
+        ``(H, W)`` bool; points leaving the screen are dropped.
+    """
+    a, b = _check_shift(shift)
+    moved = points + torch.tensor([a, b, 0.0], dtype=points.dtype)
+    pixels, on_screen = screen_pixels(camera.project(moved), camera)
+    return occupancy(pixels[on_screen], camera)
+
+
+def build_configuration(
+    centres: torch.Tensor,
+    shift: tuple[float, float] = SKY_SHIFT,
+    camera: Camera = APOLLO_CAMERA_5,
+    image_id: str = "",
+) -> SkyConfiguration:
+    """Build one Sky configuration from an image's car centres.
+
+    Args:
+        centres: ``(M, 3)`` car centres in metres, camera frame (``M`` may be 0).
+        shift: the true shift ``(a, b)`` in metres.
+        camera: camera and screen.
+        image_id: name of the source image, kept for provenance.
+
+    Returns:
+        The configuration. An image with no car on screen gives an *empty*
+        configuration (no points, empty target); trainers skip its gradient
+        naturally (it contributes nothing) and metrics count it as 0 pixels.
+    """
+    centre_image = render_centres(centres, camera).to(torch.float64)
+    circles = draw_circles(centre_image)
+    pixels = circles.nonzero()
+    depth = circles[pixels[:, 0], pixels[:, 1]]
+    target = shifted_target(pixel_centre_points(pixels, depth, camera), shift, camera)
+    centre_pixels = centre_image.nonzero()
+    return SkyConfiguration(
+        pixels=pixels,
+        depth=depth,
+        target=target,
+        image_id=image_id,
+        centres=centre_pixels,
+        centre_depth=centre_image[centre_pixels[:, 0], centre_pixels[:, 1]],
+    )
+
+
+def add_target_noise(target: torch.Tensor, level: int, generator: torch.Generator | None = None) -> torch.Tensor:
+    """Move every active pixel of a target by independent integers uniform on ``[-level, level]``.
+
+    Args:
+        target: ``(H, W)`` bool target.
+        level: noise level ``n >= 0`` in screen pixels.
+        generator: source of randomness (seed it for reproducible runs).
+
+    Returns:
+        ``(H, W)`` bool occupancy of the moved pixels; off-screen ones are dropped.
+    """
+    if int(level) != level or level < 0:
+        raise SDMInputError(f"noise level must be a non-negative integer, got {level!r}")
+    if level == 0:
+        return target.clone()
+    active = target.nonzero()
+    moves = torch.randint(-level, level + 1, active.shape, generator=generator, dtype=torch.int64)
+    moved = active + moves
+    height, width = target.shape
+    inside = (moved[:, 0] >= 0) & (moved[:, 0] < height) & (moved[:, 1] >= 0) & (moved[:, 1] < width)
+    noisy = torch.zeros_like(target)
+    noisy[moved[inside, 0], moved[inside, 1]] = True
+    return noisy
+
+
+def noise_displacement(level: int, mean_depth: float, camera: Camera = APOLLO_CAMERA_5) -> float:
+    """Table 2's "Avg. Dist.": the expected 3D displacement, metres, that pixel noise ``level`` stands for.
+
+    ``mean_depth * E[sqrt((X * dx)^2 + (Y * dy)^2)]`` with ``X, Y`` independent
+    uniform integers on ``[-level, level]`` and ``dx, dy`` the metres per
+    screen column and row at unit depth (method notes, section 7).
+    """
+    dy, dx = camera.metres_per_screen_pixel(1.0)
+    steps = range(-level, level + 1)
+    mean = sum(math.hypot(i * dx, j * dy) for i in steps for j in steps) / len(steps) ** 2
+    return mean_depth * mean
+
+
+def _check_centres(centres: torch.Tensor) -> torch.Tensor:
+    if not isinstance(centres, torch.Tensor):
+        centres = torch.as_tensor(centres, dtype=torch.float64)
+    if centres.ndim != 2 or centres.shape[1] != 3:
+        raise SDMInputError(f"car centres must have shape (M, 3), got {tuple(centres.shape)}")
+    if not bool(torch.isfinite(centres).all()):
+        raise SDMInputError("car centres must be finite")
+    return centres.to(torch.float64)
+
+
+def _check_shift(shift) -> tuple[float, float]:
+    try:
+        a, b = (float(v) for v in shift)
+    except (TypeError, ValueError):
+        raise SDMInputError(f"shift must be two numbers (a, b), got {shift!r}") from None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise SDMInputError(f"shift must be finite, got {shift!r}")
+    return a, b
