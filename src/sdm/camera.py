@@ -74,12 +74,13 @@ class Camera:
         return (self.screen_height, self.screen_width)
 
     # -- projection -------------------------------------------------------------
-    def project(self, points: torch.Tensor) -> torch.Tensor:
+    def project(self, points: torch.Tensor, validate: bool = True) -> torch.Tensor:
         """Project camera-frame points onto the screen.
 
         Args:
             points: ``(..., 3)`` camera-frame coordinates in metres; every ``z``
                 must be positive (in front of the camera).
+            validate: check the points (skip only for points already checked).
 
         Returns:
             ``(..., 2)`` screen coordinates ``(row, col)`` in screen pixels,
@@ -89,7 +90,8 @@ class Camera:
             SDMInputError: if ``points`` is not ``(..., 3)``, holds a non-finite
                 value, or a point is on or behind the camera plane.
         """
-        check_points(points, "points")
+        if validate:
+            check_points(points, "points")
         x, y, z = points.unbind(-1)
         u = self.fx * x / z + self.cx
         v = self.fy * y / z + self.cy

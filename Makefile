@@ -1,0 +1,31 @@
+# The two commands of the README:  `make run` (the whole paper)  and  `make test` (the test suite).
+# Both create ./.venv and install the pinned dependencies into it first.
+PYTHON ?= python3
+VENV ?= .venv
+BIN := $(VENV)/bin
+CORES ?= 2
+
+.PHONY: install run test bench report clean
+
+install: $(VENV)/.installed
+
+$(VENV)/.installed: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e '.[workflow,test]'
+	touch $@
+
+run: install
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/snakemake --profile profiles/default --cores $(CORES)
+
+test: install
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest
+
+bench: install
+	$(BIN)/python benchmarks/bench_sdm.py
+
+report: install
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/snakemake --profile profiles/default --report report.html
+
+clean:
+	rm -rf results logs benchmarks/*.tsv report.html .snakemake

@@ -1,0 +1,142 @@
+"""Many Sky configurations packed as rows, for fast mini-batches.
+
+A :class:`ConfigurationSet` stores the points of ``N`` configurations one after
+another (CSR layout: configuration ``i`` owns rows ``offsets[i]:offsets[i+1]``)
+with their targets, so a mini-batch is a cheap gather, not a Python loop.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Sequence
+
+import torch
+
+from .camera import APOLLO_CAMERA_5, Camera
+from .errors import SDMInputError
+from .representation import priority_rank
+from .sky import SkyConfiguration, pixel_centre_points
+from .zoom import target_pyramid
+
+
+@dataclass(frozen=True)
+class PointBatch:
+    """The points of a few configurations, ready for the SDM layer.
+
+    Attributes:
+        points: ``(P, 3)`` float64 points ``Q`` in metres (before the shift).
+        pixels: ``(P, 2)`` int64 pixel ``(row, col)`` each point sits in.
+        config: ``(P,)`` int64 batch-local configuration index in ``[0, n)``.
+        rank: ``(P,)`` int64 ``rmin`` priority (depth, then position); lower wins.
+        targets: ``(n, H, W)`` bool targets.
+    """
+
+    points: torch.Tensor
+    pixels: torch.Tensor
+    config: torch.Tensor
+    rank: torch.Tensor
+    targets: torch.Tensor
+
+    @property
+    def num_configs(self) -> int:
+        return int(self.targets.shape[0])
+
+
+class ConfigurationSet:
+    """``N`` configurations, packed.
+
+    Attributes:
+        points: ``(P, 3)`` float64 metres, all configurations' points ``Q``.
+        pixels: ``(P, 2)`` int64 their pixels.
+        offsets: ``(N + 1,)`` int64 row offsets.
+        targets: ``(N, H, W)`` bool targets ``L``.
+        rank: ``(P,)`` int64 ``rmin`` priority, comparable within a configuration.
+        image_ids: ``N`` names of the source images.
+        camera: the camera and screen.
+    """
+
+    def __init__(self, points, pixels, offsets, targets, camera: Camera = APOLLO_CAMERA_5, image_ids=None):
+        self.points = points
+        self.pixels = pixels
+        self.offsets = offsets
+        self.targets = targets
+        self.camera = camera
+        self.image_ids = list(image_ids) if image_ids is not None else [str(i) for i in range(len(self))]
+        if targets.shape[1:] != camera.screen_shape:
+            raise SDMInputError(f"targets have screen {tuple(targets.shape[1:])}, camera has {camera.screen_shape}")
+        self.rank = priority_rank(points[:, 2])
+        self._pyramids: dict[int, list[torch.Tensor]] = {}
+
+    @classmethod
+    def from_configurations(
+        cls, configurations: Sequence[SkyConfiguration], camera: Camera = APOLLO_CAMERA_5
+    ) -> "ConfigurationSet":
+        """Pack configurations (empty ones allowed: they own no rows and contribute nothing)."""
+        if len(configurations) == 0:
+            raise SDMInputError("cannot pack an empty list of configurations")
+        for i, cfg in enumerate(configurations):
+            if tuple(cfg.target.shape) != camera.screen_shape:
+                raise SDMInputError(
+                    f"configuration {i} ({cfg.image_id!r}) has a {tuple(cfg.target.shape)} target, "
+                    f"the camera's screen is {camera.screen_shape}"
+                )
+        pixels = torch.cat([cfg.pixels for cfg in configurations])
+        depth = torch.cat([cfg.depth.to(torch.float64) for cfg in configurations])
+        counts = torch.tensor([cfg.num_points for cfg in configurations], dtype=torch.int64)
+        offsets = torch.cat((torch.zeros(1, dtype=torch.int64), counts.cumsum(0)))
+        targets = torch.stack([cfg.target for cfg in configurations])
+        points = pixel_centre_points(pixels, depth, camera) if len(depth) else torch.zeros(0, 3, dtype=torch.float64)
+        return cls(points, pixels, offsets, targets, camera, [cfg.image_id for cfg in configurations])
+
+    def __len__(self) -> int:
+        return int(self.offsets.numel() - 1)
+
+    @property
+    def counts(self) -> torch.Tensor:
+        """``(N,)`` int64 number of points per configuration."""
+        return self.offsets[1:] - self.offsets[:-1]
+
+    def rows(self, indices: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Rows of the given configurations: ``(row index (p,), batch-local config (p,))``."""
+        starts = self.offsets[indices]
+        counts = self.offsets[indices + 1] - starts
+        local = torch.repeat_interleave(torch.arange(len(indices)), counts)
+        first_row = torch.cumsum(counts, 0) - counts
+        rows = (starts - first_row).index_select(0, local) + torch.arange(local.numel())
+        return rows, local
+
+    def batch(self, indices: Sequence[int] | torch.Tensor) -> PointBatch:
+        """Gather configurations ``indices`` into a :class:`PointBatch`."""
+        indices = torch.as_tensor(indices, dtype=torch.int64)
+        rows, local = self.rows(indices)
+        return PointBatch(
+            self.points.index_select(0, rows),
+            self.pixels.index_select(0, rows),
+            local,
+            self.rank.index_select(0, rows),
+            self.targets.index_select(0, indices),
+        )
+
+    def pyramid(self, steps: int) -> list[torch.Tensor]:
+        """Zoomed-out targets of every configuration at levels ``0..steps`` (cached)."""
+        if steps not in self._pyramids:
+            self._pyramids[steps] = target_pyramid(self.targets, steps)
+        return self._pyramids[steps]
+
+    def subset(self, indices: Sequence[int]) -> "ConfigurationSet":
+        """A new set with configurations ``indices``, in that order."""
+        indices = torch.as_tensor(indices, dtype=torch.int64)
+        if indices.numel() and (int(indices.min()) < 0 or int(indices.max()) >= len(self)):
+            raise SDMInputError(f"subset indices must lie in [0, {len(self)}), got {indices.min()}..{indices.max()}")
+        rows, _ = self.rows(indices)
+        counts = self.counts[indices]
+        offsets = torch.cat((torch.zeros(1, dtype=torch.int64), counts.cumsum(0)))
+        return ConfigurationSet(
+            self.points[rows], self.pixels[rows], offsets, self.targets[indices], self.camera,
+            [self.image_ids[i] for i in indices.tolist()],
+        )
+
+    def with_targets(self, targets: torch.Tensor) -> "ConfigurationSet":
+        """The same points with other targets (e.g. noisy ones), ``(N, H, W)`` bool."""
+        if targets.shape != self.targets.shape:
+            raise SDMInputError(f"targets must have shape {tuple(self.targets.shape)}, got {tuple(targets.shape)}")
+        return ConfigurationSet(self.points, self.pixels, self.offsets, targets.bool(), self.camera, self.image_ids)

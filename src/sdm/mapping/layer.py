@@ -1,0 +1,170 @@
+"""The SDM layer: a torch autograd function whose backward is the dynamic gradient flow.
+
+Use :class:`SpatialDomainMapping` as a module in any PyTorch model: give it the
+(differentiable) 3D points of a proper 2D representation, the pixel each point
+sits in, and the binary target; its ``loss`` back-propagates the dynamic
+gradient flow to the points, and autograd carries it to whatever produced them
+(in the Sky problem, the shift ``theta``)::
+
+    layer = SpatialDomainMapping(s=4, zoom=0)
+    out = layer(q + torch.cat((theta, theta.new_zeros(1))), pixels, target)
+    out.loss.backward()          # theta.grad: the summed pulls on (x, y)
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import nn
+
+from ..camera import APOLLO_CAMERA_5, Camera, check_points
+from ..errors import SDMInputError
+from ..representation import priority_rank
+from ..zoom import check_divisible, zoom_out
+from .dense import dense_mapping
+from .fast import fast_mapping
+from .result import MappingResult
+
+METHODS = {"fast": fast_mapping, "dense": dense_mapping}
+
+
+class SDMFunction(torch.autograd.Function):
+    """``J = SDM(points)``: forward runs the chain, backward returns the dynamic gradient flow.
+
+    The flow is not the derivative of a smooth function of the points: it is
+    the paper's eq. 19, the summed sign pulls of the unmatched points towards
+    their active target adjustments. Its z component is zero (c is ignored).
+    """
+
+    @staticmethod
+    def forward(ctx, points, pixels, config, rank, target, steps, zoom, camera, method, options, results):
+        """``results``: a list the :class:`MappingResult` is appended to (the forward's non-tensor output)."""
+        with torch.no_grad():
+            result = METHODS[method](points.detach(), pixels, config, rank, target, steps, zoom, camera, **options)
+        flow3 = torch.zeros_like(points)
+        flow3[:, :2] = result.flow.to(points.dtype)
+        ctx.save_for_backward(flow3)
+        results.append(result)
+        return result.loss.to(points.dtype).clone()
+
+    @staticmethod
+    def backward(ctx, grad_loss):
+        (flow3,) = ctx.saved_tensors
+        return (grad_loss * flow3,) + (None,) * 10
+
+
+@dataclass
+class SDMOutput:
+    """What the layer returns.
+
+    Attributes:
+        loss: ``()`` differentiable loss ``J`` (metres); its gradient is the dynamic flow.
+        result: the full :class:`~sdm.mapping.result.MappingResult` (output
+            pixels, flow, matched points).
+        num_configs: number of configurations ``n`` in the batch.
+        camera: camera and screen.
+        config: ``(P,)`` configuration index of each point.
+        depth: ``(P,)`` depth of each point, metres.
+    """
+
+    loss: torch.Tensor
+    result: MappingResult
+    num_configs: int
+    camera: Camera
+    config: torch.Tensor
+    depth: torch.Tensor
+
+    def depth_map(self) -> torch.Tensor:
+        """``(n, H, W)`` the output representation ``L~`` as depth (metres), 0 where empty."""
+        height, width = self.camera.screen_shape
+        image = torch.zeros(self.num_configs, height, width, dtype=self.depth.dtype)
+        alive = self.result.alive
+        pixels = self.result.out_pixels[alive]
+        image[self.config[alive], pixels[:, 0], pixels[:, 1]] = self.depth[alive]
+        return image
+
+    def occupancy(self) -> torch.Tensor:
+        """``(n, H / 2^zoom, W / 2^zoom)`` bool: the zoomed-out binary mask of ``L~``."""
+        return zoom_out(self.depth_map() > 0, self.result.zoom)
+
+
+class SpatialDomainMapping(nn.Module):
+    """Spatial Domain Mapping with the zoom chain (levels ``s..zoom``) as a module.
+
+    Args:
+        camera: camera and screen (default ApolloCar3D ``Camera_5``, 128 x 256).
+        s: coarsest zoom level; both screen sides must be divisible by ``2^s``.
+        zoom: the level whose output is compared with the zoomed-out target.
+        method: ``"fast"`` (point rows) or ``"dense"`` (the paper's grids, for reference).
+        c: kernel shape constant of the dense path, 1/metres (ignored by ``"fast"``,
+            which is the ``c -> infinity`` limit).
+    """
+
+    def __init__(self, camera: Camera = APOLLO_CAMERA_5, s: int = 4, zoom: int = 0, method: str = "fast", c: float = 1e9):
+        super().__init__()
+        check_divisible(camera.screen_shape, s)
+        if int(zoom) != zoom or not 0 <= zoom <= s:
+            raise SDMInputError(f"zoom must be an integer in [0, s] = [0, {s}], got {zoom!r}")
+        if method not in METHODS:
+            raise SDMInputError(f"method must be one of {sorted(METHODS)}, got {method!r}")
+        if not c > 0:
+            raise SDMInputError(f"the kernel shape constant c must be positive, got {c!r}")
+        self.camera, self.s, self.zoom, self.method, self.c = camera, int(s), int(zoom), method, float(c)
+
+    def forward(
+        self,
+        points: torch.Tensor,
+        pixels: torch.Tensor,
+        target: torch.Tensor,
+        config: torch.Tensor | None = None,
+        rank: torch.Tensor | None = None,
+        target_is_zoomed: bool = False,
+    ) -> SDMOutput:
+        """Map shifted points and measure them against the target.
+
+        Args:
+            points: ``(P, 3)`` float points ``rinv(I~)`` in metres, ``z > 0``;
+                differentiable (usually ``Q + theta``).
+            pixels: ``(P, 2)`` int64 ``(row, col)`` pixel each point sits in (its
+                pixel in ``I~``; the shift moves the point, not its pixel).
+            target: ``(n, H, W)`` or ``(H, W)`` bool target ``L`` (or, with
+                ``target_is_zoomed``, the ``(n, H / 2^zoom, W / 2^zoom)`` zoomed-out one).
+            config: ``(P,)`` int64 configuration of each point in ``[0, n)``; default all 0.
+            rank: ``(P,)`` int64 ``rmin`` priority; default: depth, then row order.
+            target_is_zoomed: ``target`` is already zoomed out to level ``zoom``.
+
+        Returns:
+            :class:`SDMOutput`.
+        """
+        height, width = self.camera.screen_shape
+        check_points(points, "points")
+        if points.ndim != 2:
+            raise SDMInputError(f"points must have shape (P, 3), got {tuple(points.shape)}")
+        n_points = points.shape[0]
+        if n_points == 0:
+            raise SDMInputError("points: the configuration is empty (no points to map)")
+        if target.ndim == 2:
+            target = target[None]
+        if target.dtype != torch.bool:
+            raise SDMInputError(f"target must be a bool mask, got {target.dtype}")
+        expected = (height >> self.zoom, width >> self.zoom) if target_is_zoomed else (height, width)
+        if target.ndim != 3 or tuple(target.shape[1:]) != expected:
+            raise SDMInputError(f"target must have shape (n, {expected[0]}, {expected[1]}), got {tuple(target.shape)}")
+        if pixels.shape != (n_points, 2) or pixels.dtype != torch.int64:
+            raise SDMInputError(f"pixels must be int64 of shape ({n_points}, 2), got {pixels.dtype} {tuple(pixels.shape)}")
+        if n_points and not bool(((pixels >= 0).all(1) & (pixels[:, 0] < height) & (pixels[:, 1] < width)).all()):
+            raise SDMInputError(f"pixels must lie on the {height} x {width} screen")
+        n_configs = int(target.shape[0])
+        if config is None:
+            config = torch.zeros(n_points, dtype=torch.int64)
+        elif config.shape != (n_points,) or (n_points and not 0 <= int(config.min()) <= int(config.max()) < n_configs):
+            raise SDMInputError(f"config must be ({n_points},) indices into the {n_configs} targets")
+        if rank is None:
+            rank = priority_rank(points.detach()[:, 2])
+        zoomed = target if target_is_zoomed else zoom_out(target, self.zoom)
+        options = {"c": self.c} if self.method == "dense" else {}
+        results: list[MappingResult] = []
+        loss = SDMFunction.apply(
+            points, pixels, config, rank, zoomed, self.s, self.zoom, self.camera, self.method, options, results
+        )
+        return SDMOutput(loss, results[0], n_configs, self.camera, config, points.detach()[:, 2])

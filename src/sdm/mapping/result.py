@@ -1,0 +1,37 @@
+"""What one pass of the SDM layer produces, whichever implementation ran it."""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+
+
+@dataclass
+class MappingResult:
+    """Forward output and dynamic gradient flow of the SDM chain (levels ``s..zoom``).
+
+    Attributes:
+        out_pixels: ``(P, 2)`` int64 pixel ``(row, col)`` of each point in the
+            output representation ``L~`` (full resolution: block * 2^zoom + phase);
+            ``-1`` for points dropped (off the grid, or hidden by ``rmin``).
+        flow: ``(P, 2)`` float64 ``dJ/d(x, y)`` per point (dimensionless: sums of
+            signs), zero for matched points and points dropped before the loss level.
+        loss: ``()`` float64 ``J``: over unmatched points, the summed L1 distance in
+            metres (x and y) to the XY-adjustments of the active target blocks in
+            their 3x3 window.
+        entered: ``(P,)`` bool, the point reached the loss level.
+        matched: ``(P,)`` bool, the point's landing block is active in the zoomed-out target.
+        zoom: the loss level.
+    """
+
+    out_pixels: torch.Tensor
+    flow: torch.Tensor
+    loss: torch.Tensor
+    entered: torch.Tensor
+    matched: torch.Tensor
+    zoom: int
+
+    @property
+    def alive(self) -> torch.Tensor:
+        """``(P,)`` bool, the point is in the output representation."""
+        return self.out_pixels[:, 0] >= 0

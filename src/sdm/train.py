@@ -1,0 +1,178 @@
+"""Training: SGD on the shift theta = (a, b) through the SDM layer (paper, section 6; notes, section 6).
+
+theta starts at (0, 0). For zoom level ``s, s-1, ..., zoom``: ``n_epoch`` passes
+over the training set in shuffled mini-batches of 16 configurations (the
+incomplete last batch is dropped), the loss taken at that level; the learning
+rate halves after each level. The loss is the *sum* over all points of the
+batch, which is what the paper's learning rates assume.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+
+import torch
+import torch.nn.functional as F
+from tqdm.auto import tqdm
+
+from .batch import ConfigurationSet
+from .camera import Camera
+from .errors import SDMInputError
+from .mapping import SpatialDomainMapping
+from .zoom import check_divisible
+
+
+@dataclass(frozen=True)
+class TrainSettings:
+    """Hyper-parameters of one training run.
+
+    Attributes:
+        lr: initial learning rate (metres per unit of summed flow).
+        n_epoch: passes over the training set per zoom level.
+        batch_size: configurations per mini-batch.
+        s: coarsest zoom level (blocks of ``2^s`` pixels).
+        zoom: finest level trained (0 = full resolution).
+        lr_decay: factor applied to the learning rate after each level.
+        seed: seeds the shuffling.
+    """
+
+    lr: float = 3e-4
+    n_epoch: int = 1
+    batch_size: int = 16
+    s: int = 4
+    zoom: int = 0
+    lr_decay: float = 0.5
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.lr) and self.lr > 0):
+            raise SDMInputError(f"lr must be a positive finite number, got {self.lr!r}")
+        for name in ("n_epoch", "batch_size"):
+            value = getattr(self, name)
+            if int(value) != value or value < 1:
+                raise SDMInputError(f"{name} must be a positive integer, got {value!r}")
+        if int(self.s) != self.s or self.s < 0:
+            raise SDMInputError(f"s must be a non-negative integer, got {self.s!r}")
+        if int(self.zoom) != self.zoom or not 0 <= self.zoom <= self.s:
+            raise SDMInputError(f"zoom must be an integer in [0, s] = [0, {self.s}], got {self.zoom!r}")
+        if not (math.isfinite(self.lr_decay) and self.lr_decay > 0):
+            raise SDMInputError(f"lr_decay must be a positive finite number, got {self.lr_decay!r}")
+
+
+@dataclass
+class History:
+    """What a training run did, step by step.
+
+    Attributes:
+        theta: ``(steps + 1, 2)`` float64 ``(a, b)`` in metres, before the first step and after each.
+        loss: ``(steps,)`` float64 loss ``J`` of each step's batch (metres).
+        level: ``(steps,)`` int64 zoom level of each step.
+        lr: ``(steps,)`` float64 learning rate of each step.
+        settings: the settings of the run.
+    """
+
+    theta: torch.Tensor
+    loss: torch.Tensor
+    level: torch.Tensor
+    lr: torch.Tensor
+    settings: TrainSettings
+
+    @property
+    def final_theta(self) -> tuple[float, float]:
+        a, b = self.theta[-1].tolist()
+        return a, b
+
+    def to_frame(self):
+        """A pandas DataFrame with one row per step: ``step, level, lr, loss, a, b`` (theta after the step)."""
+        import pandas as pd
+
+        steps = len(self.loss)
+        return pd.DataFrame(
+            {
+                "step": range(1, steps + 1),
+                "level": self.level.tolist(),
+                "lr": self.lr.tolist(),
+                "loss": self.loss.tolist(),
+                "a": self.theta[1:, 0].tolist(),
+                "b": self.theta[1:, 1].tolist(),
+            }
+        )
+
+
+def train(
+    train_set: ConfigurationSet,
+    settings: TrainSettings = TrainSettings(),
+    camera: Camera | None = None,
+    progress: bool = True,
+    method: str = "fast",
+    theta0: tuple[float, float] = (0.0, 0.0),
+) -> History:
+    """Recover the shift from a training set.
+
+    Args:
+        train_set: packed configurations (points ``Q`` and targets ``L``).
+        settings: hyper-parameters.
+        camera: camera and screen; default the set's own.
+        progress: show a progress bar.
+        method: SDM implementation, ``"fast"`` or ``"dense"``.
+        theta0: starting shift ``(a, b)`` in metres.
+
+    Returns:
+        :class:`History`.
+    """
+    camera = camera or train_set.camera
+    check_divisible(camera.screen_shape, settings.s)
+    n_configs = len(train_set)
+    if n_configs < settings.batch_size:
+        raise SDMInputError(
+            f"the training set has {n_configs} configurations, fewer than one batch of {settings.batch_size}"
+        )
+    start = torch.as_tensor(theta0, dtype=torch.float64)
+    if start.shape != (2,) or not bool(torch.isfinite(start).all()):
+        raise SDMInputError(f"theta0 must be two finite numbers (a, b), got {theta0!r}")
+
+    theta = torch.nn.Parameter(start.clone())
+    optimiser = torch.optim.SGD([theta], lr=settings.lr)
+    generator = torch.Generator().manual_seed(settings.seed)
+    pyramid = train_set.pyramid(settings.s)
+    levels = range(settings.s, settings.zoom - 1, -1)
+    batches_per_epoch = n_configs // settings.batch_size
+    total = len(levels) * settings.n_epoch * batches_per_epoch
+
+    thetas = torch.empty(total + 1, 2, dtype=torch.float64)
+    thetas[0] = start
+    losses = torch.empty(total, dtype=torch.float64)
+    step_levels = torch.empty(total, dtype=torch.int64)
+    rates = torch.empty(total, dtype=torch.float64)
+    step = 0
+    with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
+        for level in levels:
+            layer = SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method)
+            rate = optimiser.param_groups[0]["lr"]
+            for _ in range(settings.n_epoch):
+                order = torch.randperm(n_configs, generator=generator)
+                for first in range(0, batches_per_epoch * settings.batch_size, settings.batch_size):
+                    indices = order[first : first + settings.batch_size]
+                    batch = train_set.batch(indices)
+                    shifted = batch.points + F.pad(theta, (0, 1))
+                    out = layer(
+                        shifted, batch.pixels, pyramid[level].index_select(0, indices), batch.config, batch.rank,
+                        target_is_zoomed=True,
+                    )
+                    optimiser.zero_grad(set_to_none=True)
+                    out.loss.backward()
+                    optimiser.step()
+                    with torch.no_grad():
+                        thetas[step + 1] = theta
+                    losses[step], step_levels[step], rates[step] = out.loss.detach(), level, rate
+                    step += 1
+                    bar.update()
+                bar.set_postfix(level=level, a=f"{theta[0].item():.4f}", b=f"{theta[1].item():.4f}")
+            for group in optimiser.param_groups:
+                group["lr"] *= settings.lr_decay
+    return History(thetas, losses, step_levels, rates, settings)
+
+
+def settings_dict(settings: TrainSettings) -> dict:
+    """Plain-dict form of :class:`TrainSettings` (for JSON provenance)."""
+    return asdict(settings)

@@ -1,0 +1,23 @@
+import sys
+from pathlib import Path
+
+import pytest
+import torch
+
+sys.path.insert(0, str(Path(__file__).parent))
+
+#: The real ApolloCar3D sample shipped beside the repository (tests needing it skip when absent).
+APOLLO_SAMPLE = Path(__file__).resolve().parents[1].parent / "shared" / "apollocar3d-sample"
+
+
+@pytest.fixture(autouse=True)
+def _single_thread():
+    torch.set_num_threads(1)
+    yield
+
+
+@pytest.fixture(scope="session")
+def apollo_sample() -> Path:
+    if not (APOLLO_SAMPLE / "car_poses").is_dir():
+        pytest.skip(f"real ApolloCar3D sample not found at {APOLLO_SAMPLE}")
+    return APOLLO_SAMPLE

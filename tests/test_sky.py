@@ -1,0 +1,94 @@
+import math
+
+import pytest
+import torch
+
+from scenes import configurations, road_centres
+from sdm.camera import APOLLO_CAMERA_5
+from sdm.errors import SDMInputError
+from sdm.representation import occupancy, screen_pixels
+from sdm.sky import (
+    CIRCLE_RADIUS, SKY_SHIFT, add_target_noise, build_configuration, circle_offsets, noise_displacement,
+)
+
+
+def test_circle_is_the_57_pixel_disc_of_the_appendix():
+    offsets = circle_offsets()
+    assert len(offsets) == 57
+    d = offsets.double().norm(dim=1)
+    assert bool((torch.exp(-d / 3) >= 0.25).all())
+    ring = [(i, j) for i in range(-6, 7) for j in range(-6, 7) if math.exp(-math.hypot(i, j) / 3) >= 0.25]
+    assert sorted(map(tuple, offsets.tolist())) == sorted(ring)
+
+
+def test_configuration_from_one_car():
+    cfg = build_configuration(torch.tensor([[1.0, 3.0, 30.0]], dtype=torch.float64))
+    assert cfg.num_points == 57 and bool((cfg.depth == 30.0).all())
+    # Each point of Q lies in its own pixel.
+    pixels, _ = screen_pixels(APOLLO_CAMERA_5.project(cfg.points()), APOLLO_CAMERA_5)
+    assert torch.equal(pixels, cfg.pixels)
+    # L is the occupancy of the shifted points, here a shifted copy of the disc.
+    moved = cfg.points() + torch.tensor([*SKY_SHIFT, 0.0], dtype=torch.float64)
+    expected = occupancy(torch.floor(APOLLO_CAMERA_5.project(moved)).long(), APOLLO_CAMERA_5)
+    assert torch.equal(cfg.target, expected) and int(cfg.target.sum()) == 57
+
+
+def test_overlapping_circles_keep_the_nearest_depth():
+    centres = torch.tensor([[0.0, 3.0, 30.0], [0.4, 6.1, 60.0]], dtype=torch.float64)  # 1-2 px apart
+    cfg = build_configuration(centres)
+    circles = cfg.circles()
+    near_pixel = tuple(cfg.centres[cfg.centre_depth == 30.0][0].tolist())
+    assert circles[near_pixel] == 30.0
+    assert set(cfg.depth.unique().tolist()) <= {30.0, 60.0}
+    assert cfg.num_points < 2 * 57  # they overlap
+
+
+def test_cars_behind_the_camera_or_off_screen_are_dropped_and_empty_images_are_empty():
+    cfg = build_configuration(torch.tensor([[0.0, 1.0, -5.0], [500.0, 1.0, 10.0], [0.0, -30.0, 10.0]]))
+    assert cfg.num_points == 0 and not bool(cfg.target.any())
+    assert build_configuration(torch.zeros(0, 3)).num_points == 0
+
+
+@pytest.mark.parametrize("shift", [(math.nan, 0.3), (0.5, math.inf), (0.5,)])
+def test_bad_shift(shift):
+    with pytest.raises(SDMInputError, match="shift"):
+        build_configuration(torch.tensor([[1.0, 3.0, 30.0]]), shift)
+
+
+def test_bad_centres():
+    with pytest.raises(SDMInputError, match="shape \\(M, 3\\)"):
+        build_configuration(torch.zeros(4, 2))
+    with pytest.raises(SDMInputError, match="finite"):
+        build_configuration(torch.tensor([[math.nan, 1.0, 10.0]]))
+
+
+def test_target_noise_moves_every_pixel_within_the_level():
+    cfg = configurations(1, seed=3)[0]
+    for level in range(5):
+        noisy = add_target_noise(cfg.target, level, torch.Generator().manual_seed(level))
+        again = add_target_noise(cfg.target, level, torch.Generator().manual_seed(level))
+        assert torch.equal(noisy, again)
+        # every noisy pixel is within `level` (Chebyshev) of some original active pixel
+        reach = torch.nn.functional.max_pool2d(cfg.target.float()[None, None], 2 * level + 1, 1, level)[0, 0] > 0
+        assert bool((noisy <= reach).all())
+        assert int(noisy.sum()) <= int(cfg.target.sum())
+    assert torch.equal(add_target_noise(cfg.target, 0), cfg.target)
+    assert not torch.equal(add_target_noise(cfg.target, 2, torch.Generator().manual_seed(0)), cfg.target)
+    with pytest.raises(SDMInputError, match="noise level"):
+        add_target_noise(cfg.target, -1)
+
+
+@pytest.mark.parametrize("level, paper_mm", [(1, 283.4), (2, 494.6), (3, 699.8), (4, 904.8)])
+def test_avg_dist_formula_reproduces_table_2_with_the_apollo_mean_depth(level, paper_mm):
+    assert noise_displacement(level, 50.95) * 1000 == pytest.approx(paper_mm, rel=1e-3)
+    assert noise_displacement(0, 50.95) == 0
+
+
+def test_radius_constant():
+    assert CIRCLE_RADIUS == pytest.approx(4.1589, abs=1e-4)
+
+
+def test_road_scene_helper_is_seeded():
+    a = road_centres(torch.Generator().manual_seed(5), 4)
+    b = road_centres(torch.Generator().manual_seed(5), 4)
+    assert torch.equal(a, b)

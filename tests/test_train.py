@@ -1,0 +1,86 @@
+import math
+
+import pytest
+import torch
+
+from scenes import configuration_set
+from sdm.errors import SDMInputError
+from sdm.metrics import dev_loss, distance, false_positive_pixels
+from sdm.sky import SKY_SHIFT
+from sdm.train import TrainSettings, train
+
+
+@pytest.fixture(scope="module")
+def sky768():
+    data = configuration_set(768, seed=2024)
+    return data.subset(range(512)), data.subset(range(512, 768))
+
+
+def test_recovers_the_shift_without_noise(sky768):
+    """Issue criterion: 512 noise-free configurations, n_epoch = 1, lr = 3e-4 -> within 2e-3 m (paper: 0.68e-3)."""
+    train_set, dev_set = sky768
+    history = train(train_set, TrainSettings(lr=3e-4, n_epoch=1), progress=False)
+    assert distance(history.final_theta) < 2e-3
+    assert dev_loss(dev_set, history.final_theta) < dev_loss(dev_set, (0.0, 0.0))
+
+
+def test_history_records_every_step(sky768):
+    train_set, _ = sky768
+    history = train(train_set.subset(range(100)), TrainSettings(lr=3e-4, n_epoch=2, s=3), progress=False)
+    per_level = 2 * (100 // 16)  # incomplete last batch dropped
+    assert history.theta.shape == (4 * per_level + 1, 2) and torch.equal(history.theta[0], torch.zeros(2, dtype=torch.float64))
+    assert history.level.tolist() == [3] * per_level + [2] * per_level + [1] * per_level + [0] * per_level
+    assert history.lr.unique().tolist() == sorted(3e-4 * 0.5**k for k in range(4))
+    frame = history.to_frame()
+    assert list(frame.columns) == ["step", "level", "lr", "loss", "a", "b"] and len(frame) == 4 * per_level
+    assert (frame["a"].iloc[-1], frame["b"].iloc[-1]) == history.final_theta
+
+
+def test_same_seed_same_run_other_seed_other_run(sky768):
+    train_set, _ = sky768
+    small = train_set.subset(range(64))
+    first = train(small, TrainSettings(seed=1), progress=False)
+    again = train(small, TrainSettings(seed=1), progress=False)
+    other = train(small, TrainSettings(seed=2), progress=False)
+    assert torch.equal(first.theta, again.theta)
+    assert not torch.equal(first.theta, other.theta)
+
+
+def test_dense_training_follows_the_fast_path(sky768):
+    train_set, _ = sky768
+    small = train_set.subset(range(16))
+    settings = TrainSettings(batch_size=8, s=4, zoom=2, seed=3)
+    fast = train(small, settings, progress=False, method="fast")
+    dense = train(small, settings, progress=False, method="dense")
+    assert torch.allclose(fast.theta, dense.theta, rtol=0, atol=1e-12)
+
+
+def test_dev_loss_is_zero_at_the_true_shift(sky768):
+    _, dev_set = sky768
+    assert int(false_positive_pixels(dev_set, SKY_SHIFT).sum()) == 0
+    assert dev_loss(dev_set, (0.3, 0.1)) > 0
+
+
+def test_distance():
+    assert distance((0.517, 0.303)) == 0
+    assert distance((0.517 + 3e-3, 0.303 - 4e-3)) == pytest.approx(5e-3)
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [({"lr": 0.0}, "lr must be"), ({"lr": math.nan}, "lr must be"), ({"n_epoch": 0}, "n_epoch"),
+     ({"batch_size": 2.5}, "batch_size"), ({"zoom": 5}, "zoom must be"), ({"s": -1}, "s must be")],
+)
+def test_bad_settings(kwargs, message):
+    with pytest.raises(SDMInputError, match=message):
+        TrainSettings(**kwargs)
+
+
+def test_bad_training_input(sky768):
+    train_set, _ = sky768
+    with pytest.raises(SDMInputError, match="fewer than one batch"):
+        train(train_set.subset(range(10)), progress=False)
+    with pytest.raises(SDMInputError, match="theta0"):
+        train(train_set.subset(range(16)), theta0=(math.nan, 0.0), progress=False)
+    with pytest.raises(SDMInputError, match="not divisible"):
+        train(train_set.subset(range(16)), TrainSettings(s=8, zoom=0), progress=False)
