@@ -55,6 +55,18 @@ def test_dense_training_follows_the_fast_path(sky768):
     assert torch.allclose(fast.theta, dense.theta, rtol=0, atol=1e-12)
 
 
+def test_empty_configurations_contribute_nothing(sky768):
+    from sdm.batch import ConfigurationSet
+    from sdm.sky import build_configuration
+
+    train_set, _ = sky768
+    empty = [build_configuration(torch.zeros(0, 3), image_id=f"empty{i}") for i in range(16)]
+    mixed = ConfigurationSet.from_configurations(empty)
+    history = train(mixed, TrainSettings(), progress=False)
+    assert not bool(history.theta.any()) and not bool(history.loss.any())
+    assert int(false_positive_pixels(mixed, SKY_SHIFT).sum()) == 0
+
+
 def test_dev_loss_is_zero_at_the_true_shift(sky768):
     _, dev_set = sky768
     assert int(false_positive_pixels(dev_set, SKY_SHIFT).sum()) == 0

@@ -1,1 +1,27 @@
-__version__ = '0.1.0'
+"""Spatial Domain Mapping (SDM): a differentiable PyTorch layer and the Sky experiments.
+
+Public API (everything else is reachable through the submodules):
+
+* geometry: :class:`Camera`, :data:`APOLLO_CAMERA_5`
+* data: :func:`build_configuration`, :class:`SkyConfiguration`, :data:`SKY_SHIFT`,
+  :func:`add_target_noise`, :func:`noise_displacement`, :class:`ConfigurationSet`
+* the layer: :class:`SpatialDomainMapping`
+* training: :class:`TrainSettings`, :func:`train`, :class:`History`
+* metrics: :func:`distance`, :func:`dev_loss`
+* errors: :class:`SDMInputError`
+"""
+from .batch import ConfigurationSet, PointBatch
+from .camera import APOLLO_CAMERA_5, Camera
+from .errors import SDMInputError
+from .mapping import SpatialDomainMapping
+from .metrics import dev_loss, distance
+from .sky import SKY_SHIFT, SkyConfiguration, add_target_noise, build_configuration, noise_displacement
+from .train import History, TrainSettings, train
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "APOLLO_CAMERA_5", "Camera", "ConfigurationSet", "History", "PointBatch", "SDMInputError", "SKY_SHIFT",
+    "SkyConfiguration", "SpatialDomainMapping", "TrainSettings", "add_target_noise", "build_configuration",
+    "dev_loss", "distance", "noise_displacement", "train",
+]

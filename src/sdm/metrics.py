@@ -38,6 +38,8 @@ def false_positive_pixels(
         for first in range(0, len(data), batch_size):
             indices = torch.arange(first, min(first + batch_size, len(data)))
             batch = data.batch(indices)
+            if batch.points.shape[0] == 0:  # empty configurations render nothing
+                continue
             out = layer(batch.points + shift, batch.pixels, batch.targets, batch.config, batch.rank)
             alive = out.result.alive
             pixels = out.result.out_pixels[alive]

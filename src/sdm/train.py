@@ -154,17 +154,22 @@ def train(
                 for first in range(0, batches_per_epoch * settings.batch_size, settings.batch_size):
                     indices = order[first : first + settings.batch_size]
                     batch = train_set.batch(indices)
-                    shifted = batch.points + F.pad(theta, (0, 1))
-                    out = layer(
-                        shifted, batch.pixels, pyramid[level].index_select(0, indices), batch.config, batch.rank,
-                        target_is_zoomed=True,
-                    )
-                    optimiser.zero_grad(set_to_none=True)
-                    out.loss.backward()
-                    optimiser.step()
+                    loss = torch.zeros((), dtype=torch.float64)
+                    if batch.points.shape[0]:  # a batch of empty configurations pulls nothing
+                        shifted = batch.points + F.pad(theta, (0, 1))
+                        out = layer(
+                            shifted, batch.pixels, pyramid[level].index_select(0, indices), batch.config, batch.rank,
+                            target_is_zoomed=True,
+                        )
+                        optimiser.zero_grad(set_to_none=True)
+                        out.loss.backward()
+                        optimiser.step()
+                        loss = out.loss.detach()
+                        if not bool(torch.isfinite(theta).all()):
+                            raise SDMInputError(f"theta became non-finite at step {step + 1} (lr {rate!r} too large?)")
                     with torch.no_grad():
                         thetas[step + 1] = theta
-                    losses[step], step_levels[step], rates[step] = out.loss.detach(), level, rate
+                    losses[step], step_levels[step], rates[step] = loss, level, rate
                     step += 1
                     bar.update()
                 bar.set_postfix(level=level, a=f"{theta[0].item():.4f}", b=f"{theta[1].item():.4f}")
