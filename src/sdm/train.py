@@ -15,7 +15,7 @@ import torch
 import torch.nn.functional as F
 from tqdm.auto import tqdm
 
-from .batch import ConfigurationSet
+from .batch import ConfigurationSet, PointBatch
 from .camera import Camera
 from .errors import SDMInputError
 from .mapping import SpatialDomainMapping
@@ -131,51 +131,73 @@ def train(
     if start.shape != (2,) or not bool(torch.isfinite(start).all()):
         raise SDMInputError(f"theta0 must be two finite numbers (a, b), got {theta0!r}")
 
-    theta = torch.nn.Parameter(start.clone())
-    optimiser = torch.optim.SGD([theta], lr=settings.lr)
+    # Packed data was checked when the set was built; only theta changes, and it is checked every step.
+    theta = start.clone().requires_grad_(True)
     generator = torch.Generator().manual_seed(settings.seed)
     pyramid = train_set.pyramid(settings.s)
     levels = range(settings.s, settings.zoom - 1, -1)
-    batches_per_epoch = n_configs // settings.batch_size
+    batch_size = settings.batch_size
+    batches_per_epoch = n_configs // batch_size
     total = len(levels) * settings.n_epoch * batches_per_epoch
 
     thetas = torch.empty(total + 1, 2, dtype=torch.float64)
     thetas[0] = start
-    losses = torch.empty(total, dtype=torch.float64)
+    losses = torch.zeros(total, dtype=torch.float64)
     step_levels = torch.empty(total, dtype=torch.int64)
     rates = torch.empty(total, dtype=torch.float64)
-    step = 0
+    step, rate = 0, settings.lr
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
         for level in levels:
             layer = SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method)
-            rate = optimiser.param_groups[0]["lr"]
             for _ in range(settings.n_epoch):
-                order = torch.randperm(n_configs, generator=generator)
-                for first in range(0, batches_per_epoch * settings.batch_size, settings.batch_size):
-                    indices = order[first : first + settings.batch_size]
-                    batch = train_set.batch(indices)
-                    loss = torch.zeros((), dtype=torch.float64)
+                epoch = _EpochLayout(train_set, torch.randperm(n_configs, generator=generator), batch_size)
+                for index in range(batches_per_epoch):
+                    batch, configs = epoch.batch(index)
                     if batch.points.shape[0]:  # a batch of empty configurations pulls nothing
-                        shifted = batch.points + F.pad(theta, (0, 1))
                         out = layer(
-                            shifted, batch.pixels, pyramid[level].index_select(0, indices), batch.config, batch.rank,
-                            target_is_zoomed=True,
+                            batch.points + F.pad(theta, (0, 1)), batch.pixels, pyramid[level].index_select(0, configs),
+                            batch.config, batch.rank, target_is_zoomed=True, validate=False,
                         )
-                        optimiser.zero_grad(set_to_none=True)
                         out.loss.backward()
-                        optimiser.step()
-                        loss = out.loss.detach()
+                        with torch.no_grad():  # plain SGD: theta <- theta - lr * grad
+                            theta -= rate * theta.grad
+                        theta.grad = None
+                        losses[step] = out.loss.detach()
                         if not bool(torch.isfinite(theta).all()):
                             raise SDMInputError(f"theta became non-finite at step {step + 1} (lr {rate!r} too large?)")
-                    with torch.no_grad():
-                        thetas[step + 1] = theta
-                    losses[step], step_levels[step], rates[step] = loss, level, rate
+                    thetas[step + 1] = theta.detach()
+                    step_levels[step], rates[step] = level, rate
                     step += 1
                     bar.update()
                 bar.set_postfix(level=level, a=f"{theta[0].item():.4f}", b=f"{theta[1].item():.4f}")
-            for group in optimiser.param_groups:
-                group["lr"] *= settings.lr_decay
+            rate *= settings.lr_decay
     return History(thetas, losses, step_levels, rates, settings)
+
+
+class _EpochLayout:
+    """One epoch's shuffled configurations, their points laid out batch after batch.
+
+    Gathering every point of the epoch once makes each mini-batch a
+    contiguous slice (a view), instead of a gather per step.
+    """
+
+    def __init__(self, data: ConfigurationSet, order: torch.Tensor, batch_size: int) -> None:
+        self.batch_size = batch_size
+        self.configs = order[: (len(order) // batch_size) * batch_size]
+        rows, position = data.rows(self.configs)
+        self.points = data.points.index_select(0, rows)
+        self.pixels = data.pixels.index_select(0, rows)
+        self.rank = data.rank.index_select(0, rows)
+        self.local = position % batch_size
+        per_batch = data.counts.index_select(0, self.configs).view(-1, batch_size).sum(1)
+        self.bounds = [0] + per_batch.cumsum(0).tolist()
+
+    def batch(self, index: int) -> tuple[PointBatch, torch.Tensor]:
+        """Batch ``index``: its points (targets left empty) and the indices of its configurations."""
+        lo, hi = self.bounds[index], self.bounds[index + 1]
+        configs = self.configs[index * self.batch_size : (index + 1) * self.batch_size]
+        rows = slice(lo, hi)
+        return PointBatch(self.points[rows], self.pixels[rows], self.local[rows], self.rank[rows], None), configs
 
 
 def settings_dict(settings: TrainSettings) -> dict:

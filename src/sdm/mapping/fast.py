@@ -87,18 +87,20 @@ def fast_mapping(
     alive = torch.ones(points.shape[0], dtype=torch.bool)
     current = pixels
     config_offset = config * (height * width)
+    to_cell = torch.tensor([width, 1])
     for level in range(steps, zoom - 1, -1):
         block = current >> level
         landing = torch.floor(screen * (1.0 / (1 << level))).long()
-        landing = torch.minimum(torch.maximum(landing, block - 1), block + 1)
+        landing = torch.clamp(landing, block - 1, block + 1)
         on_grid = _on_grid(landing, height >> level, width >> level)
         if level == zoom:
             entered, entered_block, entered_landing, entered_on_grid = alive, block, landing, on_grid
-        moved = (landing << level) | (current & ((1 << level) - 1))
+        # A dropped point's pixel is never read again (it is routed to the sentinel cell), so
+        # `current` may be overwritten for everyone.
+        current = (landing << level) | (current & ((1 << level) - 1))
         candidate = alive & on_grid
-        cell = torch.where(candidate, config_offset + moved[:, 0] * width + moved[:, 1], n_cells)
+        cell = torch.where(candidate, config_offset + (current * to_cell).sum(1), n_cells)
         alive = candidate & _SCRATCH.winners(cell, rank, n_cells)
-        current = torch.where(alive[:, None], moved, current)
 
     out_pixels = torch.where(alive[:, None], current, -1)
     flow, loss, matched = _dynamic_flow(

@@ -119,6 +119,7 @@ class SpatialDomainMapping(nn.Module):
         config: torch.Tensor | None = None,
         rank: torch.Tensor | None = None,
         target_is_zoomed: bool = False,
+        validate: bool = True,
     ) -> SDMOutput:
         """Map shifted points and measure them against the target.
 
@@ -132,10 +133,29 @@ class SpatialDomainMapping(nn.Module):
             config: ``(P,)`` int64 configuration of each point in ``[0, n)``; default all 0.
             rank: ``(P,)`` int64 ``rmin`` priority; default: depth, then row order.
             target_is_zoomed: ``target`` is already zoomed out to level ``zoom``.
+            validate: check every input (the default). Only callers that checked
+                their inputs once up front (the trainer) turn this off.
 
         Returns:
             :class:`SDMOutput`.
         """
+        if target.ndim == 2:
+            target = target[None]
+        if validate:
+            self._check(points, pixels, target, config, target_is_zoomed)
+        if config is None:
+            config = torch.zeros(points.shape[0], dtype=torch.int64)
+        if rank is None:
+            rank = priority_rank(points.detach()[:, 2])
+        zoomed = target if target_is_zoomed else zoom_out(target, self.zoom)
+        options = {"c": self.c} if self.method == "dense" else {}
+        results: list[MappingResult] = []
+        loss = SDMFunction.apply(
+            points, pixels, config, rank, zoomed, self.s, self.zoom, self.camera, self.method, options, results
+        )
+        return SDMOutput(loss, results[0], int(target.shape[0]), self.camera, config, points.detach()[:, 2])
+
+    def _check(self, points, pixels, target, config, target_is_zoomed) -> None:
         height, width = self.camera.screen_shape
         check_points(points, "points")
         if points.ndim != 2:
@@ -143,8 +163,6 @@ class SpatialDomainMapping(nn.Module):
         n_points = points.shape[0]
         if n_points == 0:
             raise SDMInputError("points: the configuration is empty (no points to map)")
-        if target.ndim == 2:
-            target = target[None]
         if target.dtype != torch.bool:
             raise SDMInputError(f"target must be a bool mask, got {target.dtype}")
         expected = (height >> self.zoom, width >> self.zoom) if target_is_zoomed else (height, width)
@@ -155,16 +173,7 @@ class SpatialDomainMapping(nn.Module):
         if n_points and not bool(((pixels >= 0).all(1) & (pixels[:, 0] < height) & (pixels[:, 1] < width)).all()):
             raise SDMInputError(f"pixels must lie on the {height} x {width} screen")
         n_configs = int(target.shape[0])
-        if config is None:
-            config = torch.zeros(n_points, dtype=torch.int64)
-        elif config.shape != (n_points,) or (n_points and not 0 <= int(config.min()) <= int(config.max()) < n_configs):
+        if config is not None and (
+            config.shape != (n_points,) or not 0 <= int(config.min()) <= int(config.max()) < n_configs
+        ):
             raise SDMInputError(f"config must be ({n_points},) indices into the {n_configs} targets")
-        if rank is None:
-            rank = priority_rank(points.detach()[:, 2])
-        zoomed = target if target_is_zoomed else zoom_out(target, self.zoom)
-        options = {"c": self.c} if self.method == "dense" else {}
-        results: list[MappingResult] = []
-        loss = SDMFunction.apply(
-            points, pixels, config, rank, zoomed, self.s, self.zoom, self.camera, self.method, options, results
-        )
-        return SDMOutput(loss, results[0], n_configs, self.camera, config, points.detach()[:, 2])
