@@ -1,0 +1,35 @@
+"""Data layer: annotation readers, the synthetic ApolloCar3D default, the Sky dataset file.
+
+See ``docs/data.md``. Public API::
+
+    ImageCars(image_id, centres)                       # (M, 3) float64 camera-frame metres
+    read_apollo_folder(folder, camera_file=None)       # -> list[ImageCars], sorted by id
+    read_apollo_camera(folder)                         # -> Camera
+    read_pku_csv(path)                                 # -> list[ImageCars], sorted by id
+    write_synthetic_apollo(folder, n_images=5277, seed=0)  # -> Path
+    build_sky_dataset(images, n_sample=4248, seed=0, shift=SKY_SHIFT, camera=APOLLO_CAMERA_5, progress=True)
+    write_sky_file(path, configurations, shift, camera, metadata=None)
+    SkyFile(path)                                      # lazy: len, [i], image_ids, shift, camera, version, load_all()
+"""
+from .dataset import SKY_N_IMAGES, build_sky_dataset, sample_indices
+from .readers import ImageCars, read_apollo_camera, read_apollo_folder, read_car_poses, read_pku_csv
+from .skyfile import FORMAT_VERSION, SkyFile, write_sky_file
+from .synthetic import DEFAULT_MODEL, SceneModel, synthetic_images, write_synthetic_apollo
+
+__all__ = [
+    "DEFAULT_MODEL",
+    "FORMAT_VERSION",
+    "ImageCars",
+    "SKY_N_IMAGES",
+    "SceneModel",
+    "SkyFile",
+    "build_sky_dataset",
+    "read_apollo_camera",
+    "read_apollo_folder",
+    "read_car_poses",
+    "read_pku_csv",
+    "sample_indices",
+    "synthetic_images",
+    "write_sky_file",
+    "write_synthetic_apollo",
+]

@@ -1,0 +1,69 @@
+"""Sampling images and building the Sky dataset's configurations (paper, section 3; method notes, section 7)."""
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from ..camera import APOLLO_CAMERA_5, Camera
+from ..errors import SDMInputError
+from ..sky import SKY_SHIFT, SkyConfiguration, build_configuration
+from .readers import ImageCars
+
+#: Number of images of the Sky dataset.
+SKY_N_IMAGES = 4248
+
+
+def sample_indices(n_images: int, n_sample: int, seed: int = 0) -> np.ndarray:
+    """A seeded sample without replacement of ``n_sample`` indices out of ``n_images``.
+
+    Drawn with ``numpy.random.Generator(PCG64(seed)).choice(n_images, n_sample,
+    replace=False)`` and returned sorted (int64), so the sample keeps the input order.
+    """
+    if isinstance(n_sample, bool) or not isinstance(n_sample, (int, np.integer)) or n_sample < 0:
+        raise SDMInputError(f"n_sample must be a non-negative integer, got {n_sample!r}")
+    if n_sample > n_images:
+        raise SDMInputError(f"n_sample = {n_sample} is larger than the number of images ({n_images})")
+    if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+        raise SDMInputError(f"seed must be a non-negative integer, got {seed!r}")
+    rng = np.random.Generator(np.random.PCG64(int(seed)))
+    return np.sort(rng.choice(n_images, size=int(n_sample), replace=False)).astype(np.int64)
+
+
+def build_sky_dataset(
+    images: Sequence[ImageCars],
+    n_sample: int = SKY_N_IMAGES,
+    seed: int = 0,
+    shift: tuple[float, float] = SKY_SHIFT,
+    camera: Camera = APOLLO_CAMERA_5,
+    progress: bool = True,
+) -> list[SkyConfiguration]:
+    """Sample images and build their Sky configurations.
+
+    Args:
+        images: the annotation set (e.g. from :func:`~sdm.data.read_apollo_folder`).
+        n_sample: number of images to sample (4,248 in the paper); at most ``len(images)``.
+        seed: seed of the sample (see :func:`sample_indices`).
+        shift: the true shift ``(a, b)`` in metres.
+        camera: camera and screen.
+        progress: show a progress bar (tqdm, on stderr).
+
+    Returns:
+        ``n_sample`` configurations, in the order of ``images`` (sorted sample
+        indices). An image with no car on screen gives an empty configuration.
+
+    Raises:
+        SDMInputError: ``n_sample`` larger than ``len(images)`` or negative, a
+            bad seed, an element that is not :class:`ImageCars`.
+    """
+    images = list(images)
+    for index, image in enumerate(images):
+        if not isinstance(image, ImageCars):
+            raise SDMInputError(f"images[{index}] must be ImageCars, got {type(image).__name__}")
+    chosen = sample_indices(len(images), n_sample, seed)
+    configurations = []
+    for index in tqdm(chosen.tolist(), desc="Sky configurations", unit="image", disable=not progress):
+        image = images[index]
+        configurations.append(build_configuration(image.centres, shift, camera, image_id=image.image_id))
+    return configurations

@@ -1,0 +1,261 @@
+"""The Sky dataset: sampling, the versioned file, lazy reading, determinism, damaged files."""
+from __future__ import annotations
+
+import struct
+from pathlib import Path
+
+import pytest
+import torch
+
+from sdm.camera import APOLLO_CAMERA_5, Camera
+from sdm.data import (
+    FORMAT_VERSION,
+    ImageCars,
+    SkyFile,
+    build_sky_dataset,
+    read_apollo_camera,
+    read_apollo_folder,
+    synthetic_images,
+    write_sky_file,
+    write_synthetic_apollo,
+)
+from sdm.data import skyfile as skyfile_module
+from sdm.errors import SDMInputError
+from sdm.sky import SKY_SHIFT, SkyConfiguration, build_configuration
+
+
+def same(a: SkyConfiguration, b: SkyConfiguration) -> bool:
+    return (
+        a.image_id == b.image_id
+        and a.pixels.dtype == b.pixels.dtype == torch.int64
+        and a.depth.dtype == b.depth.dtype == torch.float64
+        and a.target.dtype == b.target.dtype == torch.bool
+        and torch.equal(a.pixels, b.pixels)
+        and torch.equal(a.depth, b.depth)
+        and torch.equal(a.target, b.target)
+        and torch.equal(a.centres, b.centres)
+        and torch.equal(a.centre_depth, b.centre_depth)
+    )
+
+
+@pytest.fixture(scope="module")
+def images() -> list[ImageCars]:
+    images = synthetic_images(120, seed=5)
+    # an image whose only car is behind the camera and one with no car at all
+    images.append(ImageCars("zz_behind", torch.tensor([[0.0, 1.0, -5.0]], dtype=torch.float64)))
+    images.append(ImageCars("zz_empty", torch.zeros(0, 3, dtype=torch.float64)))
+    return images
+
+
+@pytest.fixture(scope="module")
+def configurations(images) -> list[SkyConfiguration]:
+    return build_sky_dataset(images, n_sample=len(images), seed=0, progress=False)
+
+
+@pytest.fixture()
+def sky_path(tmp_path, configurations) -> Path:
+    path = tmp_path / "sky.bin"
+    write_sky_file(path, configurations, SKY_SHIFT, APOLLO_CAMERA_5, {"source": "test", "seed": 5})
+    return path
+
+
+# -- sampling -----------------------------------------------------------------------------------
+
+
+def test_sample_is_seeded_without_replacement_in_input_order(images):
+    a = build_sky_dataset(images, n_sample=50, seed=1, progress=False)
+    b = build_sky_dataset(images, n_sample=50, seed=1, progress=False)
+    c = build_sky_dataset(images, n_sample=50, seed=2, progress=False)
+    ids = [cfg.image_id for cfg in a]
+    assert ids == [cfg.image_id for cfg in b] and all(same(x, y) for x, y in zip(a, b))
+    assert ids != [cfg.image_id for cfg in c]
+    order = {image.image_id: k for k, image in enumerate(images)}
+    assert len(set(ids)) == 50 and [order[i] for i in ids] == sorted(order[i] for i in ids)
+
+
+def test_sample_builds_the_configurations_of_the_core_library(images, configurations):
+    for image, cfg in zip(images, configurations):
+        assert same(cfg, build_configuration(image.centres, SKY_SHIFT, APOLLO_CAMERA_5, image.image_id))
+    assert configurations[-1].num_points == 0 and configurations[-2].num_points == 0
+
+
+def test_sample_larger_than_the_set_is_an_error(images):
+    with pytest.raises(SDMInputError, match=r"n_sample = 500 is larger than the number of images \(122\)"):
+        build_sky_dataset(images, n_sample=500, progress=False)
+
+
+def test_sample_rejects_non_images():
+    with pytest.raises(SDMInputError, match=r"images\[0\] must be ImageCars"):
+        build_sky_dataset([torch.zeros(2, 3)], n_sample=1, progress=False)
+
+
+# -- the file ---------------------------------------------------------------------------------
+
+
+def test_round_trip(sky_path, configurations):
+    sky = SkyFile(sky_path)
+    assert len(sky) == len(configurations)
+    assert sky.version == FORMAT_VERSION == 1
+    assert sky.image_ids == [cfg.image_id for cfg in configurations]
+    assert sky.shift == SKY_SHIFT and sky.camera == APOLLO_CAMERA_5
+    assert sky.metadata == {"source": "test", "seed": 5}
+    loaded = sky.load_all()
+    assert all(same(a, b) for a, b in zip(loaded, configurations))
+    assert same(sky[-1], configurations[-1]) and same(sky[7], configurations[7])
+    assert sky[-1].num_points == 0 and not bool(sky[-1].target.any())
+    with pytest.raises(IndexError):
+        sky[len(configurations)]
+
+
+def test_opening_is_lazy(sky_path, monkeypatch):
+    decoded = []
+    real = SkyFile._decode
+
+    def counting(self, i):
+        decoded.append(i)
+        return real(self, i)
+
+    monkeypatch.setattr(SkyFile, "_decode", counting)
+    sky = SkyFile(sky_path)
+    assert decoded == []
+    sky[3]
+    sky[-2]
+    assert decoded == [3, len(sky) - 2]
+
+
+def test_other_camera_and_shift_are_stored(tmp_path, images):
+    camera = Camera(fx=2000.0, fy=2100.0, cx=1700.0, cy=1300.0)
+    configurations = build_sky_dataset(images[:10], n_sample=10, shift=(-0.2, 0.4), camera=camera, progress=False)
+    write_sky_file(tmp_path / "s.bin", configurations, (-0.2, 0.4), camera)
+    sky = SkyFile(tmp_path / "s.bin")
+    assert sky.camera == camera and sky.shift == (-0.2, 0.4) and sky.metadata == {}
+    assert all(same(a, b) for a, b in zip(sky, configurations))
+
+
+def test_empty_dataset(tmp_path):
+    write_sky_file(tmp_path / "s.bin", [], SKY_SHIFT, APOLLO_CAMERA_5)
+    sky = SkyFile(tmp_path / "s.bin")
+    assert len(sky) == 0 and sky.load_all() == [] and sky.image_ids == []
+
+
+def test_same_inputs_give_the_same_bytes(tmp_path, configurations):
+    write_sky_file(tmp_path / "a.bin", configurations, SKY_SHIFT, APOLLO_CAMERA_5, {"seed": 5})
+    write_sky_file(tmp_path / "b.bin", configurations, SKY_SHIFT, APOLLO_CAMERA_5, {"seed": 5})
+    assert (tmp_path / "a.bin").read_bytes() == (tmp_path / "b.bin").read_bytes()
+
+
+def test_same_seed_gives_a_byte_identical_sky_file_end_to_end(tmp_path):
+    def pipeline(name: str, seed: int) -> bytes:
+        folder = write_synthetic_apollo(tmp_path / name, n_images=80, seed=seed)
+        configurations = build_sky_dataset(read_apollo_folder(folder), n_sample=60, seed=seed, progress=False)
+        write_sky_file(tmp_path / f"{name}.bin", configurations, SKY_SHIFT, read_apollo_camera(folder), {"seed": seed})
+        return (tmp_path / f"{name}.bin").read_bytes()
+
+    first, again, other = pipeline("a", 11), pipeline("b", 11), pipeline("c", 12)
+    assert first == again
+    assert first != other
+
+
+def test_write_is_atomic(tmp_path, configurations):
+    path = tmp_path / "sky.bin"
+    write_sky_file(path, configurations[:5], SKY_SHIFT, APOLLO_CAMERA_5)
+    before = path.read_bytes()
+    bad = SkyConfiguration(pixels=torch.tensor([[200, 3]]), depth=torch.tensor([10.0], dtype=torch.float64), target=torch.zeros(128, 256, dtype=torch.bool))
+    with pytest.raises(SDMInputError, match=r"configurations\[5\] .*off the 128x256 screen"):
+        write_sky_file(path, configurations[:5] + [bad], SKY_SHIFT, APOLLO_CAMERA_5)
+    assert path.read_bytes() == before
+    with pytest.raises(SDMInputError, match="not JSON-serialisable"):
+        write_sky_file(path, configurations[:5], SKY_SHIFT, APOLLO_CAMERA_5, {"when": object()})
+    assert path.read_bytes() == before
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sky.bin"]
+
+
+@pytest.mark.parametrize(
+    "make, message",
+    [
+        (lambda: SkyConfiguration(torch.zeros(1, 2, dtype=torch.int64), torch.tensor([-1.0], dtype=torch.float64), torch.zeros(128, 256, dtype=torch.bool)), "depth must be finite and positive"),
+        (lambda: SkyConfiguration(torch.zeros(1, 2, dtype=torch.int64), torch.tensor([1.0, 2.0], dtype=torch.float64), torch.zeros(128, 256, dtype=torch.bool)), r"depth must be a floating \(1,\) tensor"),
+        (lambda: SkyConfiguration(torch.zeros(1, 2), torch.tensor([1.0], dtype=torch.float64), torch.zeros(128, 256, dtype=torch.bool)), "pixels must be an integer tensor"),
+        (lambda: SkyConfiguration(torch.zeros(0, 2, dtype=torch.int64), torch.zeros(0, dtype=torch.float64), torch.zeros(64, 256, dtype=torch.bool)), r"target must be a \(128, 256\) bool tensor"),
+        (lambda: "not a configuration", r"configurations\[0\] must be a SkyConfiguration"),
+    ],
+)
+def test_bad_configurations_are_rejected(tmp_path, make, message):
+    with pytest.raises(SDMInputError, match=message):
+        write_sky_file(tmp_path / "s.bin", [make()], SKY_SHIFT, APOLLO_CAMERA_5)
+    assert not (tmp_path / "s.bin").exists()
+
+
+def test_bad_shift_is_rejected(tmp_path):
+    with pytest.raises(SDMInputError, match="shift must be finite"):
+        write_sky_file(tmp_path / "s.bin", [], (float("nan"), 0.0), APOLLO_CAMERA_5)
+
+
+# -- damaged or foreign files -------------------------------------------------------------------
+
+
+def damage(path: Path, edit) -> Path:
+    data = bytearray(path.read_bytes())
+    path.write_bytes(bytes(edit(data)))
+    return path
+
+
+def test_missing_file(tmp_path):
+    with pytest.raises(SDMInputError, match=r"nothing\.bin: Sky file not found"):
+        SkyFile(tmp_path / "nothing.bin")
+
+
+def test_empty_file(tmp_path):
+    (tmp_path / "e.bin").write_bytes(b"")
+    with pytest.raises(SDMInputError, match=r"e\.bin: not a Sky file \(only 0 bytes"):
+        SkyFile(tmp_path / "e.bin")
+
+
+def test_wrong_magic(sky_path):
+    damage(sky_path, lambda d: b"PK\x03\x04" + d[4:])
+    with pytest.raises(SDMInputError, match=r"sky\.bin: not a Sky file \(bad magic"):
+        SkyFile(sky_path)
+
+
+def test_other_version(sky_path):
+    damage(sky_path, lambda d: d[:8] + struct.pack("<I", 2) + d[12:])
+    with pytest.raises(SDMInputError, match=r"sky\.bin: Sky file format version 2 is not supported \(this sdm reads version 1\)"):
+        SkyFile(sky_path)
+
+
+@pytest.mark.parametrize("keep", [10, 40, 300, -1])
+def test_truncated(sky_path, keep):
+    damage(sky_path, lambda d: d[:keep])
+    with pytest.raises(SDMInputError, match=r"sky\.bin: .*(truncated|not a Sky file)"):
+        SkyFile(sky_path)
+
+
+def test_damaged_header(sky_path):
+    damage(sky_path, lambda d: d[:40] + b"\x00\x00\x00" + d[43:])
+    with pytest.raises(SDMInputError, match=r"sky\.bin: damaged header"):
+        SkyFile(sky_path)
+
+
+def test_damaged_data_fails_the_checksum(sky_path):
+    damage(sky_path, lambda d: d[:-9] + bytes([d[-9] ^ 0xFF]) + d[-8:])
+    sky = SkyFile(sky_path)  # the damage is in the data, not the header: found by verify / load_all
+    with pytest.raises(SDMInputError, match=r"sky\.bin: array 'centre_depth' fails its CRC-32 check"):
+        sky.load_all()
+
+
+def test_inconsistent_offsets(tmp_path, configurations):
+    path = tmp_path / "s.bin"
+    write_sky_file(path, configurations[:4], SKY_SHIFT, APOLLO_CAMERA_5)
+    sky = SkyFile(path)
+    start = sky._data_offset + sky._table["point_offsets"]["offset"]
+    damage(path, lambda d: d[:start + 8] + struct.pack("<q", 10**9) + d[start + 16:])
+    with pytest.raises(SDMInputError, match=r"s\.bin: point_offsets are inconsistent"):
+        SkyFile(path)
+
+
+def test_format_constants_are_documented():
+    docs = Path(__file__).resolve().parents[1] / "docs" / "data.md"
+    text = docs.read_text()
+    assert skyfile_module.MAGIC.decode("latin-1").strip("\x89\n") in text
+    for name in skyfile_module._ARRAYS:
+        assert name in text, name
