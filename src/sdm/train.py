@@ -184,12 +184,13 @@ class _EpochLayout:
     def __init__(self, data: ConfigurationSet, order: torch.Tensor, batch_size: int) -> None:
         self.batch_size = batch_size
         self.configs = order[: (len(order) // batch_size) * batch_size]
-        rows, position = data.rows(self.configs)
+        rows, _ = data.rows(self.configs)
         self.points = data.points.index_select(0, rows)
         self.pixels = data.pixels.index_select(0, rows)
         self.rank = data.rank.index_select(0, rows)
-        self.local = position % batch_size
-        per_batch = data.counts.index_select(0, self.configs).view(-1, batch_size).sum(1)
+        counts = data.counts.index_select(0, self.configs)
+        self.local = torch.repeat_interleave(torch.arange(len(self.configs)) % batch_size, counts)
+        per_batch = counts.view(-1, batch_size).sum(1)
         self.bounds = [0] + per_batch.cumsum(0).tolist()
 
     def batch(self, index: int) -> tuple[PointBatch, torch.Tensor]:

@@ -51,9 +51,13 @@ _SCRATCH = _CellScratch()
 
 
 def _on_grid(block: torch.Tensor, grid_h: int, grid_w: int) -> torch.Tensor:
-    """``(...,)`` bool: ``(..., 2)`` blocks inside a ``grid_h x grid_w`` grid."""
-    row, col = block[..., 0], block[..., 1]
-    return (row >= 0) & (row < grid_h) & (col >= 0) & (col < grid_w)
+    """``(...,)`` bool: ``(..., 2)`` integer blocks inside a ``grid_h x grid_w`` grid (both sides >= 2).
+
+    ``0 <= x <= n - 1`` exactly when ``x * (n - 1 - x) >= 0`` for integers (the two
+    factors cannot both be negative when ``n >= 2``): four tensor ops instead of seven.
+    """
+    last = torch.tensor([grid_h - 1, grid_w - 1])
+    return (block * (last - block) >= 0).all(-1)
 
 
 def fast_mapping(
