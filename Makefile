@@ -20,6 +20,7 @@ run: install
 
 test: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest
+	PATH="$(abspath $(BIN)):$$PATH" PYTHON=$(BIN)/python scripts/ci_workflow.sh
 
 bench: install
 	$(BIN)/python benchmarks/bench_sdm.py

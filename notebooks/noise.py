@@ -1,0 +1,48 @@
+# ---
+# jupyter:
+#   jupytext:
+#     text_representation:
+#       extension: .py
+#       format_name: percent
+#   kernelspec:
+#     display_name: Python 3
+#     language: python
+#     name: python3
+# ---
+
+# %% [markdown]
+# # Stage 7: noise runs (Table 2)
+#
+# Robustness (paper, section 5.2): every active pixel of each training target moves by (X, Y), independent
+# integers uniform on [-n, n], off-screen ones dropped; then theta~ is trained with the tuned settings and
+# its distance to theta* measured. A run's seed comes from (seed, level, run) and fixes both its noise and
+# its shuffling, so any chunk of runs can run anywhere and give the same numbers.
+
+# %% tags=["parameters"]
+sky = "results/sky/sky.bin"  # input
+split = "results/split/split.json"  # input
+best = "results/tuning/best.json"  # input: the tuned settings
+chunk_file = "results/noise/level0_chunk0.csv"  # output: one row per run
+level = 0
+run_indices = [0, 1]
+s = 4
+batch_size = 16
+lr_decay = 0.5
+seed = 0
+shift = [0.517, 0.303]
+threads = 1
+
+# %%
+from sdm.experiments import load_split, noise_runs, settings_for, single_thread
+from sdm.report.io import read_json, write_csv
+
+single_thread(threads)
+tuned = read_json(best)
+train_set, _, camera = load_split(sky, read_json(split))
+settings = settings_for(tuned["n_epoch"], tuned["lr"], s, batch_size, lr_decay, seed)
+print(f"level {level}, runs {run_indices[0]}..{run_indices[-1]}, n_epoch {settings.n_epoch}, lr {settings.lr:g}")
+runs = noise_runs(train_set, level, run_indices, settings, seed, shift=shift, camera=camera)
+write_csv(chunk_file, runs)
+
+# %%
+runs.assign(distance_mm=1000 * runs["distance"]).describe()

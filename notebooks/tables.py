@@ -1,0 +1,63 @@
+# ---
+# jupyter:
+#   jupytext:
+#     text_representation:
+#       extension: .py
+#       format_name: percent
+#   kernelspec:
+#     display_name: Python 3
+#     language: python
+#     name: python3
+# ---
+
+# %% [markdown]
+# # Stage 8: Tables 1 and 2
+#
+# Table 1: dev loss over the tuning grid. Table 2: per noise level, mean, std and quartiles of the distances
+# ||theta~ - theta*|| (1e-3 m), and "Avg. Dist.", the 3D displacement the pixel noise stands for at the Sky
+# data's mean target depth (`sdm.sky.noise_displacement`; method notes, section 7). Each table is written
+# as CSV, Markdown and LaTeX with the paper's values beside ours.
+
+# %% tags=["parameters"]
+grid = "results/tuning/grid.csv"
+best = "results/tuning/best.json"
+stats = "results/sky/stats.json"
+chunks = []  # input: the noise chunks
+distances = "results/noise/distances.csv"  # output: every run
+table1_csv = "results/tables/table1.csv"
+table1_md = "results/tables/table1.md"
+table1_tex = "results/tables/table1.tex"
+table2_csv = "results/tables/table2.csv"
+table2_md = "results/tables/table2.md"
+table2_tex = "results/tables/table2.tex"
+levels = [0, 1, 2, 3, 4]
+runs = 60
+threads = 1
+
+# %%
+from pathlib import Path
+
+import pandas as pd
+from IPython.display import Markdown, display
+
+from sdm.data.stats import avg_dist_mm
+from sdm.report.io import read_json, write_csv
+from sdm.report.tables import TABLE1_FORMAT, TABLE2_FORMAT, table1_frame, table2_frame, to_markdown, write_table
+
+all_runs = pd.concat([pd.read_csv(path) for path in chunks]).sort_values(["level", "run"]).reset_index(drop=True)
+expected = {(level, run) for level in levels for run in range(runs)}
+found = set(zip(all_runs["level"], all_runs["run"]))
+assert found == expected, f"missing runs: {sorted(expected - found)[:10]}, unexpected: {sorted(found - expected)[:10]}"
+write_csv(distances, all_runs)
+
+# %%
+table1 = table1_frame(pd.read_csv(grid))
+write_table(table1, Path(table1_csv).with_suffix(""), TABLE1_FORMAT)
+display(Markdown(to_markdown(table1, TABLE1_FORMAT)))
+
+# %%
+depth = read_json(stats)["target_mean_depth"]
+table2 = table2_frame(all_runs, avg_dist_mm(depth, levels=[level for level in levels if level > 0]))
+write_table(table2, Path(table2_csv).with_suffix(""), TABLE2_FORMAT)
+print(f"mean target depth {depth:.2f} m")
+display(Markdown(to_markdown(table2, TABLE2_FORMAT)))

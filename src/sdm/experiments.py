@@ -1,0 +1,132 @@
+"""The paper's experiments as functions: the train/dev split, a tuning cell, a noise run.
+
+The workflow's notebooks narrate and call these; nothing here is specific to
+Snakemake. Every random choice takes an explicit seed, so a stage gives the
+same numbers whenever and wherever it runs:
+
+- the image sample is :func:`sdm.data.sample_indices` (the data layer's, which
+  :func:`sdm.data.build_sky_dataset` uses too); the split uses a ``torch.Generator``
+  seeded with the config's seed;
+- a noise run's seed is :func:`run_seed` ``(seed, level, run)``; it fixes both the
+  noise drawn on the training targets and the shuffling of the mini-batches.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, replace
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+import torch
+
+from .batch import ConfigurationSet
+from .camera import APOLLO_CAMERA_5, Camera
+from .data import SkyFile
+from .errors import SDMInputError
+from .metrics import dev_loss, distance
+from .sky import SKY_SHIFT, add_target_noise
+from .train import TrainSettings, train
+
+
+def run_seed(seed: int, level: int, run: int) -> int:
+    """The seed of noise run ``run`` at ``level``: a hash of the three, stable across platforms."""
+    for name, value in (("seed", seed), ("level", level), ("run", run)):
+        if isinstance(value, bool) or int(value) != value or value < 0:
+            raise SDMInputError(f"{name} must be a non-negative integer, got {value!r}")
+    state = np.random.SeedSequence([int(seed), int(level), int(run)]).generate_state(1, dtype=np.uint32)
+    return int(state[0])
+
+
+def split_indices(n_total: int, n_train: int, n_dev: int, seed: int) -> dict[str, list[int]]:
+    """Choose ``n_train + n_dev`` of ``range(n_total)`` at random and split them.
+
+    Returns:
+        ``{"selected", "train", "dev"}``: index lists; ``selected`` is sorted, ``train`` and
+        ``dev`` are in random order (train first ``n_train`` of a random permutation).
+    """
+    n_selected = n_train + n_dev
+    if n_train < 1 or n_dev < 1 or n_selected > n_total:
+        raise SDMInputError(f"cannot split {n_total} configurations into {n_train} train and {n_dev} dev")
+    generator = torch.Generator().manual_seed(int(seed))
+    chosen = torch.randperm(n_total, generator=generator)[:n_selected].tolist()
+    return {"selected": sorted(chosen), "train": chosen[:n_train], "dev": chosen[n_train:]}
+
+
+def load_split(sky_path: str | Path, split: dict, camera: Camera | None = None):
+    """The train and dev :class:`~sdm.batch.ConfigurationSet` of a Sky file and a split.
+
+    Args:
+        sky_path: file written by :func:`sdm.data.write_sky_file`.
+        split: dict with ``train`` and ``dev`` index lists (the split stage's JSON).
+        camera: defaults to the Sky file's camera.
+
+    Returns:
+        ``(train_set, dev_set, camera)``.
+    """
+    sky = SkyFile(sky_path)
+    camera = camera or sky.camera
+    train_set = ConfigurationSet.from_configurations([sky[i] for i in split["train"]], camera)
+    dev_set = ConfigurationSet.from_configurations([sky[i] for i in split["dev"]], camera)
+    return train_set, dev_set, camera
+
+
+def settings_for(n_epoch: int, lr: float, s: int, batch_size: int, lr_decay: float, seed: int):
+    """:class:`~sdm.train.TrainSettings` from the config's values (zoom 0: train to full resolution)."""
+    return TrainSettings(lr=float(lr), n_epoch=int(n_epoch), batch_size=int(batch_size), s=int(s), zoom=0,
+                         lr_decay=float(lr_decay), seed=int(seed))
+
+
+def tune_cell(train_set, dev_set, settings, shift: Sequence[float] = SKY_SHIFT, camera: Camera = APOLLO_CAMERA_5):
+    """Train one cell of the tuning grid and score it on the dev set.
+
+    Returns:
+        ``(record, history)``: the record holds the settings, ``dev_loss`` (mean false-positive
+        pixels per dev configuration), the final ``a``, ``b`` and ``distance`` (metres);
+        ``history`` is the training's :meth:`~sdm.train.History.to_frame`.
+    """
+    history = train(train_set, settings, camera=camera, progress=False)
+    theta = history.final_theta
+    record = asdict(settings) | {
+        "dev_loss": float(dev_loss(dev_set, theta, s=settings.s, camera=camera)),
+        "a": float(theta[0]),
+        "b": float(theta[1]),
+        "distance": float(distance(theta, tuple(shift))),
+        "steps": int(history.loss.numel()),
+    }
+    return record, history.to_frame()
+
+
+def noisy_targets(targets: torch.Tensor, level: int, seed: int) -> torch.Tensor:
+    """Every target moved by noise ``level`` (paper, section 5.2), drawn from ``seed``."""
+    generator = torch.Generator().manual_seed(int(seed))
+    return torch.stack([add_target_noise(target, level, generator) for target in targets])
+
+
+def noise_run(train_set, level: int, run: int, settings, seed: int, shift: Sequence[float] = SKY_SHIFT,
+              camera: Camera = APOLLO_CAMERA_5) -> dict:
+    """One run of the robustness experiment: noisy training targets, train, distance to theta*.
+
+    The run's seed (:func:`run_seed`) draws the noise and shuffles the mini-batches.
+
+    Returns:
+        ``{"level", "run", "seed", "a", "b", "distance"}`` (metres).
+    """
+    seed_run = run_seed(seed, level, run)
+    noisy = train_set.with_targets(noisy_targets(train_set.targets, level, seed_run))
+    history = train(noisy, replace(settings, seed=seed_run), camera=camera, progress=False)
+    a, b = history.final_theta
+    return {"level": int(level), "run": int(run), "seed": seed_run, "a": float(a), "b": float(b),
+            "distance": float(distance((a, b), tuple(shift)))}
+
+
+def noise_runs(train_set, level: int, runs: Sequence[int], settings, seed: int,
+               shift: Sequence[float] = SKY_SHIFT, camera: Camera = APOLLO_CAMERA_5) -> pd.DataFrame:
+    """Several :func:`noise_run` at one level, one row each."""
+    rows = [noise_run(train_set, level, run, settings, seed, shift, camera) for run in runs]
+    return pd.DataFrame.from_records(rows, columns=["level", "run", "seed", "a", "b", "distance"])
+
+
+def single_thread(threads: int = 1) -> None:
+    """Keep a job on its own cores (``torch.set_num_threads``); the workflow runs jobs side by side."""
+    torch.set_num_threads(max(1, int(threads)))

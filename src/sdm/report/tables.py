@@ -1,0 +1,255 @@
+"""Tables 1 and 2 with the paper's values beside ours, and their CSV / Markdown / LaTeX writers.
+
+Units: dev loss in pixels; distances in 1e-3 m (the paper's Table 2 unit); "Avg. Dist." in mm.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from ..errors import SDMInputError
+from . import paper
+from .io import write_csv, write_text
+
+#: Statistics of Table 2, in the paper's order.
+TABLE2_STATS = ("mean", "std", "q1", "q2", "q3")
+
+
+# -- Table 1 ------------------------------------------------------------------------------------
+
+
+def paper_table1_value(n_epoch: int, lr: float) -> float:
+    """The paper's dev loss for a grid cell, NaN where the paper has no such cell."""
+    for (n, rate), value in paper.TABLE1.items():
+        if n == int(n_epoch) and math.isclose(rate, float(lr), rel_tol=1e-9):
+            return value
+    return math.nan
+
+
+def table1_frame(grid: pd.DataFrame) -> pd.DataFrame:
+    """Table 1: our dev loss per grid cell beside the paper's.
+
+    Args:
+        grid: one row per cell with columns ``n_epoch``, ``lr``, ``dev_loss`` (and optionally
+            ``distance``, metres, of the cell's final theta).
+
+    Returns:
+        Columns ``n_epoch, lr, dev_loss, paper_dev_loss, best, paper_best`` (+ ``distance_mm``),
+        sorted by ``n_epoch`` then ``lr``; ``best`` marks our lowest dev loss (first on ties).
+    """
+    _require(grid, ("n_epoch", "lr", "dev_loss"), "tuning grid")
+    if grid.empty:
+        raise SDMInputError("tuning grid: no cell")
+    frame = grid.sort_values(["n_epoch", "lr"]).reset_index(drop=True)
+    out = pd.DataFrame(
+        {
+            "n_epoch": frame["n_epoch"].astype(int),
+            "lr": frame["lr"].astype(float),
+            "dev_loss": frame["dev_loss"].astype(float),
+        }
+    )
+    out["paper_dev_loss"] = [paper_table1_value(n, lr) for n, lr in zip(out["n_epoch"], out["lr"])]
+    out["best"] = False
+    out.loc[int(out["dev_loss"].idxmin()), "best"] = True
+    best_n, best_lr = paper.TABLE1_BEST
+    out["paper_best"] = [(n == best_n and math.isclose(lr, best_lr)) for n, lr in zip(out["n_epoch"], out["lr"])]
+    if "distance" in frame:
+        out["distance_mm"] = 1000.0 * frame["distance"].astype(float)
+    return out
+
+
+def best_cell(grid: pd.DataFrame) -> dict:
+    """The grid cell with the lowest dev loss (the first in n_epoch, lr order on ties)."""
+    table = table1_frame(grid)
+    row = table[table["best"]].iloc[0]
+    return {"n_epoch": int(row["n_epoch"]), "lr": float(row["lr"]), "dev_loss": float(row["dev_loss"])}
+
+
+# -- Table 2 ------------------------------------------------------------------------------------
+
+
+def table2_frame(distances: pd.DataFrame, avg_dist_mm: dict[int, float]) -> pd.DataFrame:
+    """Table 2: statistics of the distances per noise level beside the paper's.
+
+    Args:
+        distances: one row per run with columns ``level`` and ``distance`` (metres).
+        avg_dist_mm: "Avg. Dist." in mm per noise level (from the data's mean target depth;
+            :func:`sdm.data.stats.avg_dist_mm`); level 0 may be missing (it is 0).
+
+    Returns:
+        One row per level: ``level, runs, avg_dist_mm, paper_avg_dist_mm``, then for each of
+        ``mean, std, q1, q2, q3`` our value and ``paper_<stat>`` (1e-3 m), and ``mean_ratio``
+        (ours / paper). ``std`` is the sample standard deviation; quartiles interpolate linearly.
+    """
+    _require(distances, ("level", "distance"), "noise distances")
+    if distances.empty:
+        raise SDMInputError("noise distances: no run")
+    rows = []
+    for level, group in distances.groupby("level", sort=True):
+        values = 1000.0 * group["distance"].to_numpy(dtype=float)
+        theirs = paper.TABLE2.get(int(level), {})
+        row = {
+            "level": int(level),
+            "runs": int(values.size),
+            "avg_dist_mm": 0.0 if int(level) == 0 else float(avg_dist_mm.get(int(level), math.nan)),
+            "paper_avg_dist_mm": theirs.get("avg_dist", math.nan),
+        }
+        ours = {
+            "mean": float(values.mean()),
+            "std": float(values.std(ddof=1)) if values.size > 1 else math.nan,
+            "q1": float(np.quantile(values, 0.25)),
+            "q2": float(np.quantile(values, 0.5)),
+            "q3": float(np.quantile(values, 0.75)),
+        }
+        for stat in TABLE2_STATS:
+            row[stat] = ours[stat]
+            row[f"paper_{stat}"] = theirs.get(stat, math.nan)
+        row["mean_ratio"] = ours["mean"] / theirs["mean"] if theirs else math.nan
+        rows.append(row)
+    return pd.DataFrame.from_records(rows)
+
+
+# -- presentation -------------------------------------------------------------------------------
+
+
+@dataclass
+class TableFormat:
+    """How a table frame is shown in Markdown and LaTeX.
+
+    Attributes:
+        columns: frame columns to show, in order.
+        headers: column -> header text (default: the column name).
+        formats: column -> ``str.format`` spec such as ``".3f"`` (default: ``str``).
+        caption: caption (LaTeX) / title line (Markdown).
+        label: LaTeX label.
+        notes: lines printed under the table.
+    """
+
+    columns: Sequence[str]
+    headers: dict[str, str] = field(default_factory=dict)
+    formats: dict[str, str] = field(default_factory=dict)
+    caption: str = ""
+    label: str = ""
+    notes: Sequence[str] = ()
+
+    def cell(self, column: str, value) -> str:
+        if isinstance(value, (bool, np.bool_)):
+            return "yes" if value else ""
+        if isinstance(value, (float, np.floating)) and math.isnan(value):
+            return "-"
+        spec = self.formats.get(column)
+        return format(value, spec) if spec else str(value)
+
+
+TABLE1_FORMAT = TableFormat(
+    columns=("n_epoch", "lr", "dev_loss", "paper_dev_loss", "best", "paper_best", "distance_mm"),
+    headers={
+        "n_epoch": "n_epoch",
+        "lr": "learning rate",
+        "dev_loss": "dev loss (ours)",
+        "paper_dev_loss": "dev loss (paper)",
+        "best": "best (ours)",
+        "paper_best": "best (paper)",
+        "distance_mm": "distance (ours, 1e-3 m)",
+    },
+    formats={"lr": ".0e", "dev_loss": ".3f", "paper_dev_loss": ".3f", "distance_mm": ".3f"},
+    caption="Table 1: dev loss (mean false-positive pixels per dev configuration) over the tuning grid",
+    label="tab:table1",
+    notes=("The distance column is ||theta~ - theta*|| of the cell's run (no counterpart in the paper).",),
+)
+
+TABLE2_FORMAT = TableFormat(
+    columns=(
+        "level", "runs", "avg_dist_mm", "paper_avg_dist_mm",
+        "mean", "paper_mean", "std", "paper_std", "q1", "paper_q1", "q2", "paper_q2", "q3", "paper_q3",
+    ),
+    headers={
+        "level": "noise level",
+        "runs": "runs",
+        "avg_dist_mm": "Avg. Dist. (ours)",
+        "paper_avg_dist_mm": "Avg. Dist. (paper)",
+        "mean": "mean", "paper_mean": "mean (paper)",
+        "std": "std", "paper_std": "std (paper)",
+        "q1": "Q1", "paper_q1": "Q1 (paper)",
+        "q2": "Q2", "paper_q2": "Q2 (paper)",
+        "q3": "Q3", "paper_q3": "Q3 (paper)",
+    },
+    formats={"avg_dist_mm": ".1f", "paper_avg_dist_mm": ".1f"}
+    | {c: ".3f" for c in ("mean", "std", "q1", "q2", "q3")}
+    | {f"paper_{c}": ".3f" for c in ("mean", "std", "q1", "q2", "q3")},
+    caption="Table 2: distance ||theta~ - theta*|| per noise level (1e-3 m; Avg. Dist. in mm)",
+    label="tab:table2",
+)
+
+
+def to_markdown(frame: pd.DataFrame, style: TableFormat) -> str:
+    """A GitHub-flavoured Markdown table (title line, table, notes)."""
+    columns = [c for c in style.columns if c in frame]
+    numeric = {c: pd.api.types.is_numeric_dtype(frame[c]) and not pd.api.types.is_bool_dtype(frame[c]) for c in columns}
+    lines = [f"**{style.caption}**", ""] if style.caption else []
+    lines.append("| " + " | ".join(_md_escape(style.headers.get(c, c)) for c in columns) + " |")
+    lines.append("|" + "|".join("---:" if numeric[c] else ":---:" for c in columns) + "|")
+    for row in _rows(frame, columns):
+        lines.append("| " + " | ".join(_md_escape(style.cell(c, v)) for c, v in zip(columns, row)) + " |")
+    if style.notes:
+        lines += [""] + list(style.notes)
+    return "\n".join(lines) + "\n"
+
+
+def to_latex(frame: pd.DataFrame, style: TableFormat) -> str:
+    """A LaTeX ``table`` with a ``tabular`` (no package beyond LaTeX itself)."""
+    columns = [c for c in style.columns if c in frame]
+    lines = [
+        r"\begin{table}[htbp]",
+        r"\centering",
+        rf"\caption{{{_tex_escape(style.caption)}}}" if style.caption else "",
+        rf"\label{{{style.label}}}" if style.label else "",
+        r"\begin{tabular}{|" + "|".join("c" for _ in columns) + "|}",
+        r"\hline",
+        " & ".join(_tex_escape(style.headers.get(c, c)) for c in columns) + r" \\",
+        r"\hline",
+    ]
+    for row in _rows(frame, columns):
+        lines.append(" & ".join(_tex_escape(style.cell(c, v)) for c, v in zip(columns, row)) + r" \\")
+    lines += [r"\hline", r"\end{tabular}"]
+    lines += [rf"\par\smallskip {{\footnotesize {_tex_escape(note)}}}" for note in style.notes]
+    lines.append(r"\end{table}")
+    return "\n".join(line for line in lines if line) + "\n"
+
+
+def write_table(frame: pd.DataFrame, stem: str | Path, style: TableFormat) -> list[Path]:
+    """Write ``stem.csv`` (full precision), ``stem.md`` and ``stem.tex``, each atomically."""
+    stem = Path(stem)
+    return [
+        write_csv(stem.with_suffix(".csv"), frame),
+        write_text(stem.with_suffix(".md"), to_markdown(frame, style)),
+        write_text(stem.with_suffix(".tex"), to_latex(frame, style)),
+    ]
+
+
+def _rows(frame: pd.DataFrame, columns: Sequence[str]):
+    """Rows as tuples of Python values, each column keeping its own type (iterrows would upcast ints)."""
+    return zip(*(frame[c].tolist() for c in columns))
+
+
+def _require(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
+    missing = [c for c in columns if c not in frame]
+    if missing:
+        raise SDMInputError(f"{what}: missing column(s) {missing}; has {list(frame.columns)}")
+
+
+def _md_escape(text: str) -> str:
+    return str(text).replace("|", r"\|")
+
+
+_TEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
+                "{": r"\{", "}": r"\}", "~": r"\textasciitilde{}", "^": r"\textasciicircum{}"}
+
+
+def _tex_escape(text: str) -> str:
+    return "".join(_TEX_SPECIAL.get(ch, ch) for ch in str(text))

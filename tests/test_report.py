@@ -1,0 +1,218 @@
+"""sdm.report and sdm.experiments: tables beside the paper, writers, report text, figures, runs and seeds."""
+import math
+
+import matplotlib
+import pandas as pd
+import pytest
+import torch
+
+from scenes import configuration_set, configurations
+from sdm.errors import SDMInputError
+from sdm.experiments import noise_run, noisy_targets, run_seed, settings_for, split_indices, tune_cell
+from sdm.report import figures, paper
+from sdm.report.io import read_json, write_json
+from sdm.report.reproduction import build_report, checks
+from sdm.report.tables import (
+    TABLE1_FORMAT,
+    TABLE2_FORMAT,
+    best_cell,
+    table1_frame,
+    table2_frame,
+    to_latex,
+    to_markdown,
+    write_table,
+)
+from sdm.sky import SKY_SHIFT
+
+CONFIG = {
+    "data": {"source": "synthetic", "synthetic": {"n_images": 5277, "seed": 0}},
+    "sky": {"n_images": 4248, "shift": list(SKY_SHIFT), "seed": 0},
+    "split": {"n_selected": 768, "n_train": 512, "n_dev": 256, "seed": 0},
+    "train": {"s": 4, "batch_size": 16, "lr_decay": 0.5, "seed": 0},
+    "tuning": {"n_epoch": [1, 2], "lr": [1e-4, 3e-4, 1e-3]},
+    "noise": {"levels": [0, 1, 2, 3, 4], "runs": 60, "chunk_size": 30, "seed": 0},
+    "figures": {"example": 0, "seed": 0},
+}
+
+
+def grid(losses=None) -> pd.DataFrame:
+    losses = losses or {(1, 1e-4): 5.0, (1, 3e-4): 0.8, (1, 1e-3): 1.1, (2, 1e-4): 1.2, (2, 3e-4): 0.9, (2, 1e-3): 1.3}
+    return pd.DataFrame(
+        [{"n_epoch": n, "lr": lr, "dev_loss": loss, "distance": 1e-3 * loss} for (n, lr), loss in losses.items()]
+    )
+
+
+def distances(means_mm=(0.5, 20.0, 30.0, 40.0, 50.0), runs=6) -> pd.DataFrame:
+    rows = []
+    for level, mean in enumerate(means_mm):
+        for run in range(runs):
+            d = 1e-3 * mean * (0.8 + 0.4 * run / (runs - 1))
+            rows.append({"level": level, "run": run, "seed": run, "a": SKY_SHIFT[0] + d, "b": SKY_SHIFT[1], "distance": d})
+    return pd.DataFrame(rows)
+
+
+# -- Table 1 -------------------------------------------------------------------------------------
+
+
+def test_table1_puts_the_paper_beside_ours_and_marks_both_picks():
+    table = table1_frame(grid().sample(frac=1, random_state=0))
+    assert list(zip(table["n_epoch"], table["lr"])) == list(paper.TABLE1)
+    assert table["paper_dev_loss"].tolist() == list(paper.TABLE1.values())
+    assert table.loc[table["best"], ["n_epoch", "lr"]].values.tolist() == [[1, 3e-4]]
+    assert table.loc[table["paper_best"], ["n_epoch", "lr"]].values.tolist() == [[1, 3e-4]]
+    assert table["distance_mm"].tolist() == pytest.approx((grid()["distance"] * 1000).tolist())
+    assert best_cell(grid()) == {"n_epoch": 1, "lr": 3e-4, "dev_loss": 0.8}
+
+
+def test_table1_cells_outside_the_paper_have_no_paper_value():
+    frame = pd.DataFrame([{"n_epoch": 3, "lr": 5e-4, "dev_loss": 2.0}])
+    table = table1_frame(frame)
+    assert math.isnan(table["paper_dev_loss"].iloc[0]) and not table["paper_best"].iloc[0]
+    assert "| 3 | 5e-04 | 2.000 | - |" in to_markdown(table, TABLE1_FORMAT)
+
+
+def test_table1_rejects_a_grid_without_dev_loss():
+    with pytest.raises(SDMInputError, match="dev_loss"):
+        table1_frame(pd.DataFrame([{"n_epoch": 1, "lr": 1e-4}]))
+
+
+# -- Table 2 -------------------------------------------------------------------------------------
+
+
+def test_table2_statistics_in_millimetres_beside_the_paper():
+    runs = distances()
+    table = table2_frame(runs, {1: 283.0, 2: 494.0, 3: 700.0, 4: 905.0})
+    assert table["level"].tolist() == [0, 1, 2, 3, 4] and set(table["runs"]) == {6}
+    level1 = 1000 * runs.loc[runs["level"] == 1, "distance"]
+    row = table.set_index("level").loc[1]
+    assert row["mean"] == pytest.approx(level1.mean())
+    assert row["std"] == pytest.approx(level1.std(ddof=1))
+    assert row[["q1", "q2", "q3"]].tolist() == pytest.approx(level1.quantile([0.25, 0.5, 0.75]).tolist())
+    assert row["paper_mean"] == paper.TABLE2[1]["mean"] and row["paper_q3"] == paper.TABLE2[1]["q3"]
+    assert row["mean_ratio"] == pytest.approx(row["mean"] / paper.TABLE2[1]["mean"])
+    assert table["avg_dist_mm"].tolist() == [0.0, 283.0, 494.0, 700.0, 905.0]
+    assert table["paper_avg_dist_mm"].tolist() == [0.0, 283.4, 494.6, 699.8, 904.8]
+
+
+def test_writers_produce_csv_markdown_and_latex(tmp_path):
+    table = table2_frame(distances(), {1: 283.0, 2: 494.0, 3: 700.0, 4: 905.0})
+    paths = write_table(table, tmp_path / "tables" / "table2", TABLE2_FORMAT)
+    assert [p.name for p in paths] == ["table2.csv", "table2.md", "table2.tex"]
+    assert pd.read_csv(paths[0])["mean"].tolist() == pytest.approx(table["mean"].tolist())
+    markdown = paths[1].read_text()
+    lines = [line for line in markdown.splitlines() if line.startswith("|")]
+    assert len(lines) == 2 + len(table)
+    assert all(line.count("|") == len(TABLE2_FORMAT.columns) + 1 for line in lines)
+    assert "| 1 | 6 | 283.0 | 283.4 |" in markdown  # ints stay ints
+    latex = paths[2].read_text()
+    assert latex.count(r"\\") == 1 + len(table)
+    assert r"\begin{tabular}{|" + "|".join("c" * len(TABLE2_FORMAT.columns)) + "|}" in latex
+    assert "||theta\\textasciitilde{} - theta*||" in to_latex(table, TABLE2_FORMAT)
+    assert not list(tmp_path.glob("tables/.*"))  # no temporary file left behind
+
+
+def test_json_round_trip_is_atomic(tmp_path):
+    path = write_json(tmp_path / "a" / "b.json", {"x": [1, 2]})
+    assert read_json(path) == {"x": [1, 2]}
+    assert [p.name for p in path.parent.iterdir()] == ["b.json"]
+
+
+# -- the reproduction report ---------------------------------------------------------------------
+
+
+def test_checks_apply_the_issue_criteria():
+    table1 = table1_frame(grid())
+    good = table2_frame(distances((0.6, 16.0, 25.0, 35.0, 40.0)), {})
+    assert all(c.passed for c in checks(table1, good))
+    bad = table2_frame(distances((1.5, 40.0, 25.0, 10.0, 40.0)), {})
+    results = {c.name: c.passed for c in checks(table1_frame(grid({(1, 3e-4): 2.0, (1, 1e-3): 1.0})), bad)}
+    assert results == {
+        "Table 2, level 0: mean distance": False,
+        "Table 2, level 1: mean / paper's": False,
+        "Table 2, level 2: mean / paper's": True,
+        "Table 2, level 3: mean / paper's": False,
+        "Table 2, level 4: mean / paper's": True,
+        "Table 1: best cell": False,
+    }
+
+
+def test_report_is_written_from_the_measured_numbers():
+    runs = distances((0.77, 41.0, 25.0, 35.0, 40.0))
+    table1 = table1_frame(grid({(1, 3e-4): 2.5, (1, 1e-3): 1.25}))
+    table2 = table2_frame(runs, {1: 271.1, 2: 473.2, 3: 669.5, 4: 865.6})
+    stats = {"target_mean_depth": 48.76, "configurations": 4248, "circle_overlap_rate": 0.3}
+    text = build_report(table1, table2, runs, stats, {"images": 5277, "cars_per_image": 11.37}, CONFIG)
+    assert "**4 of 6 criteria pass.**" in text
+    for number in ("0.770", "41.000", "2.51x", "271.1", "48.76", "11.37", "2.500", "1.250"):
+        assert number in text, number
+    assert "  - level 1: 41.000e-3 m = 2.51x the paper's 16.340e-3 m" in text
+    assert "pulled to one side (a~ above a*" in text
+    assert "Table 1 picks another cell" in text
+    assert "0.957x" in text  # Avg. Dist. ratio explained by the depth ratio 48.76 / 50.95
+    assert text.count("| FAIL |") == 2
+
+
+# -- experiments -----------------------------------------------------------------------------------
+
+
+def test_run_seeds_are_deterministic_and_distinct():
+    seeds = {run_seed(0, level, run) for level in range(5) for run in range(60)}
+    assert len(seeds) == 300
+    assert run_seed(0, 2, 7) == run_seed(0, 2, 7) != run_seed(1, 2, 7)
+    with pytest.raises(SDMInputError, match="level"):
+        run_seed(0, -1, 0)
+
+
+def test_split():
+    split = split_indices(50, 20, 10, seed=1)
+    assert len(split["train"]) == 20 and len(split["dev"]) == 10
+    assert not set(split["train"]) & set(split["dev"])
+    assert sorted(split["train"] + split["dev"]) == split["selected"]
+    with pytest.raises(SDMInputError):
+        split_indices(20, 15, 10, seed=0)
+
+
+def test_noise_run_is_reproducible_and_noise_moves_targets():
+    data = configuration_set(32, seed=5)
+    settings = settings_for(1, 1e-3, 4, 16, 0.5, 0)
+    first = noise_run(data, 2, 0, settings, seed=0)
+    assert first == noise_run(data, 2, 0, settings, seed=0)
+    assert first["seed"] == run_seed(0, 2, 0) and first["distance"] == pytest.approx(
+        math.hypot(first["a"] - SKY_SHIFT[0], first["b"] - SKY_SHIFT[1]))
+    assert torch.equal(noisy_targets(data.targets, 0, 1), data.targets)
+    assert not torch.equal(noisy_targets(data.targets, 2, 1), data.targets)
+
+
+def test_tune_cell_reports_dev_loss_and_history():
+    data = configuration_set(48, seed=6)
+    train_set, dev_set = data.subset(range(32)), data.subset(range(32, 48))
+    record, history = tune_cell(train_set, dev_set, settings_for(1, 1e-3, 4, 16, 0.5, 0))
+    assert record["dev_loss"] >= 0 and record["n_epoch"] == 1 and record["lr"] == 1e-3
+    assert record["steps"] == len(history) == 5 * 2  # 5 levels x 2 batches of 16
+    assert {"step", "level", "a", "b"} <= set(history.columns)
+
+
+# -- figures ---------------------------------------------------------------------------------------
+
+
+def test_figures_render_and_save(tmp_path):
+    assert matplotlib.get_backend().lower() == "agg"
+    configuration = configurations(1, seed=2)[0]
+    data = configuration_set(32, seed=2)
+    _, history = tune_cell(data, data, settings_for(1, 1e-3, 4, 16, 0.5, 0))
+    point, pixel, info = figures.pick_point(configuration, SKY_SHIFT)
+    original = configuration.points()[(configuration.pixels == torch.tensor(pixel)).all(1)][0]
+    unmatched = figures.pick_point(configuration, (0.0, 0.0), matched=False)
+    assert not unmatched[2]["matched"] and unmatched[2]["pull"].abs().sum() > 0
+    made = {
+        "fig1": figures.figure1(configuration),
+        "fig2": figures.figure2(point, original, info),
+        "fig3": figures.figure3(unmatched[0], unmatched[2]),
+        "fig4": figures.figure4(configuration.target),
+        "theta": figures.theta_path_figure(history),
+        "distances": figures.distances_figure(distances()),
+    }
+    for name, figure in made.items():
+        path = figures.save_figure(figure, tmp_path / f"{name}.png", pdf=name == "fig1")
+        assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert (tmp_path / "fig1.pdf").stat().st_size > 0
