@@ -19,8 +19,8 @@ run: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/snakemake --profile profiles/default --cores $(CORES)
 
 test: install
-	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest
 	PATH="$(abspath $(BIN)):$$PATH" PYTHON=$(BIN)/python scripts/ci_workflow.sh
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest
 
 bench: install
 	$(BIN)/python benchmarks/bench_sdm.py
