@@ -28,17 +28,13 @@ threads = 1
 # %%
 import matplotlib.pyplot as plt
 
-from sdm.camera import APOLLO_CAMERA_5
-from sdm.data import read_apollo_camera, read_apollo_folder, read_pku_csv
+from sdm.data import read_annotations
 from sdm.data.stats import PAPER_CARS_PER_IMAGE, car_table, fit_road_plane, image_table
 from sdm.experiments import single_thread
 from sdm.report.io import write_csv, write_json
 
 single_thread(threads)
-if source_kind == "pku":
-    cars_by_image, camera = read_pku_csv(annotations), APOLLO_CAMERA_5
-else:
-    cars_by_image, camera = read_apollo_folder(annotations), read_apollo_camera(annotations)
+cars_by_image, camera = read_annotations(source_kind, annotations)
 print(f"{len(cars_by_image)} images from {annotations} ({source_kind}); camera {camera}")
 
 # %%

@@ -36,17 +36,13 @@ threads = 1
 import matplotlib.pyplot as plt
 import pandas as pd
 
-from sdm.camera import APOLLO_CAMERA_5
-from sdm.data import build_sky_dataset, read_apollo_camera, read_apollo_folder, read_pku_csv, write_sky_file
+from sdm.data import build_sky_dataset, read_annotations, write_sky_file
 from sdm.data.stats import PAPER_TARGET_DEPTH, configuration_table, summarize
 from sdm.experiments import single_thread
 from sdm.report.io import write_json
 
 single_thread(threads)
-if source_kind == "pku":
-    cars_by_image, camera = read_pku_csv(annotations), APOLLO_CAMERA_5
-else:
-    cars_by_image, camera = read_apollo_folder(annotations), read_apollo_camera(annotations)
+cars_by_image, camera = read_annotations(source_kind, annotations)
 by_id = {image.image_id: image for image in cars_by_image}
 chosen = [by_id[image_id] for image_id in pd.read_csv(sample, dtype={"image_id": str})["image_id"]]
 configurations = build_sky_dataset(chosen, n_sample=len(chosen), seed=0, shift=tuple(shift), camera=camera,

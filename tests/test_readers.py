@@ -245,3 +245,14 @@ def test_image_cars_validates():
         ImageCars("x", torch.zeros(1, 3, dtype=torch.float32))
     with pytest.raises(SDMInputError, match="finite"):
         ImageCars("x", torch.tensor([[0.0, 1.0, float("nan")]], dtype=torch.float64))
+
+
+def test_read_annotations_dispatches_on_the_source_kind(tmp_path):
+    from sdm.data import read_annotations
+
+    csv_path = tmp_path / "train.csv"
+    csv_path.write_text("ImageId,PredictionString\nID_a,5 0.1 0.2 0.3 1.0 2.0 30.0\n")
+    images, camera = read_annotations("pku", csv_path)
+    assert [image.image_id for image in images] == ["ID_a"] and camera == APOLLO_CAMERA_5
+    with pytest.raises(SDMInputError, match="unknown annotation source 'kitti'"):
+        read_annotations("kitti", csv_path)

@@ -137,7 +137,7 @@ def shifted_target(points: torch.Tensor, shift: tuple[float, float], camera: Cam
     Returns:
         ``(H, W)`` bool; points leaving the screen are dropped.
     """
-    a, b = _check_shift(shift)
+    a, b = check_shift(shift)
     moved = points + torch.tensor([a, b, 0.0], dtype=points.dtype)
     pixels, on_screen = screen_pixels(camera.project(moved), camera)
     return occupancy(pixels[on_screen], camera)
@@ -226,7 +226,8 @@ def _check_centres(centres: torch.Tensor) -> torch.Tensor:
     return centres.to(torch.float64)
 
 
-def _check_shift(shift) -> tuple[float, float]:
+def check_shift(shift) -> tuple[float, float]:
+    """``(a, b)`` as floats; :class:`SDMInputError` unless ``shift`` is two finite numbers."""
     try:
         a, b = (float(v) for v in shift)
     except (TypeError, ValueError):

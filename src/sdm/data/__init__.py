@@ -12,7 +12,9 @@ See ``docs/data.md``. Public API::
     SkyFile(path)                                      # lazy: len, [i], image_ids, shift, camera, version, load_all()
 """
 from .dataset import SKY_N_IMAGES, build_sky_dataset, sample_indices
-from .readers import ImageCars, read_apollo_camera, read_apollo_folder, read_car_poses, read_pku_csv
+from .readers import (
+    SOURCE_KINDS, ImageCars, read_annotations, read_apollo_camera, read_apollo_folder, read_car_poses, read_pku_csv,
+)
 from .skyfile import FORMAT_VERSION, SkyFile, write_sky_file
 from .synthetic import DEFAULT_MODEL, SceneModel, synthetic_images, write_synthetic_apollo
 
@@ -28,6 +30,8 @@ __all__ = [
     "read_apollo_folder",
     "read_car_poses",
     "read_pku_csv",
+    "read_annotations",
+    "SOURCE_KINDS",
     "sample_indices",
     "synthetic_images",
     "write_sky_file",

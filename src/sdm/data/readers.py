@@ -284,3 +284,23 @@ def parse_prediction_string(text: str, where: str = "prediction string") -> torc
         values.append(value)
     table = torch.tensor(values, dtype=torch.float64).reshape(-1, PKU_FIELDS)
     return table[:, 4:7].contiguous()
+
+
+#: Annotation sources :func:`read_annotations` understands (``synthetic`` is an ApolloCar3D folder).
+SOURCE_KINDS = ("synthetic", "apollo", "pku")
+
+
+def read_annotations(source_kind: str, path: str | Path) -> tuple[list[ImageCars], Camera]:
+    """Read a configured annotation source: its images and the camera they were taken with.
+
+    Args:
+        source_kind: ``"synthetic"`` or ``"apollo"`` (an ApolloCar3D folder, camera
+            from its ``camera/`` folder) or ``"pku"`` (the PKU/Baidu ``train.csv``,
+            taken with ApolloCar3D's ``Camera_5``).
+        path: the folder or the CSV file.
+    """
+    if source_kind == "pku":
+        return read_pku_csv(path), APOLLO_CAMERA_5
+    if source_kind in ("synthetic", "apollo"):
+        return read_apollo_folder(path), read_apollo_camera(path)
+    raise SDMInputError(f"unknown annotation source {source_kind!r}; expected one of {', '.join(SOURCE_KINDS)}")

@@ -38,7 +38,6 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 import os
 import struct
 import tempfile
@@ -51,7 +50,7 @@ import torch
 
 from ..camera import Camera
 from ..errors import SDMInputError
-from ..sky import SkyConfiguration
+from ..sky import SkyConfiguration, check_shift
 
 #: First 8 bytes of every Sky file.
 MAGIC = b"\x89SDMSKY\n"
@@ -109,12 +108,7 @@ def write_sky_file(
     path = Path(path)
     if not isinstance(camera, Camera):
         raise SDMInputError(f"camera must be a Camera, got {type(camera).__name__}")
-    try:
-        a, b = (float(v) for v in shift)
-    except (TypeError, ValueError):
-        raise SDMInputError(f"shift must be two numbers (a, b), got {shift!r}") from None
-    if not (math.isfinite(a) and math.isfinite(b)):
-        raise SDMInputError(f"shift must be finite, got {shift!r}")
+    a, b = check_shift(shift)
     if metadata is None:
         metadata = {}
     if not isinstance(metadata, dict):
