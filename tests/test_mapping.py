@@ -144,6 +144,8 @@ def test_dense_reference_in_the_large_c_limit_equals_the_fast_path(seed, zoom, a
     dense = dense_mapping(points, batch.pixels, batch.config, batch.rank, target, 4, zoom, CAM, c=1e9)
     assert torch.equal(fast.out_pixels, dense.out_pixels)
     assert torch.equal(fast.entered, dense.entered) and torch.equal(fast.matched, dense.matched)
+    assert torch.equal(fast.landed, dense.landed)
+    assert not bool(fast.flow[~fast.missed].any())  # only points that missed are pulled
     assert torch.equal(fast.flow, dense.flow)
     assert float(fast.loss) == pytest.approx(float(dense.loss), rel=1e-9, abs=1e-9)
 

@@ -216,3 +216,27 @@ def test_figures_render_and_save(tmp_path):
         path = figures.save_figure(figure, tmp_path / f"{name}.png", pdf=name == "fig1")
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert (tmp_path / "fig1.pdf").stat().st_size > 0
+
+
+def test_flow_at_the_true_shift_vanishes_without_noise_and_is_reported():
+    from scenes import configuration_set
+
+    from sdm.experiments import flow_at_true_shift
+
+    train_set = configuration_set(48, seed=9)
+    flow = flow_at_true_shift(train_set, [0, 2], seed=0, s=4)
+    assert list(flow["zoom"][flow["level"] == 0]) == [4, 3, 2, 1, 0]
+    noise_free = flow[flow["level"] == 0]
+    assert not noise_free[["flow_a", "flow_b", "unmatched"]].to_numpy().any()  # theta* is a fixed point
+    noisy_finest = flow[(flow["level"] == 2) & (flow["zoom"] == 0)].iloc[0]
+    assert noisy_finest["unmatched"] > 0.05 and (noisy_finest["flow_a"], noisy_finest["flow_b"]) != (0, 0)
+
+    runs = distances((0.77, 41.0, 25.0, 35.0, 40.0))
+    table1 = table1_frame(grid({(1, 3e-4): 2.5, (1, 1e-3): 1.25}))
+    table2 = table2_frame(runs, {1: 271.1, 2: 473.2, 3: 669.5, 4: 865.6})
+    stats = {"target_mean_depth": 48.76, "configurations": 4248, "circle_overlap_rate": 0.3}
+    text = build_report(table1, table2, runs, stats, {"images": 5277, "cars_per_image": 11.37}, CONFIG,
+                        flow_at_truth=flow)
+    assert "## Why the noisy runs are biased: the flow at theta*" in text
+    assert "Without noise the flow at theta* is zero at zoom 0" in text
+    assert f"{100 * noisy_finest['unmatched']:.1f}%" in text

@@ -24,6 +24,7 @@ from .batch import ConfigurationSet
 from .camera import APOLLO_CAMERA_5, Camera
 from .data import SkyFile
 from .errors import SDMInputError
+from .mapping import SpatialDomainMapping
 from .metrics import dev_loss, distance
 from .sky import SKY_SHIFT, add_target_noise
 from .train import TrainSettings, train
@@ -125,6 +126,42 @@ def noise_runs(train_set, level: int, runs: Sequence[int], settings, seed: int,
     """Several :func:`noise_run` at one level, one row each."""
     rows = [noise_run(train_set, level, run, settings, seed, shift, camera) for run in runs]
     return pd.DataFrame.from_records(rows, columns=["level", "run", "seed", "a", "b", "distance"])
+
+
+def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed: int, s: int = 4,
+                       shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
+                       batch_size: int = 64) -> pd.DataFrame:
+    """The dynamic gradient flow *at* theta*, on each noise level's training targets (run 0's draw).
+
+    Without noise theta* is a fixed point (the flow vanishes at every zoom level). With noisy
+    targets it need not be: a non-zero mean flow at theta* is a pull that SGD follows past
+    theta*, i.e. a bias of the noisy estimates, measured here instead of guessed.
+
+    Returns:
+        One row per (noise level, zoom): ``level, zoom, flow_a, flow_b`` (summed flow per
+        training configuration; negative values push theta~ up) and ``unmatched`` (share of
+        the points entering the zoom level that land on the grid in a block the target leaves empty).
+    """
+    camera = camera or train_set.camera
+    theta = torch.tensor([float(shift[0]), float(shift[1]), 0.0], dtype=torch.float64)
+    rows = []
+    for level in levels:
+        noisy = train_set.with_targets(noisy_targets(train_set.targets, level, run_seed(seed, level, 0)))
+        for zoom in range(s, -1, -1):
+            layer = SpatialDomainMapping(camera, s=s, zoom=zoom)
+            flow = torch.zeros(2, dtype=torch.float64)
+            entered = unmatched = 0
+            for first in range(0, len(noisy), batch_size):
+                batch = noisy.batch(torch.arange(first, min(first + batch_size, len(noisy))))
+                if batch.points.shape[0] == 0:
+                    continue
+                result = layer(batch.points + theta, batch.pixels, batch.targets, batch.config, batch.rank).result
+                flow += result.flow.sum(0)
+                entered += int(result.entered.sum())
+                unmatched += int(result.missed.sum())
+            rows.append({"level": int(level), "zoom": zoom, "flow_a": float(flow[0]) / len(noisy),
+                         "flow_b": float(flow[1]) / len(noisy), "unmatched": unmatched / max(entered, 1)})
+    return pd.DataFrame.from_records(rows, columns=["level", "zoom", "flow_a", "flow_b", "unmatched"])
 
 
 def single_thread(threads: int = 1) -> None:

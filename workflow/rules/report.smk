@@ -86,6 +86,8 @@ rule report:
         distances="results/noise/distances.csv",
         stats="results/sky/stats.json",
         summary="results/data/summary.json",
+        sky="results/sky/sky.bin",
+        split="results/split/split.json",
     output:
         report=report("results/report/reproduction.md", caption="../report/reproduction.rst", category="Report"),
         html=html("report"),

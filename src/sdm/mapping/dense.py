@@ -81,7 +81,7 @@ def dense_mapping(
         kernel = torch.softmax(-c * distance, dim=2)
         selected = (kernel > 0.5) & active[:, :, None]
         if level == zoom:
-            flow_grid, loss, matched_grid = _dynamic_flow(kernel, offset, active, target, sub["z"].shape)
+            flow_grid, loss, matched_grid, landed_grid = _dynamic_flow(kernel, offset, active, target, sub["z"].shape)
             ids = sub["id"]
         sub = _aggregate(sub, selected)
         grid = {name: depth_to_space(values, level) for name, values in sub.items()}
@@ -93,11 +93,13 @@ def dense_mapping(
     flow = torch.zeros(n_points, 2, dtype=points.dtype)
     matched = torch.zeros(n_points, dtype=torch.bool)
     entered = torch.zeros(n_points, dtype=torch.bool)
+    landed = torch.zeros(n_points, dtype=torch.bool)
     present = ids >= 0
+    landed[ids[present]] = landed_grid[present]
     flow[ids[present]] = flow_grid[present]
     matched[ids[present]] = matched_grid[present]
     entered[ids[present]] = True
-    return MappingResult(out_pixels, flow, loss, entered, matched, zoom)
+    return MappingResult(out_pixels, flow, loss, entered, matched, zoom, landed)
 
 
 def _scatter(cell, values, n_configs, camera, empty):
@@ -156,7 +158,7 @@ def _aggregate(sub: dict, selected: torch.Tensor) -> dict:
 
 
 def _dynamic_flow(kernel, offset, active, target, shape):
-    """Eq. 19 on grids: ``(flow (n, S, h, w, 2), loss (), matched (n, S, h, w))``."""
+    """Eq. 19 on grids: ``(flow (n, S, h, w, 2), loss (), matched, landed (n, S, h, w))``."""
     n_configs, n_subreps, h, w = shape
     window = torch.stack([_shift(target, -dk, -dl, False) for dk, dl in _OFFSETS], 1)  # (n, 9, h, w): target at I+dk
     window = window[:, None].expand(n_configs, n_subreps, 9, h, w)
@@ -169,4 +171,4 @@ def _dynamic_flow(kernel, offset, active, target, shape):
     weight = (window & others & pulled[:, :, None]).to(offset.dtype)[..., None]  # (n, S, 9, h, w, 1)
     flow = (torch.sign(offset) * weight).sum(2)
     loss = (offset.abs() * weight).sum()
-    return flow, loss, matched
+    return flow, loss, matched, active & landed_on_grid

@@ -110,7 +110,7 @@ def fast_mapping(
     flow, loss, matched = _dynamic_flow(
         screen, points[:, 2], config, entered, entered_block, entered_landing, entered_on_grid, target, zoom, camera
     )
-    return MappingResult(out_pixels, flow, loss, entered, matched, zoom)
+    return MappingResult(out_pixels, flow, loss, entered, matched, zoom, entered & entered_on_grid)
 
 
 def _dynamic_flow(screen, depth, config, entered, block, landing, on_grid, target, zoom, camera):

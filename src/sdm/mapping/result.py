@@ -22,6 +22,8 @@ class MappingResult:
         entered: ``(P,)`` bool, the point reached the loss level.
         matched: ``(P,)`` bool, the point's landing block is active in the zoomed-out target.
         zoom: the loss level.
+        landed: ``(P,)`` bool, the point entered the loss level and its landing block is on
+            the grid (points leaving the screen are neither matched nor pulled).
     """
 
     out_pixels: torch.Tensor
@@ -30,6 +32,12 @@ class MappingResult:
     entered: torch.Tensor
     matched: torch.Tensor
     zoom: int
+    landed: torch.Tensor
+
+    @property
+    def missed(self) -> torch.Tensor:
+        """``(P,)`` bool, landed on the grid in a block the target leaves empty (these are pulled)."""
+        return self.landed & ~self.matched
 
     @property
     def alive(self) -> torch.Tensor:
