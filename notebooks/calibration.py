@@ -46,7 +46,6 @@ import numpy as np
 import pandas as pd
 import torch
 
-from sdm.camera import APOLLO_CAMERA_5
 from sdm.data import build_sky_dataset, read_apollo_camera, read_apollo_folder, write_synthetic_apollo
 from sdm.data import stats
 from sdm.sky import SKY_SHIFT, build_configuration

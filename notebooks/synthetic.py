@@ -28,7 +28,6 @@ threads = 1
 
 # %%
 import json
-from pathlib import Path
 
 from sdm.data.synthetic import write_synthetic_apollo
 from sdm.experiments import single_thread

@@ -38,7 +38,7 @@ def brute_force_level(points, pixels, config, level):
         if key not in best or (z, i) < best[key][0]:
             best[key] = ((z, i), i)
     out = torch.full((len(screen), 2), -1, dtype=torch.int64)
-    for (n, row, col), (_, i) in best.items():
+    for (_, row, col), (_, i) in best.items():
         out[i] = torch.tensor([row, col])
     return out
 

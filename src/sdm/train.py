@@ -9,7 +9,7 @@ batch, which is what the paper's learning rates assume.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
@@ -199,8 +199,3 @@ class _EpochLayout:
         configs = self.configs[index * self.batch_size : (index + 1) * self.batch_size]
         rows = slice(lo, hi)
         return PointBatch(self.points[rows], self.pixels[rows], self.local[rows], self.rank[rows], None), configs
-
-
-def settings_dict(settings: TrainSettings) -> dict:
-    """Plain-dict form of :class:`TrainSettings` (for JSON provenance)."""
-    return asdict(settings)
