@@ -29,7 +29,7 @@ def test_configuration_from_one_car():
     assert torch.equal(pixels, cfg.pixels)
     # L is the occupancy of the shifted points, here a shifted copy of the disc.
     moved = cfg.points() + torch.tensor([*SKY_SHIFT, 0.0], dtype=torch.float64)
-    expected = occupancy(torch.floor(APOLLO_CAMERA_5.project(moved)).long(), APOLLO_CAMERA_5)
+    expected = occupancy(torch.floor(APOLLO_CAMERA_5.project(moved)).long(), APOLLO_CAMERA_5.screen_shape)
     assert torch.equal(cfg.target, expected) and int(cfg.target.sum()) == 57
 
 

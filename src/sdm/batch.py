@@ -7,7 +7,7 @@ with their targets, so a mini-batch is a cheap gather, not a Python loop.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Sequence
+from typing import Iterator, Sequence
 
 import torch
 
@@ -115,6 +115,19 @@ class ConfigurationSet:
             self.rank.index_select(0, rows),
             self.targets.index_select(0, indices),
         )
+
+    def batches(self, batch_size: int) -> Iterator[tuple[torch.Tensor, PointBatch]]:
+        """Consecutive batches of up to ``batch_size`` configurations, in order, for evaluation.
+
+        Yields ``(indices, batch)``. A batch whose configurations are all empty has
+        nothing to map and is skipped (its configurations keep whatever the caller
+        counts for empty ones).
+        """
+        for first in range(0, len(self), batch_size):
+            indices = torch.arange(first, min(first + batch_size, len(self)))
+            batch = self.batch(indices)
+            if batch.points.shape[0]:
+                yield indices, batch
 
     def pyramid(self, steps: int) -> list[torch.Tensor]:
         """Zoomed-out targets of every configuration at levels ``0..steps`` (cached)."""

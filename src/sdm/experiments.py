@@ -151,10 +151,7 @@ def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed:
             layer = SpatialDomainMapping(camera, s=s, zoom=zoom)
             flow = torch.zeros(2, dtype=torch.float64)
             entered = unmatched = 0
-            for first in range(0, len(noisy), batch_size):
-                batch = noisy.batch(torch.arange(first, min(first + batch_size, len(noisy))))
-                if batch.points.shape[0] == 0:
-                    continue
+            for _, batch in noisy.batches(batch_size):
                 result = layer(batch.points + theta, batch.pixels, batch.targets, batch.config, batch.rank).result
                 flow += result.flow.sum(0)
                 entered += int(result.entered.sum())

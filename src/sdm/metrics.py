@@ -35,11 +35,7 @@ def false_positive_pixels(
     shift = torch.tensor([float(theta[0]), float(theta[1]), 0.0], dtype=torch.float64)
     counts = torch.zeros(len(data), dtype=torch.int64)
     with torch.no_grad():
-        for first in range(0, len(data), batch_size):
-            indices = torch.arange(first, min(first + batch_size, len(data)))
-            batch = data.batch(indices)
-            if batch.points.shape[0] == 0:  # empty configurations render nothing
-                continue
+        for indices, batch in data.batches(batch_size):  # empty configurations render nothing: count 0
             out = layer(batch.points + shift, batch.pixels, batch.targets, batch.config, batch.rank)
             alive = out.result.alive
             pixels = out.result.out_pixels[alive]

@@ -24,7 +24,7 @@ import torch
 
 from .camera import APOLLO_CAMERA_5, Camera
 from .errors import SDMInputError
-from .representation import occupancy, render_rmin, screen_pixels
+from .representation import inside, occupancy, render_rmin, screen_pixels
 
 #: The shift of the Sky dataset, metres: theta* = (a, b).
 SKY_SHIFT = (0.517, 0.303)
@@ -106,10 +106,10 @@ def draw_circles(centre_image: torch.Tensor, radius: float = CIRCLE_RADIUS) -> t
     offsets = circle_offsets(radius)
     painted = (active[:, None, :] + offsets[None, :, :]).reshape(-1, 2)
     values = centre_image[active[:, 0], active[:, 1]].repeat_interleave(offsets.shape[0])
-    inside = (painted[:, 0] >= 0) & (painted[:, 0] < height) & (painted[:, 1] >= 0) & (painted[:, 1] < width)
-    cells = painted[inside, 0] * width + painted[inside, 1]
+    on_screen = inside(painted, height, width)
+    cells = painted[on_screen, 0] * width + painted[on_screen, 1]
     image = torch.full((height * width,), math.inf, dtype=centre_image.dtype)
-    image.scatter_reduce_(0, cells, values[inside], reduce="amin")
+    image.scatter_reduce_(0, cells, values[on_screen], reduce="amin")
     image[torch.isinf(image)] = 0
     return image.view(height, width)
 
@@ -139,8 +139,8 @@ def shifted_target(points: torch.Tensor, shift: tuple[float, float], camera: Cam
     """
     a, b = check_shift(shift)
     moved = points + torch.tensor([a, b, 0.0], dtype=points.dtype)
-    pixels, on_screen = screen_pixels(camera.project(moved), camera)
-    return occupancy(pixels[on_screen], camera)
+    pixels, _ = screen_pixels(camera.project(moved), camera)
+    return occupancy(pixels, camera.screen_shape)
 
 
 def build_configuration(
@@ -195,12 +195,7 @@ def add_target_noise(target: torch.Tensor, level: int, generator: torch.Generato
         return target.clone()
     active = target.nonzero()
     moves = torch.randint(-level, level + 1, active.shape, generator=generator, dtype=torch.int64)
-    moved = active + moves
-    height, width = target.shape
-    inside = (moved[:, 0] >= 0) & (moved[:, 0] < height) & (moved[:, 1] >= 0) & (moved[:, 1] < width)
-    noisy = torch.zeros_like(target)
-    noisy[moved[inside, 0], moved[inside, 1]] = True
-    return noisy
+    return occupancy(active + moves, tuple(target.shape))
 
 
 def noise_displacement(level: int, mean_depth: float, camera: Camera = APOLLO_CAMERA_5) -> float:

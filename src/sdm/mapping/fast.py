@@ -18,11 +18,10 @@ indexing costs more than the arithmetic it would save at these sizes.
 """
 from __future__ import annotations
 
-import functools
-
 import torch
 
 from ..camera import Camera
+from ..representation import inside
 from .result import MappingResult
 
 _WINDOW = torch.tensor([(dr, dc) for dr in (-1, 0, 1) for dc in (-1, 0, 1)], dtype=torch.int64)  # (9, 2)
@@ -50,23 +49,6 @@ class _CellScratch:
 
 
 _SCRATCH = _CellScratch()
-
-
-def _on_grid(block: torch.Tensor, grid_h: int, grid_w: int) -> torch.Tensor:
-    """``(...,)`` bool: ``(..., 2)`` integer blocks inside a ``grid_h x grid_w`` grid (both sides >= 2).
-
-    ``0 <= x <= n - 1`` exactly when ``x * (n - 1 - x) >= 0`` for integers (the two
-    factors cannot both be negative when ``n >= 2``), and the bitwise or of two
-    int64 values is negative exactly when one of them is: five cheap ops instead
-    of eight comparisons and reductions.
-    """
-    inside = block * (_last(grid_h, grid_w) - block)
-    return (inside[..., 0] | inside[..., 1]) >= 0
-
-
-@functools.lru_cache(maxsize=64)
-def _last(grid_h: int, grid_w: int) -> torch.Tensor:
-    return torch.tensor([grid_h - 1, grid_w - 1])
 
 
 def fast_mapping(
@@ -112,21 +94,19 @@ def fast_mapping(
             entered, entered_block, entered_landing = alive, block, block + step
         current = current + (step << level)
         # The new pixel is on the screen exactly when its landing block is on the block grid.
-        on_grid = _on_grid(current, height, width)
+        candidate = alive & inside(current, height, width)
         if level == zoom:
-            entered_on_grid = on_grid
-        candidate = alive & on_grid
+            landed = candidate
         cell = torch.where(candidate, config_offset + (current * to_cell).sum(1), n_cells)
         alive = candidate & _SCRATCH.winners(cell, rank, n_cells)
 
     out_pixels = torch.where(alive[:, None], current, -1)
-    flow, loss, matched = _dynamic_flow(
-        screen, points[:, 2], config, entered, entered_block, entered_landing, entered_on_grid, target, zoom, camera
-    )
-    return MappingResult(out_pixels, flow, loss, entered, matched, zoom, entered & entered_on_grid)
+    flow, loss, matched = _dynamic_flow(screen, points[:, 2], config, landed, entered_block, entered_landing, target,
+                                        zoom, camera)
+    return MappingResult(out_pixels, flow, loss, entered, matched, zoom, landed)
 
 
-def _dynamic_flow(screen, depth, config, entered, block, landing, on_grid, target, zoom, camera):
+def _dynamic_flow(screen, depth, config, landed, block, landing, target, zoom, camera):
     """Dynamic gradient flow at the loss level (paper eq. 19; notes, section 5).
 
     A point whose landing block is active in the zoomed-out target is matched
@@ -142,19 +122,19 @@ def _dynamic_flow(screen, depth, config, entered, block, landing, on_grid, targe
     grid_h, grid_w = target.shape[1:]
     flat_target = target.reshape(-1)
     config_offset = config * (grid_h * grid_w)
-    landing_cell = torch.where(on_grid, config_offset + landing[:, 0] * grid_w + landing[:, 1], 0)
-    matched = entered & on_grid & flat_target.take(landing_cell)
+    landing_cell = torch.where(landed, config_offset + landing[:, 0] * grid_w + landing[:, 1], 0)
+    matched = landed & flat_target.take(landing_cell)
     flow = torch.zeros_like(screen)
 
     # Only the unmatched points are pulled; they are few once training is under way.
-    pulled = (entered & on_grid & ~matched).nonzero().squeeze(1)
+    pulled = (landed & ~matched).nonzero().squeeze(1)
     screen, block, landing = screen.index_select(0, pulled), block.index_select(0, pulled), landing.index_select(0, pulled)
     config_offset = config_offset.index_select(0, pulled)
     window = block[:, None, :] + _WINDOW  # (p, 9, 2) candidate blocks q
-    inside = _on_grid(window, grid_h, grid_w)
-    window_cell = torch.where(inside, config_offset[:, None] + window[..., 0] * grid_w + window[..., 1], 0)
+    in_grid = inside(window, grid_h, grid_w)
+    window_cell = torch.where(in_grid, config_offset[:, None] + window[..., 0] * grid_w + window[..., 1], 0)
     is_landing = (window == landing[:, None, :]).all(-1)
-    weight = (inside & flat_target.take(window_cell) & ~is_landing).to(screen.dtype)[..., None]  # (p, 9, 1)
+    weight = (in_grid & flat_target.take(window_cell) & ~is_landing).to(screen.dtype)[..., None]  # (p, 9, 1)
     offset = screen[:, None, :] - (window + 0.5) * (1 << zoom)  # (p, 9, 2) screen pixels from q's centre
     flow.index_copy_(0, pulled, (torch.sign(offset) * weight).sum(1).flip(-1))  # (row, col) -> (x, y)
     metres_per_pixel = torch.stack(camera.metres_per_screen_pixel(depth.index_select(0, pulled)), dim=-1)  # (p, 2) (row, col)

@@ -19,7 +19,7 @@ from torch import nn
 
 from ..camera import APOLLO_CAMERA_5, Camera, check_points
 from ..errors import SDMInputError
-from ..representation import priority_rank
+from ..representation import inside, priority_rank
 from ..zoom import check_divisible, zoom_out
 from .dense import dense_mapping
 from .fast import fast_mapping
@@ -170,7 +170,7 @@ class SpatialDomainMapping(nn.Module):
             raise SDMInputError(f"target must have shape (n, {expected[0]}, {expected[1]}), got {tuple(target.shape)}")
         if pixels.shape != (n_points, 2) or pixels.dtype != torch.int64:
             raise SDMInputError(f"pixels must be int64 of shape ({n_points}, 2), got {pixels.dtype} {tuple(pixels.shape)}")
-        if n_points and not bool(((pixels >= 0).all(1) & (pixels[:, 0] < height) & (pixels[:, 1] < width)).all()):
+        if not bool(inside(pixels, height, width).all()):
             raise SDMInputError(f"pixels must lie on the {height} x {width} screen")
         n_configs = int(target.shape[0])
         if config is not None and (
