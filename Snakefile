@@ -1,8 +1,12 @@
 # SDM: regenerate the paper's Tables 1-2 and Figures 1-4 with `snakemake -c2`.
 # Stages are jupytext notebooks in notebooks/, run by papermill (workflow/rules/*.smk).
+import sys
+
+from snakemake.exceptions import WorkflowError
 from snakemake.utils import min_version, validate
 
-from sdm.config import check_config
+sys.path.insert(0, f"{workflow.basedir}/workflow/scripts")
+from config_check import ConfigError, check_against_annotations, check_config
 
 min_version("9.0")
 
@@ -11,13 +15,17 @@ configfile: "config.yaml"
 
 
 validate(config, schema="workflow/schemas/config.schema.yaml")
-check_config(config)
+try:
+    check_config(config)
+except ConfigError as error:  # one line naming the key, no traceback
+    raise WorkflowError(error) from None
 
 
 report: "workflow/report/workflow.rst"
 
 
 include: "workflow/rules/common.smk"
+include: "workflow/rules/stage.smk"
 include: "workflow/rules/data.smk"
 include: "workflow/rules/tuning.smk"
 include: "workflow/rules/noise.smk"
@@ -29,6 +37,15 @@ wildcard_constraints:
     lr=r"[0-9][0-9.e+-]*",
     level=r"\d+",
     chunk=r"\d+",
+
+
+# Small jobs run on the submitting node on a cluster (no queue wait for seconds of work).
+localrules:
+    all,
+    sample,
+    split,
+    best,
+    tables,
 
 
 rule all:

@@ -18,21 +18,27 @@
 
 # %% tags=["parameters"]
 cells = []  # input: one JSON per cell
+histories = []  # input: one history per cell, in the same order as cells
 grid = "results/tuning/grid.csv"  # output
 best = "results/tuning/best.json"  # output
+best_history = "results/tuning/best_history.csv"  # output: the chosen cell's history (theta after each step)
 threads = 1
 
 # %%
+from pathlib import Path
+
 import pandas as pd
 
-from sdm.report.io import read_json, write_csv, write_json
+from sdm.report.io import read_json, write_csv, write_json, write_text
 from sdm.report.tables import best_cell, table1_frame
 
 results = [read_json(path) for path in cells]
 records = pd.DataFrame.from_records(results)
 write_csv(grid, records)
 choice = best_cell(records)
-write_json(best, next(r for r in results if r["n_epoch"] == choice["n_epoch"] and r["lr"] == choice["lr"]))
+chosen = next(i for i, r in enumerate(results) if r["n_epoch"] == choice["n_epoch"] and r["lr"] == choice["lr"])
+write_json(best, results[chosen])
+write_text(best_history, Path(histories[chosen]).read_text())
 table1_frame(records)
 
 # %%

@@ -24,7 +24,7 @@
 sky = "results/sky/sky.bin"
 split = "results/split/split.json"
 best = "results/tuning/best.json"
-histories = []  # the tuning runs' histories
+best_history = "results/tuning/best_history.csv"  # the tuned run's history
 distances = "results/noise/distances.csv"
 fig1 = "results/figures/fig1_configuration.png"
 fig2 = "results/figures/fig2_forward.png"
@@ -44,7 +44,7 @@ import pandas as pd
 import torch
 from IPython.display import Image, display
 
-from sdm.config import lr_label
+from sdm import SDMInputError
 from sdm.data import SkyFile
 from sdm.experiments import single_thread
 from sdm.report import figures
@@ -53,7 +53,12 @@ from sdm.report.io import read_json
 single_thread(threads)
 dataset = SkyFile(sky)
 camera = dataset.camera
-configuration = dataset[read_json(split)["train"][example]]
+# The example is counted among the train configurations that have points (an empty one has nothing to draw).
+non_empty = [index for index in read_json(split)["train"] if dataset[index].num_points > 0]
+if example >= len(non_empty):
+    raise SDMInputError(f"config key 'figures.example': only {len(non_empty)} train configurations have points, "
+                        f"got example {example}")
+configuration = dataset[non_empty[example]]
 tuned = read_json(best)
 
 
@@ -88,8 +93,7 @@ show(figures.figure4(configuration.target, levels, seed=noise_seed), fig4)
 # theta~ during the tuned run (the best cell of Table 1), coloured by zoom level.
 
 # %%
-name = f"history_{int(tuned['n_epoch'])}_{lr_label(tuned['lr'])}.csv"
-history = pd.read_csv(next(path for path in histories if path.endswith(name)))
+history = pd.read_csv(best_history)
 show(figures.theta_path_figure(history, shift, title=f"theta~ with n_epoch {tuned['n_epoch']}, lr {tuned['lr']:g}"),
      theta_path)
 

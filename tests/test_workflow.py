@@ -1,7 +1,17 @@
-"""The Snakemake workflow: lint, dry runs (default, .test, SLURM) and config errors that name the key.
+"""The Snakemake workflow: lint, format, dry runs, config errors that name the key, and end-to-end runs.
 
-The end-to-end run of ``.test/config.yaml`` is ``scripts/ci_workflow.sh`` (called by ``.ci/run``).
+Every test runs Snakemake in a temporary directory of its own (``--directory``), with the
+project's Snakefile, so nothing depends on what a previous run left in ``results/``,
+``logs/`` or ``benchmarks/`` of the working tree.
+
+The end-to-end run of the tiny ``.test`` config is a session fixture (about a minute on
+two cores); the tests that need a completed run share it.
 """
+from __future__ import annotations
+
+import copy
+import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -9,49 +19,109 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sdm.config import check_config, chunk_runs, load_config, lr_label, noise_chunks, tuning_cells
-from sdm.errors import SDMInputError
-
 ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "workflow" / "scripts"))
+from config_check import ConfigError, check_config, load_config, validate_schema  # noqa: E402
+
 SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
+APOLLO_SAMPLE = ROOT / "data" / "apollocar3d-sample"
+STAGES = ["synthetic", "data", "sample", "sky", "split", "tune", "best", "noise", "tables", "figures", "report"]
+
+pytestmark = pytest.mark.workflow
 
 
-def snakemake(*args: str, cwd: Path = ROOT) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [sys.executable, "-m", "snakemake", *args], cwd=cwd, capture_output=True, text=True, timeout=300
-    )
+def snakemake(*args: str, cwd: Path = ROOT, timeout: int = 900) -> subprocess.CompletedProcess:
+    """Snakemake with the project's Snakefile, in ``cwd``, under the common umask 022."""
+    return subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), *args],
+                          cwd=cwd, capture_output=True, text=True, timeout=timeout, preexec_fn=lambda: os.umask(0o022))
 
 
 def default_config() -> dict:
     return yaml.safe_load((ROOT / "config.yaml").read_text())
 
 
+def dot_test_config() -> dict:
+    return yaml.safe_load((ROOT / ".test" / "config.yaml").read_text())
+
+
+def workdir(path: Path, config: dict) -> Path:
+    """A working directory holding ``config.yaml``: where Snakemake runs and writes."""
+    path.mkdir(parents=True, exist_ok=True)
+    (path / "config.yaml").write_text(yaml.safe_dump(config))
+    return path
+
+
+def planned(result: subprocess.CompletedProcess) -> dict[str, int]:
+    """Jobs of a dry run (``-n --quiet rules``): rule -> count."""
+    assert result.returncode == 0, result.stdout + result.stderr
+    jobs = {}
+    for line in (result.stdout + result.stderr).splitlines():
+        parts = line.split()
+        if len(parts) == 2 and parts[0] in STAGES and parts[1].isdigit():
+            jobs[parts[0]] = int(parts[1])
+    return jobs
+
+
+# -- static checks -----------------------------------------------------------------------------------------
+
+
 def test_lint_is_clean():
-    result = snakemake("--lint")
+    result = snakemake("--lint", cwd=ROOT)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "Congratulations, your workflow is in a good condition" in result.stdout + result.stderr
 
 
-def test_dry_run_default_config_plans_every_stage():
-    result = snakemake("-n", "--quiet", "rules")
+def test_rule_files_are_snakefmt_formatted():
+    files = [ROOT / "Snakefile", *sorted((ROOT / "workflow" / "rules").glob("*.smk"))]
+    result = subprocess.run([sys.executable, "-m", "snakefmt", "--check", *map(str, files)],
+                            capture_output=True, text=True, timeout=120)
     assert result.returncode == 0, result.stdout + result.stderr
-    output = result.stdout + result.stderr
+
+
+def test_parsing_the_workflow_does_not_import_torch(tmp_path):
+    """A login node without torch can plan a run: the Snakefile and rules import neither torch nor sdm."""
+    probe = ("import sys, runpy\n"
+             "sys.argv = ['snakemake', '--snakefile', sys.argv[1], '-n', '--quiet', 'rules']\n"
+             "import snakemake.cli\n"
+             "try:\n    snakemake.cli.main()\nexcept SystemExit as e:\n    code = e.code\n"
+             "print('TORCH_LOADED' if 'torch' in sys.modules else 'NO_TORCH', 'SDM_LOADED' if 'sdm' in sys.modules else '')\n")
+    workdir(tmp_path, default_config())
+    result = subprocess.run([sys.executable, "-c", probe, str(ROOT / "Snakefile")], cwd=tmp_path,
+                            capture_output=True, text=True, timeout=300)
+    assert "NO_TORCH" in result.stdout and "SDM_LOADED" not in result.stdout, result.stdout + result.stderr
+
+
+def test_dry_run_default_config_plans_every_stage(tmp_path):
     config = default_config()
+    jobs = planned(snakemake("-n", "--quiet", "rules", cwd=workdir(tmp_path, config)))
     cells = len(config["tuning"]["n_epoch"]) * len(config["tuning"]["lr"])
-    for rule, count in {"synthetic": 1, "data": 1, "sample": 1, "sky": 1, "split": 1, "tune": cells,
-                        "best": 1, "noise": len(noise_chunks(config)), "tables": 1, "figures": 1, "report": 1}.items():
-        assert any(line.split() == [rule, str(count)] for line in output.splitlines()), (rule, output)
-
-
-def test_dry_run_test_config():
-    result = snakemake("-n", "--directory", ".test")
-    assert result.returncode == 0, result.stdout + result.stderr
+    chunks = len(config["noise"]["levels"]) * -(-config["noise"]["runs"] // config["noise"]["chunk_size"])
+    assert jobs == {"synthetic": 1, "data": 1, "sample": 1, "sky": 1, "split": 1, "tune": cells, "best": 1,
+                    "noise": chunks, "tables": 1, "figures": 1, "report": 1}
 
 
 @pytest.mark.parametrize("flag", ["--workflow-profile", "--profile"])
-def test_dry_run_slurm_profile(flag):
-    result = snakemake("-n", flag, "profiles/slurm")
+def test_dry_run_slurm_profile(tmp_path, flag):
+    result = snakemake("-n", flag, str(ROOT / "profiles" / "slurm"), cwd=workdir(tmp_path, default_config()))
     assert result.returncode == 0, result.stdout + result.stderr
+
+
+def apollo_sample_config() -> dict:
+    """The default config with the shipped real-data config over it, its folder made absolute."""
+    config = _merge(default_config(), yaml.safe_load((APOLLO_SAMPLE / "config.yaml").read_text()))
+    config["data"]["apollo_folder"] = str(ROOT / config["data"]["apollo_folder"])
+    return config
+
+
+def test_apollo_sample_config_plans_every_stage_under_its_own_results_root(tmp_path):
+    """The shipped real-data config: data stage first (no synthetic), every output under its results root."""
+    directory = workdir(tmp_path, apollo_sample_config())
+    jobs = planned(snakemake("-n", "--quiet", "rules", cwd=directory))
+    assert "synthetic" not in jobs and jobs["data"] == 1 and jobs["report"] == 1 and jobs["noise"] == 10
+    listing = snakemake("-n", "--summary", cwd=directory)
+    outputs = [line.split("\t")[0] for line in listing.stdout.splitlines() if "\t" in line][1:]
+    assert len(outputs) > 50
+    assert all(path.startswith("results/apollocar3d-sample/") for path in outputs), outputs
 
 
 @pytest.mark.parametrize(
@@ -63,20 +133,41 @@ def test_dry_run_slurm_profile(flag):
         ({"split": {"n_train": 500}}, "split.n_selected"),
         ({"sky": {"n_images": 6000}}, "sky.n_images"),
         ({"noise": {"runs": 0}}, "noise.runs"),
+        ({"figures": {"example": 600}}, "figures.example"),
+        ({"results_dir": "/etc"}, "results_dir"),
     ],
 )
-def test_bad_config_fails_naming_the_key(tmp_path, change, key):
+def test_bad_config_fails_before_any_job_naming_the_key(tmp_path, change, key):
     bad = tmp_path / "bad.yaml"
     bad.write_text(yaml.safe_dump(change))
-    result = snakemake("-n", "--configfile", str(bad))
+    result = snakemake("-n", "--configfile", str(bad), cwd=workdir(tmp_path / "run", default_config()))
     assert result.returncode != 0
     output = result.stdout + result.stderr
     dotted = key.split(".")
-    # Snakemake's schema check prints the path as ['train']['s']; sdm.config.check_config as 'train.s'.
+    # Snakemake's schema check prints the path as ['train']['s']; config_check as 'train.s'.
     assert f"'{key}'" in output or "".join(f"['{part}']" for part in dotted) in output, output
+    assert not (tmp_path / "run" / "results").exists()
 
 
-# -- sdm.config, without Snakemake ------------------------------------------------------------------
+def test_empty_configuration_is_refused_naming_it(tmp_path):
+    (tmp_path / "config.yaml").write_text("# nothing\n")
+    result = snakemake("-n", cwd=tmp_path)
+    assert result.returncode != 0
+    assert "config" in (result.stdout + result.stderr).lower()
+
+
+def test_apollo_folder_with_fewer_images_than_sky_n_images_is_refused_at_parse_time(tmp_path):
+    config = dot_test_config()
+    config["data"] = {"source": "apollo", "apollo_folder": str(APOLLO_SAMPLE),
+                      "synthetic": config["data"]["synthetic"]}
+    result = snakemake("-n", cwd=workdir(tmp_path, config))
+    assert result.returncode != 0
+    output = result.stdout + result.stderr
+    assert "config key 'sky.n_images'" in output and "57 annotated images" in output, output
+    assert "Traceback" not in output and "config_check.py" not in output
+
+
+# -- the config checks, without Snakemake ----------------------------------------------------------------
 
 
 def write(tmp_path: Path, config: dict) -> Path:
@@ -87,10 +178,14 @@ def write(tmp_path: Path, config: dict) -> Path:
 
 def test_default_config_loads():
     config = load_config(ROOT / "config.yaml", SCHEMA)
-    assert config["sky"]["n_images"] == 4248
+    assert config["sky"]["n_images"] == 4248 and config["results_dir"] == "results"
     assert config["split"] == {"n_selected": 768, "n_train": 512, "n_dev": 256, "seed": 0}
     assert config["noise"]["runs"] == 60 and config["noise"]["levels"] == [0, 1, 2, 3, 4]
     load_config(ROOT / ".test" / "config.yaml", SCHEMA)
+    real = apollo_sample_config()  # an override of config.yaml, as --configfile uses it
+    validate_schema(real)
+    check_config(real)
+    assert real["results_dir"] == "results/apollocar3d-sample"
 
 
 @pytest.mark.parametrize(
@@ -103,19 +198,20 @@ def test_default_config_loads():
         ("noise", "chunk_size", 0, "config key 'noise.chunk_size'"),
         ("sky", "shift", [0.5], "config key 'sky.shift'"),
         ("split", "n_dev", 300, "config key 'split.n_selected'"),
+        ("figures", "example", 512, "config key 'figures.example'"),
     ],
 )
 def test_schema_and_cross_checks_name_the_key(tmp_path, section, key, value, message):
     config = default_config()
     config[section][key] = value
-    with pytest.raises(SDMInputError, match=message.replace(".", r"\.")):
+    with pytest.raises(ConfigError, match=message.replace(".", r"\.")):
         load_config(write(tmp_path, config), SCHEMA)
 
 
 def test_unknown_key_is_rejected(tmp_path):
     config = default_config()
     config["train"]["epochs"] = 3
-    with pytest.raises(SDMInputError, match="config key 'train'.*epochs"):
+    with pytest.raises(ConfigError, match="config key 'train'.*epochs"):
         load_config(write(tmp_path, config), SCHEMA)
 
 
@@ -123,8 +219,8 @@ def test_unknown_key_is_rejected(tmp_path):
     "section, key, value, message",
     [
         ("noise", "chunk_size", 61, "noise.chunk_size"),
-        ("train", "s", 8, "train.s"),
         ("split", "n_selected", 5000, "split.n_selected"),
+        ("sky", "shift", [0.5, float("inf")], "sky.shift"),
     ],
 )
 def test_cross_key_rules(section, key, value, message):
@@ -133,24 +229,169 @@ def test_cross_key_rules(section, key, value, message):
     if key == "n_selected":
         config["split"]["n_train"] = 4000
         config["split"]["n_dev"] = 1000
-    with pytest.raises(SDMInputError, match=f"config key '{message}'"):
+    with pytest.raises(ConfigError, match=f"config key '{message}'"):
         check_config(config)
 
 
 def test_real_sources_need_their_path():
     config = default_config()
     config["data"] = {"source": "pku", "synthetic": config["data"]["synthetic"]}
-    with pytest.raises(SDMInputError, match="config key 'data.pku_csv'"):
+    with pytest.raises(ConfigError, match="config key 'data.pku_csv'"):
         check_config(config)
 
 
-def test_grid_and_chunks_follow_the_config():
-    config = default_config()
-    assert tuning_cells(config) == [(1, "1e-04"), (1, "3e-04"), (1, "1e-03"), (2, "1e-04"), (2, "3e-04"), (2, "1e-03")]
-    chunks = noise_chunks(config)
-    assert len(chunks) == 10 and chunks[0] == (0, 0) and chunks[-1] == (4, 1)
-    runs = sorted(run for chunk in range(2) for run in chunk_runs(config, chunk))
-    assert runs == list(range(60))
-    config["noise"]["chunk_size"] = 25
-    assert [len(chunk_runs(config, k)) for k in range(3)] == [25, 25, 10]
-    assert float(lr_label(3e-4)) == 3e-4 and float(lr_label(2.5e-4)) == 2.5e-4
+def test_empty_config_is_refused():
+    with pytest.raises(ConfigError, match="empty"):
+        check_config({})
+
+
+# -- a completed .test run --------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="session")
+def completed_run(tmp_path_factory) -> Path:
+    """The ``.test`` config run end to end in a temporary directory."""
+    directory = workdir(tmp_path_factory.mktemp("test_run"), dot_test_config())
+    result = snakemake("-c2", cwd=directory)
+    assert result.returncode == 0, (result.stdout + result.stderr)[-5000:]
+    return directory
+
+
+def test_completed_run_has_every_output_and_nothing_left_to_do(completed_run):
+    for path in ["results/tables/table1.csv", "results/tables/table1.md", "results/tables/table1.tex",
+                 "results/tables/table2.csv", "results/tables/table2.md", "results/tables/table2.tex",
+                 "results/noise/distances.csv", "results/report/reproduction.md", "results/notebooks/report.html",
+                 *(f"results/figures/{name}.png" for name in ["fig1_configuration", "fig2_forward", "fig3_backward",
+                                                              "fig4_noise", "theta_path", "distances"])]:
+        assert (completed_run / path).stat().st_size > 0, path
+    result = snakemake("-n", cwd=completed_run)
+    assert "Nothing to be done" in result.stdout + result.stderr, result.stdout + result.stderr
+
+
+def test_snakemake_report_collects_the_results(completed_run, tmp_path):
+    result = snakemake("--report", str(tmp_path / "report.html"), cwd=completed_run)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert (tmp_path / "report.html").stat().st_size > 100_000
+
+
+def test_every_output_is_readable_by_others(completed_run):
+    """Files honour the usual umask (022 in the test run): readable by group and others."""
+    for path in (completed_run / "results").rglob("*"):
+        if path.is_file():
+            assert path.stat().st_mode & 0o044 == 0o044, (path, oct(path.stat().st_mode))
+
+
+def _rendered_images(html: Path) -> int:
+    return len(re.findall(r'<img[^>]+src="data:image/png', html.read_text()))
+
+
+@pytest.mark.parametrize("stage", ["data", "sky", "tune", "figures"])
+def test_notebooks_that_plot_show_their_plots(completed_run, stage):
+    """The stages that draw show each plot inline in their rendered HTML."""
+    pages = sorted((completed_run / "results" / "notebooks").glob(f"{stage}*.html"))
+    assert pages
+    source = (ROOT / "notebooks" / f"{stage}.py").read_text()
+    expected = source.count("plt.show()") + source.count("show(figures.")
+    assert expected > 0
+    for page in pages:
+        assert _rendered_images(page) >= expected, page
+        assert "TqdmWarning" not in page.read_text(), page
+
+
+def _key_cases() -> dict[str, tuple[dict, str | None]]:
+    """Every schema key of the .test config: (config change, first stage expected to rerun)."""
+    return {
+        "results_dir": ({"results_dir": "results_elsewhere"}, "synthetic"),
+        "data.source": (None, "data"),  # built in the test: needs a real folder
+        "data.apollo_folder": ({"data": {"apollo_folder": "/somewhere/else"}}, None),
+        "data.pku_csv": ({"data": {"pku_csv": "/somewhere/else.csv"}}, None),
+        "data.synthetic.n_images": ({"data": {"synthetic": {"n_images": 161}}}, "synthetic"),
+        "data.synthetic.seed": ({"data": {"synthetic": {"seed": 1}}}, "synthetic"),
+        "sky.n_images": ({"sky": {"n_images": 127}}, "sample"),
+        "sky.shift": ({"sky": {"shift": [0.4, 0.2]}}, "sky"),
+        "sky.seed": ({"sky": {"seed": 1}}, "sample"),
+        "split.n_selected": ({"split": {"n_selected": 97, "n_dev": 33}}, "split"),
+        "split.n_train": ({"split": {"n_selected": 97, "n_train": 65}}, "split"),
+        "split.n_dev": ({"split": {"n_selected": 95, "n_dev": 31}}, "split"),
+        "split.seed": ({"split": {"seed": 1}}, "split"),
+        "train.s": ({"train": {"s": 3}}, "tune"),
+        "train.batch_size": ({"train": {"batch_size": 8}}, "tune"),
+        "train.lr_decay": ({"train": {"lr_decay": 0.25}}, "tune"),
+        "train.seed": ({"train": {"seed": 1}}, "tune"),
+        "tuning.n_epoch": ({"tuning": {"n_epoch": [1, 2]}}, "tune"),
+        "tuning.lr": ({"tuning": {"lr": [3.0e-4, 1.0e-3, 2.0e-3]}}, "tune"),
+        "noise.levels": ({"noise": {"levels": [0, 1, 2, 3, 4, 5]}}, "noise"),
+        "noise.runs": ({"noise": {"runs": 3}}, "noise"),
+        "noise.chunk_size": ({"noise": {"chunk_size": 1}}, "noise"),
+        "noise.seed": ({"noise": {"seed": 1}}, "noise"),
+        "figures.example": ({"figures": {"example": 1}}, "figures"),
+        "figures.seed": ({"figures": {"seed": 1}}, "figures"),
+    }
+
+
+def _schema_keys(schema: dict, prefix: str = "") -> list[str]:
+    keys = []
+    for name, sub in schema.get("properties", {}).items():
+        dotted = f"{prefix}{name}"
+        keys += _schema_keys(sub, dotted + ".") if sub.get("type") == "object" else [dotted]
+    return keys
+
+
+def _documented_first_stages() -> dict[str, str | None]:
+    """The table "Which config key reruns which stage" of docs/workflow.md."""
+    table = {}
+    for line in (ROOT / "docs" / "workflow.md").read_text().splitlines():
+        match = re.match(r"\| `([a-z_.]+)` \| ([^|]+) \|", line)
+        if match:
+            stage = match.group(2).strip()
+            table[match.group(1)] = None if stage.startswith("none") else stage.split()[0]
+    return table
+
+
+def _merge(base: dict, change: dict) -> dict:
+    merged = copy.deepcopy(base)
+    for key, value in change.items():
+        merged[key] = _merge(merged[key], value) if isinstance(value, dict) and key in merged else value
+    return merged
+
+
+def test_every_schema_key_has_a_case_and_a_documented_stage():
+    keys = _schema_keys(yaml.safe_load(SCHEMA.read_text()))
+    assert sorted(keys) == sorted(_key_cases()), set(keys) ^ set(_key_cases())
+    documented = _documented_first_stages()
+    assert {key: documented.get(key, "missing") for key in keys} == {key: stage for key, (_, stage) in
+                                                                     _key_cases().items()}
+
+
+@pytest.mark.parametrize("key", sorted(_key_cases()))
+def test_each_config_key_reruns_its_first_stage(completed_run, tmp_path, key):
+    change, expected = _key_cases()[key]
+    base = dot_test_config()
+    if change is None:  # data.source: the shipped real sample instead of the synthetic set
+        change = {"data": {"source": "apollo", "apollo_folder": str(APOLLO_SAMPLE)},
+                  "sky": {"n_images": 57}, "split": {"n_selected": 48, "n_train": 32, "n_dev": 16}}
+    override = tmp_path / "override.yaml"
+    override.write_text(yaml.safe_dump(_merge(base, change)))
+    jobs = planned(snakemake("-n", "--quiet", "rules", "--configfile", str(override), cwd=completed_run))
+    first = next((stage for stage in STAGES if stage in jobs), None)
+    assert first == expected, (key, jobs)
+
+
+def test_a_failed_stage_names_the_cause_first(tmp_path):
+    """A stage failing at run time prints its one-line cause, naming the key, and keeps its executed notebook.
+
+    A PKU csv's image count is known only to the data stage, so ``sky.n_images`` beyond it fails in the
+    sample stage (an ApolloCar3D folder is counted at parse time instead).
+    """
+    csv = tmp_path / "train.csv"
+    rows = [f"ID_{i:03d},0 0.1 -3.1 0.0 {i % 3 - 1.0} 1.7 {20.0 + 3 * i}" for i in range(6)]
+    csv.write_text("ImageId,PredictionString\n" + "\n".join(rows) + "\n")
+    config = _merge(dot_test_config(), {"data": {"source": "pku", "pku_csv": str(csv)}})
+    result = snakemake("-c1", cwd=workdir(tmp_path / "run", config))
+    output = result.stdout + result.stderr
+    assert result.returncode != 0
+    causes = [line for line in output.splitlines() if "failed in cell" in line]
+    assert causes and "SDMInputError: config key 'sky.n_images'" in causes[0], output[-3000:]
+    assert "results/notebooks/sample.ipynb" in output
+    assert (tmp_path / "run" / "results" / "notebooks" / "sample.ipynb").is_file()
+    assert '"cell_type"' not in output  # no notebook JSON on the console

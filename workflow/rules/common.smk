@@ -1,24 +1,32 @@
-# Shared helpers: file names derived from the config, and how a notebook stage runs.
+# Shared helpers: paths derived from the config, the annotation manifest, and the notebook-stage template.
+# Nothing here imports torch or sdm: parsing the workflow stays fast and works without them.
+import hashlib
 import json
+import os
 import sys
 from pathlib import Path
-
-from snakemake.settings.types import DeploymentMethod
-
-from sdm.config import chunk_runs, noise_chunks, tuning_cells
 
 NOTEBOOKS = Path(workflow.basedir) / "notebooks"
 SRC = Path(workflow.basedir) / "src"
 
-# Jobs find jupytext, papermill and jupyter in the Python environment Snakemake runs in (even when
-# that environment is not activated); with --software-deployment-method conda, in the rule's env.
-if DeploymentMethod.CONDA in workflow.deployment_settings.deployment_method:
-    TOOLS = "${CONDA_PREFIX:-}/bin"  # expanded by the job's shell, inside the activated env
+# Every output lives under the results root (config key results_dir, "results" by default), so that
+# runs on different data never overwrite each other. Logs and benchmarks of the default run stay in
+# logs/ and benchmarks/; another results root gets its own beside its results.
+RESULTS = config["results_dir"].rstrip("/")
+if RESULTS == "results":
+    LOGS, BENCHMARKS = "logs", "benchmarks"
 else:
-    TOOLS = str(Path(sys.executable).parent)
+    LOGS, BENCHMARKS = f"{RESULTS}/logs", f"{RESULTS}/benchmarks"
 
 # The Sky dataset file written by sdm.data.write_sky_file.
-SKY_FILE = "results/sky/sky.bin"
+SKY_FILE = f"{RESULTS}/sky/sky.bin"
+SPLIT_FILE = f"{RESULTS}/split/split.json"
+BEST_FILE = f"{RESULTS}/tuning/best.json"
+
+
+def result(path):
+    """A path under the results root."""
+    return f"{RESULTS}/{path}"
 
 
 def notebook(stage):
@@ -27,34 +35,146 @@ def notebook(stage):
 
 
 def notebook_log(name):
-    """A stage's logs: the executed notebook (kept when the stage fails) and the tools' stderr."""
-    return {"notebook": f"results/notebooks/{name}.ipynb", "stderr": f"logs/{name}.log"}
+    """A stage's logs: the executed notebook (kept when the stage fails) and the tools' messages."""
+    return {
+        "notebook": result(f"notebooks/{name}.ipynb"),
+        "stderr": f"{LOGS}/{name}.log",
+    }
 
 
 def html(name):
     """The HTML rendering of a stage's executed notebook."""
-    return f"results/notebooks/{name}.html"
+    return result(f"notebooks/{name}.html")
 
 
-def annotations():
-    """The annotation source the data stage reads: a folder (synthetic, apollo) or the PKU csv."""
+def benchmark_file(name):
+    """Wall time and memory of a job (Snakemake's benchmark TSV)."""
+    return f"{BENCHMARKS}/{name}.tsv"
+
+
+# -- the annotations -----------------------------------------------------------------------------------
+
+ANNOTATION_MANIFEST = result("data/annotations.manifest.json")
+
+
+def annotation_manifest(folder):
+    """Names, sizes and SHA-256 of every file an ApolloCar3D folder's reader uses.
+
+    Written to ANNOTATION_MANIFEST at parse time, and only when it differs from what is there, so
+    that its timestamp changes exactly when a file is added, removed or edited: the data stage
+    takes it as an input and reruns then (Snakemake sees only a folder's own timestamp).
+    """
+    root = Path(folder)
+    if not (root / "car_poses").is_dir():
+        raise WorkflowError(
+            f"config key 'data.apollo_folder': {root} has no car_poses/ folder (expected car_poses/*.json "
+            f"and camera/Camera_5.txt)"
+        )
+    files = sorted(root.glob("car_poses/*.json")) + sorted(root.glob("camera/*.txt"))
+    entries = {}
+    for path in files:
+        content = path.read_bytes()
+        entries[path.relative_to(root).as_posix()] = [
+            len(content),
+            hashlib.sha256(content).hexdigest(),
+        ]
+    text = json.dumps({"files": entries}, indent=1, sort_keys=True) + "\n"
+    target = Path(ANNOTATION_MANIFEST)
+    if not target.is_file() or target.read_text() != text:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        temporary = target.with_name(f".{target.name}.{os.getpid()}")
+        temporary.write_text(text)
+        os.replace(temporary, target)
+    return sum(1 for name in entries if name.startswith("car_poses/"))
+
+
+def annotation_inputs():
+    """The annotation-reading stages' inputs: the generated folder or the PKU csv (read as ``annotations``),
+    or, for an ApolloCar3D folder, its manifest (``tracked``: the stage reads the folder itself).
+    """
     source = config["data"]["source"]
     if source == "synthetic":
-        return "results/data/synthetic_apollo"
+        return {"annotations": result("data/synthetic_apollo")}
     if source == "apollo":
-        return config["data"]["apollo_folder"]
-    return config["data"]["pku_csv"]
+        return {"tracked": ANNOTATION_MANIFEST}
+    return {"annotations": config["data"]["pku_csv"]}
+
+
+def annotation_params():
+    """The ApolloCar3D folder as a plain param (a different folder reruns the stages); none otherwise."""
+    if config["data"]["source"] == "apollo":
+        return {"annotations": config["data"]["apollo_folder"]}
+    return {}
+
+
+def annotation_keys():
+    """The config key of the data path the current source reads (none for synthetic data)."""
+    return {"synthetic": [], "apollo": ["data.apollo_folder"], "pku": ["data.pku_csv"]}[
+        config["data"]["source"]
+    ]
+
+
+if config["data"]["source"] == "apollo":
+    try:
+        check_against_annotations(
+            config,
+            annotation_manifest(config["data"]["apollo_folder"]),
+            config["data"]["apollo_folder"],
+        )
+    except ConfigError as error:  # one line naming the key, no traceback
+        raise WorkflowError(error) from None
+
+
+# -- the tuning grid and the noise chunks --------------------------------------------------------------
+
+
+def lr_label(lr):
+    """A learning rate as it appears in file names: ``3e-04`` (only a label: the value comes from the config)."""
+    return (
+        f"{float(lr):.0e}"
+        if float(f"{float(lr):.0e}") == float(lr)
+        else repr(float(lr))
+    )
+
+
+# (n_epoch, lr label) -> the cell's values, in config order (epochs outer).
+TUNING_CELLS = {
+    (str(n_epoch), lr_label(lr)): {"n_epoch": int(n_epoch), "lr": float(lr)}
+    for n_epoch in config["tuning"]["n_epoch"]
+    for lr in config["tuning"]["lr"]
+}
+
+
+def tuning_value(key):
+    """A params function: the tuning cell's n_epoch or lr, looked up from the wildcards (never parsed back)."""
+    return lambda wildcards: TUNING_CELLS[(wildcards.n_epoch, wildcards.lr)][key]
 
 
 def tuning_files(kind):
     """Per-cell outputs of the tuning grid: kind is 'cell' (json) or 'history' (csv)."""
     ext = "json" if kind == "cell" else "csv"
-    return [f"results/tuning/{kind}_{n}_{lr}.{ext}" for n, lr in tuning_cells(config)]
+    return [result(f"tuning/{kind}_{n}_{lr}.{ext}") for n, lr in TUNING_CELLS]
+
+
+N_RUNS, CHUNK_SIZE = int(config["noise"]["runs"]), int(config["noise"]["chunk_size"])
+NOISE_CHUNKS = [
+    (int(level), chunk)
+    for level in config["noise"]["levels"]
+    for chunk in range(-(-N_RUNS // CHUNK_SIZE))
+]
+
+
+def chunk_runs(wildcards):
+    """Run indices of a noise chunk: chunk k holds runs k*chunk_size .. (k+1)*chunk_size - 1."""
+    chunk = int(wildcards.chunk)
+    return list(range(chunk * CHUNK_SIZE, min((chunk + 1) * CHUNK_SIZE, N_RUNS)))
 
 
 def noise_files():
     """The chunk files of the noise runs, one per (level, chunk) job."""
-    return [f"results/noise/level{level}_chunk{chunk}.csv" for level, chunk in noise_chunks(config)]
+    return [
+        result(f"noise/level{level}_chunk{chunk}.csv") for level, chunk in NOISE_CHUNKS
+    ]
 
 
 def notebook_html():
@@ -62,42 +182,19 @@ def notebook_html():
     names = ["data", "sample", "sky", "split", "best", "tables", "figures", "report"]
     if config["data"]["source"] == "synthetic":
         names.insert(0, "synthetic")
-    names += [f"tune_{n}_{lr}" for n, lr in tuning_cells(config)]
-    names += [f"noise_level{level}_chunk{chunk}" for level, chunk in noise_chunks(config)]
+    names += [f"tune_{n}_{lr}" for n, lr in TUNING_CELLS]
+    names += [f"noise_level{level}_chunk{chunk}" for level, chunk in NOISE_CHUNKS]
     return [html(name) for name in names]
 
 
-def parameters(**extra):
-    """A params function: the notebook's papermill parameters as JSON.
-
-    Every named input (but the notebook itself) and output becomes a parameter of the
-    same name, plus ``threads`` and the given extra values (callables get the wildcards).
-    """
-
-    def build(wildcards, input, output, threads):
-        values = {key: _path(path) for key, path in input.items() if key != "source"}
-        values.update({key: _path(path) for key, path in output.items() if key != "html"})
-        values["threads"] = threads
-        for key, value in extra.items():
-            values[key] = value(wildcards) if callable(value) else value
-        return json.dumps(values)
-
-    return build
-
-
-def _path(value):
-    """A named input or output: one path, or a list of paths."""
-    return str(value) if isinstance(value, str) else [str(path) for path in value]
-
-
-# A stage: jupytext source -> papermill (executed notebook = the rule's log, kept on failure)
-# -> HTML, in one process (workflow/scripts/run_notebook.py). One thread per job; the job puts
-# src/ on PYTHONPATH so that a conda env works too.
-RUNNER = str(Path(workflow.basedir) / "workflow" / "scripts" / "run_notebook.py")
-
-NOTEBOOK_SHELL = (
-    "export OMP_NUM_THREADS={threads} MKL_NUM_THREADS={threads} MPLBACKEND=Agg "
-    "PYTHONPATH={params.src}${{PYTHONPATH:+:$PYTHONPATH}} PATH={params.tools}${{PATH:+:$PATH}}; "
-    "python {params.runner:q} {input.source:q} {log.notebook:q} {output.html:q} {params.nb:q} "
-    "> {log.stderr:q} 2>&1"
-)
+def config_values(*keys):
+    """The named config values (dotted keys) as a nested dict: the part of the config a stage reads."""
+    picked = {}
+    for key in keys:
+        *parents, last = key.split(".")
+        source, target = config, picked
+        for part in parents:
+            source, target = source[part], target.setdefault(part, {})
+        if last in source:
+            target[last] = source[last]
+    return picked

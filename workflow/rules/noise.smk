@@ -2,37 +2,27 @@
 # split into chunks of noise.chunk_size runs so that jobs fan out over cores or nodes.
 
 
-rule noise:
+use rule notebook_stage as noise with:
     """One chunk of noise runs at one level: noisy train targets, train, distance to theta*."""
     input:
         source=notebook("noise"),
         sky=SKY_FILE,
-        split="results/split/split.json",
-        best="results/tuning/best.json",
+        split=SPLIT_FILE,
+        best=BEST_FILE,
     output:
-        chunk_file="results/noise/level{level}_chunk{chunk}.csv",
+        chunk_file=result("noise/level{level}_chunk{chunk}.csv"),
         html=html("noise_level{level}_chunk{chunk}"),
     log:
         **notebook_log("noise_level{level}_chunk{chunk}"),
     benchmark:
-        "benchmarks/noise_level{level}_chunk{chunk}.tsv"
-    params:
-        src=str(SRC),
-        tools=TOOLS,
-        runner=RUNNER,
-        nb=parameters(
-            level=lambda w: int(w.level),
-            run_indices=lambda w: chunk_runs(config, int(w.chunk)),
-            s=config["train"]["s"],
-            batch_size=config["train"]["batch_size"],
-            lr_decay=config["train"]["lr_decay"],
-            seed=config["noise"]["seed"],
-            shift=config["sky"]["shift"],
-        ),
-    threads: 1
+        benchmark_file("noise_level{level}_chunk{chunk}")
     resources:
         runtime=15,
-    conda:
-        "../envs/sdm.yaml"
-    shell:
-        NOTEBOOK_SHELL
+    params:
+        level=lambda wildcards: int(wildcards.level),
+        run_indices=chunk_runs,
+        s=config["train"]["s"],
+        batch_size=config["train"]["batch_size"],
+        lr_decay=config["train"]["lr_decay"],
+        seed=config["noise"]["seed"],
+        shift=config["sky"]["shift"],

@@ -16,7 +16,32 @@ import tempfile
 from pathlib import Path
 
 
-def main(source: str, executed: str, html: str, parameters: str) -> int:
+def main(source: str, executed: str, html: str, parameters: str | dict, stderr_log: str | None = None) -> int:
+    """Run ``source`` with ``parameters`` (a dict or its JSON); 0 on success, 1 when a cell failed.
+
+    With ``stderr_log``, everything the tools and the kernel write to stderr goes to that file,
+    and only the one-line cause of a failure reaches this process's stderr.
+    """
+    if isinstance(parameters, str):
+        parameters = json.loads(parameters)
+    if stderr_log is None:
+        return _run(source, executed, html, parameters, sys.stderr)
+    Path(stderr_log).parent.mkdir(parents=True, exist_ok=True)
+    console = os.fdopen(os.dup(2), "w")
+    with open(stderr_log, "w") as log:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        os.dup2(log.fileno(), 2)
+        try:
+            return _run(source, executed, html, parameters, console)
+        finally:
+            sys.stderr.flush()
+            os.dup2(saved, 2)
+            os.close(saved)
+            console.close()
+
+
+def _run(source: str, executed: str, html: str, parameters: dict, console) -> int:
     import jupytext
     import papermill
     from nbconvert import HTMLExporter
@@ -28,14 +53,16 @@ def main(source: str, executed: str, html: str, parameters: str) -> int:
         result = papermill.execute_notebook(
             notebook,
             executed,
-            parameters=json.loads(parameters),
+            parameters=parameters,
             kernel_name="python3",
             progress_bar=False,
             log_output=False,
         )
     except papermill.PapermillExecutionError as error:
-        print(f"{source} failed in cell {error.exec_count}: {error.ename}: {error.evalue}", file=sys.stderr)
-        print(f"the executed notebook, with the traceback, is {executed}", file=sys.stderr)
+        for stream in (console, sys.stderr):
+            print(f"{source} failed in cell {error.exec_count}: {error.ename}: {error.evalue}", file=stream)
+            print(f"the executed notebook, with the traceback, is {executed}", file=stream)
+            stream.flush()
         return 1
     body, _ = HTMLExporter().from_notebook_node(result)
     target = Path(html)

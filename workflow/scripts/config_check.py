@@ -1,0 +1,171 @@
+"""The workflow's configuration (``config.yaml``): the checks that tie keys together.
+
+``workflow/schemas/config.schema.yaml`` types every key and bounds each value;
+:func:`check_config` adds the rules that tie keys together and that JSON Schema
+cannot state. Every error is a :class:`ConfigError` whose message starts with
+the dotted key it is about, e.g. ``config key 'split.n_train': ...``.
+
+This module is workflow code: the Snakefile runs Snakemake's own schema
+validation and then :func:`check_config`, before any job starts;
+:func:`load_config` does both for the tests. It imports neither torch nor
+``sdm``, so that parsing the workflow is fast and works where torch is not
+installed (a cluster's login node).
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any, Mapping
+
+import yaml
+
+#: The schema beside this file's folder.
+SCHEMA_PATH = Path(__file__).resolve().parents[1] / "schemas" / "config.schema.yaml"
+
+
+class ConfigError(ValueError):
+    """A config value breaks a rule; the message starts with ``config key '<dotted key>'``."""
+
+
+def load_config(path: str | Path, schema: str | Path = SCHEMA_PATH) -> dict:
+    """Read a YAML config, validate it against ``schema`` (filling defaults) and :func:`check_config` it.
+
+    Args:
+        path: the YAML file.
+        schema: JSON-Schema file in YAML (default: the workflow's); needs the ``jsonschema`` package
+            (a dependency of Snakemake).
+
+    Returns:
+        The configuration as a plain dict, with the schema's defaults filled in.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise ConfigError(f"{path}: config file not found")
+    try:
+        config = yaml.safe_load(path.read_text())
+    except yaml.YAMLError as error:
+        raise ConfigError(f"{path}: not valid YAML: {error}") from None
+    if not isinstance(config, dict):
+        raise ConfigError(f"{path}: the config must be a mapping of keys to values, got {type(config).__name__}")
+    validate_schema(config, schema)
+    check_config(config)
+    return config
+
+
+def validate_schema(config: dict, schema: str | Path = SCHEMA_PATH) -> None:
+    """Validate ``config`` against a JSON Schema written in YAML, filling in its defaults; the error names the key."""
+    import jsonschema
+
+    schema_data = yaml.safe_load(Path(schema).read_text())
+    validator = jsonschema.Draft202012Validator(schema_data)
+    errors = sorted(validator.iter_errors(config), key=lambda e: list(e.absolute_path))
+    if errors:
+        error = errors[0]
+        key = ".".join(str(part) for part in error.absolute_path) or "<top level>"
+        raise ConfigError(f"config key '{key}': {error.message}")
+    _fill_defaults(config, schema_data)
+
+
+def _fill_defaults(value: Any, schema: Mapping) -> None:
+    """Set the schema's ``default`` values of missing keys, as Snakemake's ``validate`` does."""
+    if not isinstance(value, dict):
+        return
+    for key, sub in schema.get("properties", {}).items():
+        if key not in value and "default" in sub:
+            value[key] = sub["default"]
+        if key in value:
+            _fill_defaults(value[key], sub)
+
+
+def check_config(config: Mapping[str, Any]) -> None:
+    """Check the rules that tie config keys together (the schema checks each key on its own).
+
+    - ``split.n_train + split.n_dev == split.n_selected <= sky.n_images``;
+    - with synthetic data, ``sky.n_images <= data.synthetic.n_images``;
+    - ``figures.example < split.n_train`` (the example is a train configuration);
+    - ``noise.chunk_size <= noise.runs``; the shift is finite (YAML's ``.inf`` is a number);
+    - the data path for the chosen source is set.
+
+    What depends on the data (``sky.n_images`` against the number of real annotated images) is
+    checked where the data is known: :func:`check_against_annotations` at parse time for a
+    folder, the sample stage otherwise.
+
+    Raises:
+        ConfigError: naming the first key that breaks a rule.
+    """
+    if not isinstance(config, Mapping) or not config:
+        raise ConfigError("the configuration is empty: pass a config file (config.yaml) with every section")
+    data, sky, split = _section(config, "data"), _section(config, "sky"), _section(config, "split")
+    noise, figures = _section(config, "noise"), _section(config, "figures")
+
+    n_selected, n_train, n_dev = (_int(split, "split", k) for k in ("n_selected", "n_train", "n_dev"))
+    if n_train + n_dev != n_selected:
+        raise ConfigError(
+            f"config key 'split.n_selected': must equal split.n_train + split.n_dev "
+            f"({n_train} + {n_dev} = {n_train + n_dev}), got {n_selected}"
+        )
+    n_sky = _int(sky, "sky", "n_images")
+    if n_selected > n_sky:
+        raise ConfigError(
+            f"config key 'split.n_selected': {n_selected} configurations cannot be chosen from "
+            f"sky.n_images = {n_sky}"
+        )
+    example = _int(figures, "figures", "example")
+    if example >= n_train:
+        raise ConfigError(
+            f"config key 'figures.example': the example is an index into the {n_train} train configurations "
+            f"(split.n_train), got {example}"
+        )
+    source = data.get("source")
+    if source == "synthetic":
+        n_synthetic = _int(_section(data, "synthetic", "data."), "data.synthetic", "n_images")
+        if n_sky > n_synthetic:
+            raise ConfigError(
+                f"config key 'sky.n_images': {n_sky} images cannot be sampled from "
+                f"data.synthetic.n_images = {n_synthetic}"
+            )
+    elif source in ("apollo", "pku"):
+        key = "apollo_folder" if source == "apollo" else "pku_csv"
+        if not data.get(key):
+            raise ConfigError(f"config key 'data.{key}': required when data.source is {source!r}")
+    else:
+        raise ConfigError(f"config key 'data.source': must be synthetic, apollo or pku, got {source!r}")
+
+    shift = sky.get("shift")
+    if not (isinstance(shift, (list, tuple)) and len(shift) == 2
+            and all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in shift)):
+        raise ConfigError(f"config key 'sky.shift': must be two finite numbers [a, b], got {shift!r}")
+
+    runs, chunk = _int(noise, "noise", "runs"), _int(noise, "noise", "chunk_size")
+    if chunk > runs:
+        raise ConfigError(f"config key 'noise.chunk_size': must not exceed noise.runs = {runs}, got {chunk}")
+
+
+def check_against_annotations(config: Mapping[str, Any], n_annotated: int, where: str) -> None:
+    """``sky.n_images`` must not exceed the number of annotated images found at ``where``."""
+    n_sky = int(config["sky"]["n_images"])
+    if n_annotated == 0:
+        raise ConfigError(f"{where}: no annotation files found (config key 'data.{_path_key(config)}')")
+    if n_sky > n_annotated:
+        raise ConfigError(
+            f"config key 'sky.n_images': {n_sky} images cannot be sampled from the {n_annotated} annotated "
+            f"images of {where}"
+        )
+
+
+def _path_key(config: Mapping) -> str:
+    return "apollo_folder" if config["data"]["source"] == "apollo" else "pku_csv"
+
+
+def _section(config: Mapping, name: str, prefix: str = "") -> Mapping:
+    value = config.get(name) if isinstance(config, Mapping) else None
+    if not isinstance(value, Mapping):
+        raise ConfigError(f"config key '{prefix}{name}': missing or not a mapping")
+    return value
+
+
+def _int(section: Mapping, prefix: str, key: str) -> int:
+    value = section.get(key)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ConfigError(f"config key '{prefix}.{key}': must be an integer, got {value!r}")
+    return value
