@@ -28,13 +28,15 @@ threads = 1
 # %%
 import matplotlib.pyplot as plt
 
-from sdm.data import read_annotations
+from sdm.data import read_annotations, require_cars_on_screen
 from sdm.data.stats import PAPER_CARS_PER_IMAGE, car_table, fit_road_plane, image_table
 from sdm.experiments import single_thread
 from sdm.report.io import write_csv, write_json
 
 single_thread(threads)
 cars_by_image, camera = read_annotations(source_kind, annotations)
+# Stop here, naming the folder/file, if no image has a car on the screen: every configuration would be empty.
+require_cars_on_screen(cars_by_image, camera, source=annotations)
 print(f"{len(cars_by_image)} images from {annotations} ({source_kind}); camera {camera}")
 
 # %%
