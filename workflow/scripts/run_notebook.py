@@ -9,11 +9,24 @@ after the notebook ran through, atomically. One process does all three steps
 """
 from __future__ import annotations
 
+import importlib.util
 import json
-import os
 import sys
-import tempfile
 from pathlib import Path
+
+
+def _load_writer():
+    """The library's one atomic writer, :mod:`sdm.io`, loaded from its file.
+
+    Loaded by path rather than ``import sdm.io`` because importing the ``sdm``
+    package imports torch (about 2 s per job); ``sdm/io.py`` uses only the
+    standard library.
+    """
+    source = Path(__file__).resolve().parents[2] / "src" / "sdm" / "io.py"
+    spec = importlib.util.spec_from_file_location("sdm_io_for_runner", source)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def main(source: str, executed: str, html: str, parameters: str) -> int:
@@ -38,12 +51,7 @@ def main(source: str, executed: str, html: str, parameters: str) -> int:
         print(f"the executed notebook, with the traceback, is {executed}", file=sys.stderr)
         return 1
     body, _ = HTMLExporter().from_notebook_node(result)
-    target = Path(html)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=".html", dir=target.parent)
-    with os.fdopen(handle, "w", encoding="utf-8") as stream:
-        stream.write(body)
-    os.replace(temporary, target)
+    _load_writer().write_text(html, body)
     return 0
 
 

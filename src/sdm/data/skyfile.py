@@ -40,9 +40,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import struct
-import tempfile
 import zlib
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -52,6 +50,7 @@ import torch
 
 from ..camera import Camera
 from ..errors import SDMInputError
+from ..io import write_bytes
 from ..sky import SkyConfiguration, check_shift
 
 #: First 8 bytes of every Sky file.
@@ -104,8 +103,9 @@ def write_sky_file(
     """Write configurations to a Sky file (format version :data:`FORMAT_VERSION`).
 
     Args:
-        path: destination; written atomically (a temporary file in the same
-            folder, then ``os.replace``).
+        path: destination; written atomically by :func:`sdm.io.write_atomic`
+            (a temporary file in the same folder, then ``os.replace``; mode
+            ``0o666 & ~umask`` like any plain write).
         configurations: the configurations, stored in this order.
         shift: the true shift ``(a, b)`` (metres) they were built with.
         camera: the camera and screen they were built with.
@@ -192,25 +192,7 @@ def write_sky_file(
     out[_PREFIX.size + len(header_bytes) : data_offset] = b" " * (data_offset - _PREFIX.size - len(header_bytes))
     for position, data in blobs:
         out[data_offset + position : data_offset + position + len(data)] = data
-    _atomic_write(path, bytes(out))
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(handle, "wb") as stream:
-            stream.write(data)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.chmod(temp, 0o644)
-        os.replace(temp, path)
-    except BaseException:
-        try:
-            os.unlink(temp)
-        except FileNotFoundError:
-            pass
-        raise
+    write_bytes(path, bytes(out))
 
 
 def _check_configuration(cfg, index: int, camera: Camera):
