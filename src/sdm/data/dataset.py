@@ -4,7 +4,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from tqdm.auto import tqdm
+# tqdm.std, not tqdm.auto: the text bar renders in a notebook too, without auto's "IProgress not found" warning
+from tqdm.std import tqdm
 
 from ..camera import APOLLO_CAMERA_5, Camera
 from ..errors import SDMInputError
