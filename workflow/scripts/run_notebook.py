@@ -4,15 +4,35 @@
 
 The executed notebook is written as papermill goes (it is the rule's log and is
 kept when a cell fails, with the traceback in it); the HTML is written only
-after the notebook ran through, atomically. One process does all three steps
-(jupytext, papermill, nbconvert), which saves two interpreter start-ups per job.
+after the notebook ran through, atomically (:mod:`sdm.io`). One process does all
+three steps (jupytext, papermill, nbconvert), which saves two interpreter
+start-ups per job.
+
+On failure the FIRST line printed (stderr) is the one-line cause::
+
+    notebooks/sky.py failed: SDMInputError: results/sky/sky.bin: array 'point_depth' fails its CRC-32 check; ...
+
+then where it happened and the executed notebook to open for the traceback;
+anything the libraries printed meanwhile comes after, colour codes stripped.
+Exit status 1.
 """
 from __future__ import annotations
 
+import contextlib
 import importlib.util
 import json
+import os
+import re
 import sys
+import tempfile
 from pathlib import Path
+
+#: ANSI escape sequences (colours, cursor moves) as IPython puts them in tracebacks and messages.
+ANSI = re.compile(r"\x1b\[[0-?]*[ -/]*[@-~]|\x1b[@-Z\\-_]")
+
+
+def strip_ansi(text: str) -> str:
+    return ANSI.sub("", text)
 
 
 def _load_writer():
@@ -29,30 +49,87 @@ def _load_writer():
     return module
 
 
-def main(source: str, executed: str, html: str, parameters: str) -> int:
-    import jupytext
-    import papermill
-    from nbconvert import HTMLExporter
+@contextlib.contextmanager
+def captured_output():
+    """Collect everything written to this process's stdout and stderr (file descriptors 1 and 2, so the
+    kernel's and the libraries' output too) into a temporary file; yields a function returning it so far."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = {fd: os.dup(fd) for fd in (1, 2)}
+    with tempfile.TemporaryFile(mode="w+b") as sink:
+        try:
+            for fd in (1, 2):
+                os.dup2(sink.fileno(), fd)
 
-    notebook = jupytext.read(source)
-    notebook.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
-    Path(executed).parent.mkdir(parents=True, exist_ok=True)
-    try:
-        result = papermill.execute_notebook(
-            notebook,
-            executed,
-            parameters=json.loads(parameters),
-            kernel_name="python3",
-            progress_bar=False,
-            log_output=False,
-        )
-    except papermill.PapermillExecutionError as error:
-        print(f"{source} failed in cell {error.exec_count}: {error.ename}: {error.evalue}", file=sys.stderr)
-        print(f"the executed notebook, with the traceback, is {executed}", file=sys.stderr)
-        return 1
-    body, _ = HTMLExporter().from_notebook_node(result)
-    _load_writer().write_text(html, body)
-    return 0
+            def read() -> str:
+                sys.stdout.flush()
+                sys.stderr.flush()
+                sink.seek(0)
+                return sink.read().decode("utf-8", errors="replace")
+
+            yield read
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            for fd, copy in saved.items():
+                os.dup2(copy, fd)
+                os.close(copy)
+
+
+def one_line_cause(source: str, ename: str, evalue: str) -> tuple[str, list[str]]:
+    """``"<source> failed: <ename>: <first line of evalue>"`` and the rest of the message's lines."""
+    lines = [line.rstrip() for line in strip_ansi(str(evalue)).strip().splitlines()] or [""]
+    head = f"{source} failed: {strip_ansi(ename)}: {lines[0]}" if lines[0] else f"{source} failed: {strip_ansi(ename)}"
+    return head, [line for line in lines[1:] if line]
+
+
+def report_failure(head: str, details: list[str], where: str, noise: str) -> None:
+    """Print the cause first, then where to look, then what the libraries printed (colour codes stripped)."""
+    out = [head, *(f"    {line}" for line in details), where]
+    noise = strip_ansi(noise).strip()
+    if noise:
+        out += ["output of the run:", noise]
+    print("\n".join(out), file=sys.stderr, flush=True)
+
+
+def main(source: str, executed: str, html: str, parameters: str) -> int:
+    with captured_output() as output:
+        try:
+            import jupytext
+            import papermill
+            from nbconvert import HTMLExporter
+
+            notebook = jupytext.read(source)
+            notebook.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
+            Path(executed).parent.mkdir(parents=True, exist_ok=True)
+            result = papermill.execute_notebook(
+                notebook,
+                executed,
+                parameters=json.loads(parameters),
+                kernel_name="python3",
+                progress_bar=False,
+                log_output=False,
+            )
+            body, _ = HTMLExporter().from_notebook_node(result)
+            _load_writer().write_text(html, body)
+        except Exception as error:  # noqa: BLE001 - every failure is reported the same way, cause first
+            noise = output()
+            failure = error
+        else:
+            noise, failure = output(), None
+    if failure is None:
+        if noise.strip():
+            sys.stderr.write(strip_ansi(noise))
+        return 0
+    if type(failure).__name__ == "PapermillExecutionError":
+        head, details = one_line_cause(source, failure.ename, failure.evalue)
+        where = f"(in cell [{failure.exec_count}]; the executed notebook, with the traceback, is {executed})"
+    else:
+        head, details = one_line_cause(source, type(failure).__name__, str(failure))
+        kept = f"; the executed notebook so far is {executed}" if Path(executed).is_file() else ""
+        where = f"(while running the notebook{kept})"
+    report_failure(head, details, where, noise)
+    return 1
 
 
 if __name__ == "__main__":
