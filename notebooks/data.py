@@ -28,22 +28,19 @@ threads = 1
 # %%
 import matplotlib.pyplot as plt
 
-from sdm import SDMInputError
-from sdm.data import read_annotations
+from sdm.data import read_annotations, require_cars_on_screen
 from sdm.data.stats import PAPER_CARS_PER_IMAGE, car_table, fit_road_plane, image_table
 from sdm.experiments import single_thread
 from sdm.report.io import write_csv, write_json
 
 single_thread(threads)
 cars_by_image, camera = read_annotations(source_kind, annotations)
+# Stop here, naming the folder/file, if no image has a car on the screen: every configuration would be empty.
+require_cars_on_screen(cars_by_image, camera, source=annotations)
 print(f"{len(cars_by_image)} images from {annotations} ({source_kind}); camera {camera}")
 
 # %%
 per_image = image_table(cars_by_image, camera)
-if not per_image["n_on_screen"].any():
-    # Every Sky configuration would be empty: stop here, not after training on nothing.
-    raise SDMInputError(f"{annotations}: none of the {len(per_image)} images has a car on the 128 x 256 screen; "
-                        f"no Sky configuration can be built from it (config: data.source = {source_kind!r})")
 cars = car_table(cars_by_image, camera)
 front = cars[cars["z"] > 0]
 plane = fit_road_plane(cars_by_image)

@@ -27,15 +27,12 @@ threads = 1
 # %%
 import pandas as pd
 
-from sdm import SDMInputError
 from sdm.data import sample_indices
 from sdm.report.io import write_csv
 
 table = pd.read_csv(images)
-if n_images > len(table):
-    raise SDMInputError(f"config key 'sky.n_images': {n_images} images cannot be sampled from the {len(table)} "
-                        f"annotated images listed in {images}")
-chosen = table.iloc[sample_indices(len(table), n_images, seed)].reset_index(drop=True)
+chosen = table.iloc[sample_indices(len(table), n_images, seed, n_sample_name="config key 'sky.n_images'",
+                                   seed_name="config key 'sky.seed'")].reset_index(drop=True)
 write_csv(sample, chosen)
 print(f"sampled {len(chosen)} of {len(table)} images (seed {seed})")
 print(f"cars per image: all {table['n_cars'].mean():.2f}, sample {chosen['n_cars'].mean():.2f}; "

@@ -6,8 +6,8 @@ import torch
 
 sys.path.insert(0, str(Path(__file__).parent))
 
-#: The real ApolloCar3D sample shipped beside the repository (tests needing it skip when absent).
-APOLLO_SAMPLE = Path(__file__).resolve().parents[1].parent / "shared" / "apollocar3d-sample"
+#: The real ApolloCar3D sample shipped in the repository (data/apollocar3d-sample; tests needing it skip if it is removed).
+APOLLO_SAMPLE = Path(__file__).resolve().parents[1] / "data" / "apollocar3d-sample"
 
 
 @pytest.fixture(autouse=True)

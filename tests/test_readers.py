@@ -12,7 +12,7 @@ from sdm.data import ImageCars, read_apollo_camera, read_apollo_folder, read_pku
 from sdm.errors import SDMInputError
 from sdm.sky import build_configuration
 
-SAMPLE = Path(__file__).resolve().parents[1].parent / "shared" / "apollocar3d-sample"
+SAMPLE = Path(__file__).resolve().parents[1] / "data" / "apollocar3d-sample"
 
 
 def needs_sample():
@@ -144,6 +144,30 @@ def test_malformed_annotation_file(tmp_path, content, message):
         read_apollo_folder(folder)
 
 
+def test_annotation_with_a_byte_order_mark_is_read(tmp_path):
+    folder = apollo_folder(tmp_path / "apollo", {})
+    (folder / "car_poses" / "img.json").write_bytes(b"\xef\xbb\xbf" + json.dumps([car(1.0, 2.0, 30.0)]).encode())
+    (image,) = read_apollo_folder(folder)
+    assert image.image_id == "img" and image.centres.tolist() == [[1.0, 2.0, 30.0]]
+
+
+def test_huge_integer_in_an_annotation_names_the_file(tmp_path):
+    text = '[{"pose": [0, 0, 0, 1%s, 2, 30]}]' % ("0" * 400)
+    folder = apollo_folder(tmp_path / "apollo", {"good": [car(0, 2, 10)], "img": text})
+    with pytest.raises(SDMInputError, match=r"img\.json: car 0: pose x is too large for a float \(401-digit integer\)"):
+        read_apollo_folder(folder)
+    # beyond Python's 4300-digit limit the JSON parser itself refuses it: still the file's name
+    (folder / "car_poses" / "img.json").write_text('[{"pose": [0, 0, 0, 1%s, 2, 30]}]' % ("0" * 5000))
+    with pytest.raises(SDMInputError, match=r"img\.json: .*4300"):
+        read_apollo_folder(folder)
+
+
+def test_deeply_nested_annotation_names_the_file(tmp_path):
+    folder = apollo_folder(tmp_path / "apollo", {"img": "[" * 100_000 + "]" * 100_000})
+    with pytest.raises(SDMInputError, match=r"img\.json: JSON nested too deeply to read"):
+        read_apollo_folder(folder)
+
+
 def test_not_utf8_annotation(tmp_path):
     folder = apollo_folder(tmp_path / "apollo", {})
     (folder / "car_poses" / "img.json").write_bytes(b"\xff\xfe[\x00]")
@@ -161,6 +185,34 @@ def test_bad_camera_file(tmp_path):
     folder = apollo_folder(tmp_path / "apollo", {"img": []}, camera="fx = 2304.5;\nfy = oops;\ncx = 1;\ncy = 2;\n")
     with pytest.raises(SDMInputError, match=r"Camera_5\.txt: fy is not a number"):
         read_apollo_camera(folder)
+
+
+@pytest.mark.parametrize(
+    "text, message",
+    [
+        ("fx = 0;\nfy = 2305.8;\ncx = 1686.2;\ncy = 1355.0;\n", r"fx must be a positive focal length in pixels, got '0'"),
+        ("fx = 2304.5;\nfy = -2305.8;\ncx = 1686.2;\ncy = 1355.0;\n", r"fy must be a positive focal length"),
+        ("fx = nan;\nfy = 2305.8;\ncx = 1686.2;\ncy = 1355.0;\n", r"fx is not finite: 'nan'"),
+        ("fx = 1e999;\nfy = 2305.8;\ncx = 1686.2;\ncy = 1355.0;\n", r"fx is not finite: '1e999'"),
+    ],
+)
+def test_camera_file_with_a_bad_focal_length_names_the_file(tmp_path, text, message):
+    folder = apollo_folder(tmp_path / "apollo", {"img": []}, camera=text)
+    with pytest.raises(SDMInputError, match=r"Camera_5\.txt: " + message):
+        read_apollo_camera(folder)
+
+
+def test_camera_file_not_utf8_names_the_file(tmp_path):
+    folder = apollo_folder(tmp_path / "apollo", {"img": []}, camera="")
+    (folder / "camera" / "Camera_5.txt").write_bytes(b"fx = 2304.5;\xff\xfe fy = 1;")
+    with pytest.raises(SDMInputError, match=r"Camera_5\.txt: camera intrinsics file is not UTF-8 text"):
+        read_apollo_camera(folder)
+
+
+def test_camera_file_with_a_byte_order_mark_is_read(tmp_path):
+    folder = apollo_folder(tmp_path / "apollo", {"img": []}, camera="")
+    (folder / "camera" / "Camera_5.txt").write_bytes(b"\xef\xbb\xbffx=2304.5479;fy=2305.8757;cx=1686.2379;cy=1354.9849;")
+    assert read_apollo_camera(folder) == APOLLO_CAMERA_5
 
 
 def test_several_camera_files_without_camera_5(tmp_path):
@@ -225,6 +277,8 @@ def test_pku_csv_extra_columns_quotes_and_bom(tmp_path):
         ("ImageId,PredictionString\nID_1,\nID_1,\n", r"train\.csv: line 3: ImageId 'ID_1' repeats line 2"),
         ("ImageId,PredictionString\n,1 0 0 0 1 2 3\n", r"train\.csv: line 2: empty ImageId"),
         ("ImageId,PredictionString\nID_1,1 0 0 0 1 2 3,extra\n", r"train\.csv: line 2: 3 fields, the header has 2"),
+        ("ImageId,PredictionString\n", r"train\.csv: no image: the CSV has a header but no row"),
+        ("\ufeffImageId,PredictionString\r\n\r\n", r"train\.csv: no image: the CSV has a header but no row"),
     ],
 )
 def test_malformed_pku_csv(tmp_path, text, message):

@@ -1,7 +1,6 @@
 """sdm.report and sdm.experiments: tables beside the paper, writers, report text, figures, runs and seeds."""
 import math
 
-import matplotlib
 import pandas as pd
 import pytest
 import torch
@@ -195,8 +194,36 @@ def test_tune_cell_reports_dev_loss_and_history():
 # -- figures ---------------------------------------------------------------------------------------
 
 
+def test_importing_figures_leaves_the_backend_alone():
+    """Forcing Agg at import hid every plot from the rendered notebooks (the inline backend must win)."""
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    code = ("import matplotlib; matplotlib.use('svg'); import sdm.report.figures; "
+            "print(matplotlib.get_backend())")
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"))
+    env.pop("MPLBACKEND", None)
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
+    assert result.returncode == 0, result.stderr
+    assert result.stdout.strip() == "svg"
+
+
+def test_show_figure_saves_and_closes_outside_a_notebook(tmp_path):
+    import matplotlib.pyplot as plt
+
+    figure = figures.figure4(configurations(1, seed=2)[0].target, levels=(0, 1))
+    assert figures.show_figure(figure, tmp_path / "fig4.png", pdf=True) == tmp_path / "fig4.png"
+    assert (tmp_path / "fig4.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and (tmp_path / "fig4.pdf").stat().st_size
+    assert not plt.fignum_exists(figure.number)
+    other = figures.figure4(configurations(1, seed=2)[0].target, levels=(0,))
+    assert figures.show_figure(other) is None and not plt.fignum_exists(other.number)
+
+
 def test_figures_render_and_save(tmp_path):
-    assert matplotlib.get_backend().lower() == "agg"
+    import matplotlib.pyplot as plt
+
     configuration = configurations(1, seed=2)[0]
     data = configuration_set(32, seed=2)
     _, history = tune_cell(data, data, settings_for(1, 1e-3, 4, 16, 0.5, 0))
@@ -215,6 +242,7 @@ def test_figures_render_and_save(tmp_path):
     for name, figure in made.items():
         path = figures.save_figure(figure, tmp_path / f"{name}.png", pdf=name == "fig1")
         assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        assert not plt.fignum_exists(figure.number)  # closed: memory stays flat over many figures
     assert (tmp_path / "fig1.pdf").stat().st_size > 0
 
 

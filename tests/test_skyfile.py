@@ -223,10 +223,13 @@ def test_other_version(sky_path):
         SkyFile(sky_path)
 
 
+REBUILD = r"delete it and run snakemake again to rebuild it \(the 'sky' stage\)"
+
+
 @pytest.mark.parametrize("keep", [10, 40, 300, -1])
 def test_truncated(sky_path, keep):
     damage(sky_path, lambda d: d[:keep])
-    with pytest.raises(SDMInputError, match=r"sky\.bin: .*(truncated|not a Sky file)"):
+    with pytest.raises(SDMInputError, match=rf"sky\.bin: .*(truncated|not a Sky file).*{REBUILD}"):
         SkyFile(sky_path)
 
 
@@ -241,6 +244,57 @@ def test_damaged_data_fails_the_checksum(sky_path):
     sky = SkyFile(sky_path)  # the damage is in the data, not the header: found by verify / load_all
     with pytest.raises(SDMInputError, match=r"sky\.bin: array 'centre_depth' fails its CRC-32 check"):
         sky.load_all()
+
+
+def flip_byte(path: Path, array: str, where: float = 0.5) -> int:
+    """Flip every bit of one byte of ``array`` (at the fraction ``where`` of its bytes); return the byte's index."""
+    sky = SkyFile(path, checksums=False)
+    entry = sky._table[array]
+    assert entry["nbytes"] > 0, array
+    index = sky._data_offset + entry["offset"] + int(where * (entry["nbytes"] - 1))
+    damage(path, lambda d: d[:index] + bytes([d[index] ^ 0xFF]) + d[index + 1:])
+    return index
+
+
+def test_one_flipped_depth_byte_is_refused_on_read_naming_the_file(sky_path, configurations):
+    # the flip is in the last configuration with points; reading the first one already refuses the file,
+    # since the check covers the whole array it reads from
+    flip_byte(sky_path, "point_depth", where=0.99)
+    sky = SkyFile(sky_path)  # opening reads only the header and the offsets
+    with pytest.raises(SDMInputError, match=rf"sky\.bin: array 'point_depth' fails its CRC-32 check.*{REBUILD}"):
+        sky[0]
+    with pytest.raises(SDMInputError, match=r"sky\.bin: array 'point_depth' fails"):
+        list(SkyFile(sky_path))
+    # the damage is real: without the checks the file decodes to other depths, silently
+    unchecked = list(SkyFile(sky_path, checksums=False))
+    changed = [k for k, cfg in enumerate(unchecked) if not torch.equal(cfg.depth, configurations[k].depth)]
+    assert len(changed) == 1
+
+
+@pytest.mark.parametrize("array", list(skyfile_module._ARRAYS))
+def test_one_flipped_byte_in_any_array_is_refused_naming_the_file(sky_path, array):
+    flip_byte(sky_path, array)
+    with pytest.raises(SDMInputError) as error:
+        sky = SkyFile(sky_path)
+        sky[len(sky) // 2]
+    message = str(error.value)
+    assert message.startswith(f"{sky_path}: ")
+    assert "damaged" in message and "snakemake --forcerun sky" in message
+    if not array.endswith("_offsets"):  # a flipped offset may already break the offsets' consistency check
+        assert f"array {array!r} fails its CRC-32 check" in message
+
+
+def test_verified_arrays_are_checked_once_per_opened_file(sky_path, monkeypatch):
+    checked = []
+    real = SkyFile._check_crc
+    monkeypatch.setattr(SkyFile, "_check_crc", lambda self, name: (checked.append(name), real(self, name))[1])
+    sky = SkyFile(sky_path)
+    assert sorted(checked) == ["centre_offsets", "point_offsets", "target_offsets"]
+    sky[0], sky[5], sky[-1]
+    assert sorted(checked) == sorted(skyfile_module._ARRAYS)
+    checked.clear()
+    SkyFile(sky_path, checksums=False)[0]
+    assert checked == []
 
 
 def test_inconsistent_offsets(tmp_path, configurations):

@@ -133,12 +133,24 @@ class Camera:
     def from_file(cls, path: str | Path, **screen) -> "Camera":
         """Read ApolloCar3D intrinsics (``fx = ...; fy = ...; cx = ...; cy = ...;``).
 
-        Extra keyword arguments (image and screen size) are passed to :class:`Camera`.
+        The file is UTF-8 text (a byte-order mark is accepted). Extra keyword
+        arguments (image and screen size) are passed to :class:`Camera`.
+
+        Raises:
+            SDMInputError: naming the file, if it is missing, unreadable or not
+                UTF-8, lacks one of the four values, a value is not a finite
+                number, a focal length is not positive, or the extra arguments
+                are invalid.
         """
         path = Path(path)
         if not path.is_file():
             raise SDMInputError(f"{path}: camera intrinsics file not found")
-        text = path.read_text()
+        try:
+            text = path.read_text(encoding="utf-8-sig")
+        except UnicodeDecodeError as exc:
+            raise SDMInputError(f"{path}: camera intrinsics file is not UTF-8 text ({exc})") from None
+        except OSError as exc:
+            raise SDMInputError(f"{path}: cannot read camera intrinsics file ({exc})") from None
         values = {}
         for key in ("fx", "fy", "cx", "cy"):
             match = re.search(rf"\b{key}\s*=\s*([^;\s]+)\s*;?", text)
@@ -150,7 +162,12 @@ class Camera:
                 raise SDMInputError(f"{path}: {key} is not a number: {match.group(1)!r}") from None
             if not math.isfinite(values[key]):
                 raise SDMInputError(f"{path}: {key} is not finite: {match.group(1)!r}")
-        return cls(**values, **screen)
+            if key in ("fx", "fy") and values[key] <= 0:
+                raise SDMInputError(f"{path}: {key} must be a positive focal length in pixels, got {match.group(1)!r}")
+        try:
+            return cls(**values, **screen)
+        except SDMInputError as exc:
+            raise SDMInputError(f"{path}: {exc}") from None
 
 
 #: ``Camera_5`` of ApolloCar3D (and of the PKU/Baidu car-pose set), on the Sky screen.

@@ -4,74 +4,154 @@
 
 The executed notebook is written as papermill goes (it is the rule's log and is
 kept when a cell fails, with the traceback in it); the HTML is written only
-after the notebook ran through, atomically. One process does all three steps
-(jupytext, papermill, nbconvert), which saves two interpreter start-ups per job.
+after the notebook ran through, atomically (:mod:`sdm.io`). One process does all
+three steps (jupytext, papermill, nbconvert), which saves two interpreter
+start-ups per job.
+
+On failure the FIRST line printed (stderr) is the one-line cause::
+
+    notebooks/sky.py failed: SDMInputError: results/sky/sky.bin: array 'point_depth' fails its CRC-32 check; ...
+
+then where it happened and the executed notebook to open for the traceback;
+anything the libraries printed meanwhile comes after, colour codes stripped.
+Exit status 1.
 """
 from __future__ import annotations
 
+import contextlib
+import importlib.util
 import json
 import os
+import re
 import sys
 import tempfile
 from pathlib import Path
 
+#: ANSI escape sequences (colours, cursor moves) as IPython puts them in tracebacks and messages.
+ANSI = re.compile(r"\x1b\[[0-?]*[ -/]*[@-~]|\x1b[@-Z\\-_]")
+
+
+def strip_ansi(text: str) -> str:
+    return ANSI.sub("", text)
+
+
+def _load_writer():
+    """The library's one atomic writer, :mod:`sdm.io`, loaded from its file.
+
+    Loaded by path rather than ``import sdm.io`` because importing the ``sdm``
+    package imports torch (about 2 s per job); ``sdm/io.py`` uses only the
+    standard library.
+    """
+    source = Path(__file__).resolve().parents[2] / "src" / "sdm" / "io.py"
+    spec = importlib.util.spec_from_file_location("sdm_io_for_runner", source)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+@contextlib.contextmanager
+def captured_output():
+    """Collect everything written to this process's stdout and stderr (file descriptors 1 and 2, so the
+    kernel's and the libraries' output too) into a temporary file; yields a function returning it so far."""
+    sys.stdout.flush()
+    sys.stderr.flush()
+    saved = {fd: os.dup(fd) for fd in (1, 2)}
+    with tempfile.TemporaryFile(mode="w+b") as sink:
+        try:
+            for fd in (1, 2):
+                os.dup2(sink.fileno(), fd)
+
+            def read() -> str:
+                sys.stdout.flush()
+                sys.stderr.flush()
+                sink.seek(0)
+                return sink.read().decode("utf-8", errors="replace")
+
+            yield read
+        finally:
+            sys.stdout.flush()
+            sys.stderr.flush()
+            for fd, copy in saved.items():
+                os.dup2(copy, fd)
+                os.close(copy)
+
+
+def one_line_cause(source: str, ename: str, evalue: str) -> tuple[str, list[str]]:
+    """``"<source> failed: <ename>: <first line of evalue>"`` and the rest of the message's lines."""
+    lines = [line.rstrip() for line in strip_ansi(str(evalue)).strip().splitlines()] or [""]
+    head = f"{source} failed: {strip_ansi(ename)}: {lines[0]}" if lines[0] else f"{source} failed: {strip_ansi(ename)}"
+    return head, [line for line in lines[1:] if line]
+
+
+def report_failure(head: str, details: list[str], where: str, noise: str, log: Path | None = None) -> None:
+    """Print the cause first, then where to look, then what the libraries printed (colour codes stripped).
+
+    With ``log``, what the libraries printed goes to that file (after the cause) and the console gets
+    the cause and where to look only.
+    """
+    out = [head, *(f"    {line}" for line in details), where]
+    noise = strip_ansi(noise).strip()
+    if log is not None:
+        _write_log(log, "\n".join(out + (["output of the run:", noise] if noise else [])))
+        out.append(f"(the tools' messages are in {log})")
+    elif noise:
+        out += ["output of the run:", noise]
+    print("\n".join(out), file=sys.stderr, flush=True)
+
+
+def _write_log(log: Path, text: str) -> None:
+    log.parent.mkdir(parents=True, exist_ok=True)
+    _load_writer().write_text(log, text + "\n" if text else "")
+
 
 def main(source: str, executed: str, html: str, parameters: str | dict, stderr_log: str | None = None) -> int:
-    """Run ``source`` with ``parameters`` (a dict or its JSON); 0 on success, 1 when a cell failed.
+    """Run ``source`` with ``parameters`` (a dict, or its JSON); 0 on success, 1 on failure.
 
-    With ``stderr_log``, everything the tools and the kernel write to stderr goes to that file,
-    and only the one-line cause of a failure reaches this process's stderr.
+    With ``stderr_log`` (the rule's text log), the tools' and the kernel's messages go to that file
+    instead of stderr; on failure the console still gets the one-line cause first.
     """
     if isinstance(parameters, str):
         parameters = json.loads(parameters)
-    if stderr_log is None:
-        return _run(source, executed, html, parameters, sys.stderr)
-    Path(stderr_log).parent.mkdir(parents=True, exist_ok=True)
-    console = os.fdopen(os.dup(2), "w")
-    with open(stderr_log, "w") as log:
-        sys.stderr.flush()
-        saved = os.dup(2)
-        os.dup2(log.fileno(), 2)
+    log = Path(stderr_log) if stderr_log else None
+    with captured_output() as output:
         try:
-            return _run(source, executed, html, parameters, console)
-        finally:
-            sys.stderr.flush()
-            os.dup2(saved, 2)
-            os.close(saved)
-            console.close()
+            import jupytext
+            import papermill
+            from nbconvert import HTMLExporter
 
-
-def _run(source: str, executed: str, html: str, parameters: dict, console) -> int:
-    import jupytext
-    import papermill
-    from nbconvert import HTMLExporter
-
-    notebook = jupytext.read(source)
-    notebook.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
-    Path(executed).parent.mkdir(parents=True, exist_ok=True)
-    try:
-        result = papermill.execute_notebook(
-            notebook,
-            executed,
-            parameters=parameters,
-            kernel_name="python3",
-            progress_bar=False,
-            log_output=False,
-        )
-    except papermill.PapermillExecutionError as error:
-        for stream in (console, sys.stderr):
-            print(f"{source} failed in cell {error.exec_count}: {error.ename}: {error.evalue}", file=stream)
-            print(f"the executed notebook, with the traceback, is {executed}", file=stream)
-            stream.flush()
-        return 1
-    body, _ = HTMLExporter().from_notebook_node(result)
-    target = Path(html)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f".{target.stem}.", suffix=".html", dir=target.parent)
-    with os.fdopen(handle, "w", encoding="utf-8") as stream:
-        stream.write(body)
-    os.replace(temporary, target)
-    return 0
+            notebook = jupytext.read(source)
+            notebook.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
+            Path(executed).parent.mkdir(parents=True, exist_ok=True)
+            result = papermill.execute_notebook(
+                notebook,
+                executed,
+                parameters=parameters,
+                kernel_name="python3",
+                progress_bar=False,
+                log_output=False,
+            )
+            body, _ = HTMLExporter().from_notebook_node(result)
+            _load_writer().write_text(html, body)
+        except Exception as error:  # noqa: BLE001 - every failure is reported the same way, cause first
+            noise = output()
+            failure = error
+        else:
+            noise, failure = output(), None
+    if failure is None:
+        if log is not None:
+            _write_log(log, strip_ansi(noise).strip())
+        elif noise.strip():
+            sys.stderr.write(strip_ansi(noise))
+        return 0
+    if type(failure).__name__ == "PapermillExecutionError":
+        head, details = one_line_cause(source, failure.ename, failure.evalue)
+        where = f"(in cell [{failure.exec_count}]; the executed notebook, with the traceback, is {executed})"
+    else:
+        head, details = one_line_cause(source, type(failure).__name__, str(failure))
+        kept = f"; the executed notebook so far is {executed}" if Path(executed).is_file() else ""
+        where = f"(while running the notebook{kept})"
+    report_failure(head, details, where, noise, log)
+    return 1
 
 
 if __name__ == "__main__":

@@ -9,13 +9,15 @@ See ``docs/data.md``. Public API::
     write_synthetic_apollo(folder, n_images=5277, seed=0)  # -> Path
     build_sky_dataset(images, n_sample=4248, seed=0, shift=SKY_SHIFT, camera=APOLLO_CAMERA_5, progress=True)
     write_sky_file(path, configurations, shift, camera, metadata=None)
-    SkyFile(path)                                      # lazy: len, [i], image_ids, shift, camera, version, load_all()
+    SkyFile(path, checksums=True)                      # lazy, verified: len, [i], image_ids, shift, camera, load_all()
+    require_cars_on_screen(images, camera, source)     # SDMInputError naming source if no image has a car on screen
 """
 from .dataset import SKY_N_IMAGES, build_sky_dataset, sample_indices
 from .readers import (
     SOURCE_KINDS, ImageCars, read_annotations, read_apollo_camera, read_apollo_folder, read_car_poses, read_pku_csv,
 )
 from .skyfile import FORMAT_VERSION, SkyFile, write_sky_file
+from .stats import require_cars_on_screen
 from .synthetic import DEFAULT_MODEL, SceneModel, synthetic_images, write_synthetic_apollo
 
 __all__ = [
@@ -31,6 +33,7 @@ __all__ = [
     "read_car_poses",
     "read_pku_csv",
     "read_annotations",
+    "require_cars_on_screen",
     "SOURCE_KINDS",
     "sample_indices",
     "synthetic_images",

@@ -4,7 +4,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from tqdm.auto import tqdm
+# tqdm.std, not tqdm.auto: the text bar renders in a notebook too, without auto's "IProgress not found" warning
+from tqdm.std import tqdm
 
 from ..camera import APOLLO_CAMERA_5, Camera
 from ..errors import SDMInputError
@@ -15,18 +16,29 @@ from .readers import ImageCars
 SKY_N_IMAGES = 4248
 
 
-def sample_indices(n_images: int, n_sample: int, seed: int = 0) -> np.ndarray:
+def sample_indices(n_images: int, n_sample: int, seed: int = 0, *, n_sample_name: str = "n_sample",
+                   seed_name: str = "seed") -> np.ndarray:
     """A seeded sample without replacement of ``n_sample`` indices out of ``n_images``.
 
     Drawn with ``numpy.random.Generator(PCG64(seed)).choice(n_images, n_sample,
     replace=False)`` and returned sorted (int64), so the sample keeps the input order.
+
+    Args:
+        n_sample_name, seed_name: how error messages name the two values; a
+            caller that took them from a config passes the keys (e.g.
+            ``"config key 'sky.n_images'"``) so that the message names them.
+
+    Raises:
+        SDMInputError: ``n_sample`` negative, not an integer or larger than
+            ``n_images`` ("n_sample = 128 is larger than the number of images
+            (57)"); a negative or non-integer seed.
     """
     if isinstance(n_sample, bool) or not isinstance(n_sample, (int, np.integer)) or n_sample < 0:
-        raise SDMInputError(f"n_sample must be a non-negative integer, got {n_sample!r}")
+        raise SDMInputError(f"{n_sample_name} must be a non-negative integer, got {n_sample!r}")
     if n_sample > n_images:
-        raise SDMInputError(f"n_sample = {n_sample} is larger than the number of images ({n_images})")
+        raise SDMInputError(f"{n_sample_name} = {n_sample} is larger than the number of images ({n_images})")
     if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
-        raise SDMInputError(f"seed must be a non-negative integer, got {seed!r}")
+        raise SDMInputError(f"{seed_name} must be a non-negative integer, got {seed!r}")
     rng = np.random.Generator(np.random.PCG64(int(seed)))
     return np.sort(rng.choice(n_images, size=int(n_sample), replace=False)).astype(np.int64)
 
@@ -38,6 +50,9 @@ def build_sky_dataset(
     shift: tuple[float, float] = SKY_SHIFT,
     camera: Camera = APOLLO_CAMERA_5,
     progress: bool = True,
+    *,
+    n_sample_name: str = "n_sample",
+    seed_name: str = "seed",
 ) -> list[SkyConfiguration]:
     """Sample images and build their Sky configurations.
 
@@ -48,6 +63,8 @@ def build_sky_dataset(
         shift: the true shift ``(a, b)`` in metres.
         camera: camera and screen.
         progress: show a progress bar (tqdm, on stderr).
+        n_sample_name, seed_name: how error messages name ``n_sample`` and
+            ``seed`` (see :func:`sample_indices`).
 
     Returns:
         ``n_sample`` configurations, in the order of ``images`` (sorted sample
@@ -61,7 +78,7 @@ def build_sky_dataset(
     for index, image in enumerate(images):
         if not isinstance(image, ImageCars):
             raise SDMInputError(f"images[{index}] must be ImageCars, got {type(image).__name__}")
-    chosen = sample_indices(len(images), n_sample, seed)
+    chosen = sample_indices(len(images), n_sample, seed, n_sample_name=n_sample_name, seed_name=seed_name)
     configurations = []
     for index in tqdm(chosen.tolist(), desc="Sky configurations", unit="image", disable=not progress):
         image = images[index]

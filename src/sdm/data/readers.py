@@ -120,17 +120,21 @@ def read_apollo_folder(folder: str | Path, camera_file: str | Path | None = None
 def read_car_poses(path: str | Path) -> torch.Tensor:
     """Car centres of one ApolloCar3D ``car_poses`` JSON file.
 
+    The file is UTF-8 JSON; a leading byte-order mark is accepted (as for the CSV).
+
     Returns:
         ``(M, 3)`` float64 centres ``(x, y, z)`` in metres, in file order.
 
     Raises:
         SDMInputError: naming the file (and car index) for unreadable or
-            invalid JSON, a top level that is not a list, a car that is not an
-            object, has no ``pose``, or whose pose is not six finite numbers.
+            invalid JSON (also nesting too deep to parse), a top level that is
+            not a list, a car that is not an object, has no ``pose``, or whose
+            pose is not six finite numbers (an integer too large for a float
+            included).
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8")
+        text = path.read_text(encoding="utf-8-sig")
     except FileNotFoundError:
         raise SDMInputError(f"{path}: annotation file not found") from None
     except (OSError, UnicodeDecodeError) as exc:
@@ -139,8 +143,10 @@ def read_car_poses(path: str | Path) -> torch.Tensor:
         cars = json.loads(text, parse_constant=_reject_constant)
     except json.JSONDecodeError as exc:
         raise SDMInputError(f"{path}: bad JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}") from None
-    except ValueError as exc:  # a NaN / Infinity literal
+    except ValueError as exc:  # a NaN / Infinity literal, an integer of more than 4300 digits
         raise SDMInputError(f"{path}: {exc}") from None
+    except RecursionError:
+        raise SDMInputError(f"{path}: JSON nested too deeply to read (expected a list of car objects)") from None
     if not isinstance(cars, list):
         raise SDMInputError(f"{path}: expected a JSON list of cars, got a JSON {type(cars).__name__}")
     centres = []
@@ -154,12 +160,18 @@ def read_car_poses(path: str | Path) -> torch.Tensor:
         if not isinstance(pose, list) or len(pose) != 6:
             got = f"{len(pose)} values" if isinstance(pose, list) else repr(pose)
             raise SDMInputError(f"{where}: 'pose' must be a list of 6 numbers [roll, pitch, yaw, x, y, z], got {got}")
+        numbers = []
         for name, value in zip(("roll", "pitch", "yaw", "x", "y", "z"), pose):
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise SDMInputError(f"{where}: pose {name} is not a number: {value!r}")
-            if not math.isfinite(value):
+            try:
+                number = float(value)
+            except OverflowError:  # a JSON integer beyond float range
+                raise SDMInputError(f"{where}: pose {name} is too large for a float ({len(str(abs(value)))}-digit integer)") from None
+            if not math.isfinite(number):
                 raise SDMInputError(f"{where}: pose {name} is not finite: {value!r}")
-        centres.append([float(v) for v in pose[3:]])
+            numbers.append(number)
+        centres.append(numbers[3:])
     return torch.tensor(centres, dtype=torch.float64).reshape(-1, 3)
 
 
@@ -212,7 +224,8 @@ def read_pku_csv(path: str | Path) -> list[ImageCars]:
 
     Raises:
         SDMInputError: naming the file (and line, 1-based, the header being
-            line 1) for a missing file, missing columns, an empty image id, a
+            line 1) for a missing file, missing columns, no row after the
+            header, an empty image id, a
             repeated image id, a prediction string whose number of fields is
             not a multiple of 7, a non-numeric or non-finite field.
     """
@@ -252,6 +265,8 @@ def read_pku_csv(path: str | Path) -> list[ImageCars]:
         raise SDMInputError(f"{path}: not UTF-8 text ({exc})") from None
     except csv.Error as exc:
         raise SDMInputError(f"{path}: malformed CSV ({exc})") from None
+    if not images:
+        raise SDMInputError(f"{path}: no image: the CSV has a header but no row (expected one row per image)")
     return [images[key] for key in sorted(images)]
 
 

@@ -29,8 +29,10 @@ The header holds ``format`` ("sdm-sky"), ``version``, ``n_configurations``,
     centre_pixels   int16 (C, 2)   active pixels of E (car centres on screen), row-major
     centre_depth    float64 (C,)   their depth (the value of E), metres
 
-Opening a file reads the fixed prefix, the header and the three offset arrays;
-configurations are decoded one at a time from a read-only memory map.
+Opening a file reads the fixed prefix, the header and the three offset arrays
+(checking their CRC-32); configurations are decoded one at a time from a
+read-only memory map, and the first read of each array checks its CRC-32, so a
+damaged file is refused before any of its configurations is used.
 Writing is deterministic (no timestamp; the same inputs give the same bytes)
 and atomic (temporary file + ``os.replace``).
 """
@@ -38,9 +40,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import os
 import struct
-import tempfile
 import zlib
 from collections.abc import Iterator, Sequence
 from pathlib import Path
@@ -50,6 +50,7 @@ import torch
 
 from ..camera import Camera
 from ..errors import SDMInputError
+from ..io import write_bytes
 from ..sky import SkyConfiguration, check_shift
 
 #: First 8 bytes of every Sky file.
@@ -73,6 +74,16 @@ _ARRAYS = {
     "centre_depth": ("<f8", 1),
 }
 _CAMERA_FIELDS = [f.name for f in dataclasses.fields(Camera)]
+#: What to do about a damaged Sky file; ends every "damaged" message.
+REBUILD_HINT = (
+    "delete it and run snakemake again to rebuild it (the 'sky' stage), "
+    "or rebuild it in place with `snakemake --forcerun sky`"
+)
+
+
+def _damaged(path: Path, what: str) -> SDMInputError:
+    """The error for a damaged Sky file: names the file, says what is wrong and how to rebuild it."""
+    return SDMInputError(f"{path}: {what}; the Sky file is damaged: {REBUILD_HINT}")
 
 
 def _align(n: int) -> int:
@@ -92,8 +103,9 @@ def write_sky_file(
     """Write configurations to a Sky file (format version :data:`FORMAT_VERSION`).
 
     Args:
-        path: destination; written atomically (a temporary file in the same
-            folder, then ``os.replace``).
+        path: destination; written atomically by :func:`sdm.io.write_atomic`
+            (a temporary file in the same folder, then ``os.replace``; mode
+            ``0o666 & ~umask`` like any plain write).
         configurations: the configurations, stored in this order.
         shift: the true shift ``(a, b)`` (metres) they were built with.
         camera: the camera and screen they were built with.
@@ -180,25 +192,7 @@ def write_sky_file(
     out[_PREFIX.size + len(header_bytes) : data_offset] = b" " * (data_offset - _PREFIX.size - len(header_bytes))
     for position, data in blobs:
         out[data_offset + position : data_offset + position + len(data)] = data
-    _atomic_write(path, bytes(out))
-
-
-def _atomic_write(path: Path, data: bytes) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(handle, "wb") as stream:
-            stream.write(data)
-            stream.flush()
-            os.fsync(stream.fileno())
-        os.chmod(temp, 0o644)
-        os.replace(temp, path)
-    except BaseException:
-        try:
-            os.unlink(temp)
-        except FileNotFoundError:
-            pass
-        raise
+    write_bytes(path, bytes(out))
 
 
 def _check_configuration(cfg, index: int, camera: Camera):
@@ -251,48 +245,60 @@ class SkyFile:
     ``sky.version`` (int), ``sky.metadata`` (dict), ``sky.load_all()``.
 
     Opening validates the prefix, the header and the offset arrays (and that
-    the file is not truncated); it does not decode configurations. Use
-    :meth:`verify` to check every array's CRC-32.
+    the file is not truncated); it does not decode configurations. Reads are
+    verified: the first time a configuration is decoded, each array it reads
+    is checked against the CRC-32 stored in the header (once per array and
+    opened file: about 10 ms for the default 37.6 MB file). :meth:`verify` checks every
+    array at once.
+
+    Args:
+        path: the file.
+        checksums: verify the arrays' CRC-32 on read (the default). ``False``
+            skips it (for measuring its cost; never in the workflow).
 
     Raises:
         SDMInputError: naming the file, if it is missing, not a Sky file,
-            of another format version, truncated or inconsistent.
+            of another format version, truncated, inconsistent, or an array
+            read fails its CRC-32 (damaged); the message says how to rebuild it.
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, checksums: bool = True):
         self.path = Path(path)
+        self.checksums = bool(checksums)
+        self._verified: set[str] = set()
         if not self.path.is_file():
             raise SDMInputError(f"{self.path}: Sky file not found")
         size = self.path.stat().st_size
         with self.path.open("rb") as stream:
             prefix = stream.read(_PREFIX.size)
             if len(prefix) < _PREFIX.size:
-                raise SDMInputError(f"{self.path}: not a Sky file (only {len(prefix)} bytes; truncated or empty)")
+                raise _damaged(self.path, f"not a Sky file (only {len(prefix)} bytes; truncated or empty)")
             magic, version, header_len, data_offset, total = _PREFIX.unpack(prefix)
             if magic != MAGIC:
                 raise SDMInputError(f"{self.path}: not a Sky file (bad magic {magic!r}, expected {MAGIC!r})")
             if version != FORMAT_VERSION:
                 raise SDMInputError(
-                    f"{self.path}: Sky file format version {version} is not supported (this sdm reads version {FORMAT_VERSION})"
+                    f"{self.path}: Sky file format version {version} is not supported (this sdm reads version "
+                    f"{FORMAT_VERSION}); {REBUILD_HINT}"
                 )
             if total != size:
-                raise SDMInputError(f"{self.path}: file is {size} bytes but its header says {total} (truncated or damaged)")
+                raise _damaged(self.path, f"file is {size} bytes but its header says {total} (truncated)")
             if data_offset < _PREFIX.size + header_len or data_offset > size:
-                raise SDMInputError(f"{self.path}: inconsistent header (data offset {data_offset}, header {header_len} bytes)")
+                raise _damaged(self.path, f"inconsistent header (data offset {data_offset}, header {header_len} bytes)")
             header_bytes = stream.read(header_len)
         try:
             header = json.loads(header_bytes.decode("utf-8"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise SDMInputError(f"{self.path}: damaged header ({exc})") from None
+            raise _damaged(self.path, f"damaged header ({exc})") from None
         self._header = header
         self.version = int(version)
         try:
             if header.get("format") != FORMAT_NAME or header.get("version") != FORMAT_VERSION:
-                raise SDMInputError(f"{self.path}: header names format {header.get('format')!r} version {header.get('version')!r}")
+                raise _damaged(self.path, f"header names format {header.get('format')!r} version {header.get('version')!r}")
             n = int(header["n_configurations"])
             self.image_ids: list[str] = [str(i) for i in header["image_ids"]]
             if len(self.image_ids) != n:
-                raise SDMInputError(f"{self.path}: {len(self.image_ids)} image ids for {n} configurations")
+                raise _damaged(self.path, f"{len(self.image_ids)} image ids for {n} configurations")
             a, b = (float(v) for v in header["shift"])
             self.shift: tuple[float, float] = (a, b)
             self.camera: Camera = Camera(**{name: header["camera"][name] for name in _CAMERA_FIELDS})
@@ -301,7 +307,7 @@ class SkyFile:
         except SDMInputError:
             raise
         except (KeyError, TypeError, ValueError) as exc:
-            raise SDMInputError(f"{self.path}: damaged header ({type(exc).__name__}: {exc})") from None
+            raise _damaged(self.path, f"damaged header ({type(exc).__name__}: {exc})") from None
         self._n = n
         self._data_offset = int(data_offset)
         self._table = table
@@ -317,12 +323,15 @@ class SkyFile:
                 or offsets[-1] != count
                 or (np.diff(offsets) < 0).any()
             ):
-                raise SDMInputError(f"{self.path}: {kind}_offsets are inconsistent with {rows}")
+                raise _damaged(self.path, f"{kind}_offsets are inconsistent with {rows}")
             self._offsets[kind] = offsets
         if self._arrays["point_depth"].shape[0] != self._arrays["point_pixels"].shape[0]:
-            raise SDMInputError(f"{self.path}: point_depth and point_pixels differ in length")
+            raise _damaged(self.path, "point_depth and point_pixels differ in length")
         if self._arrays["centre_depth"].shape[0] != self._arrays["centre_pixels"].shape[0]:
-            raise SDMInputError(f"{self.path}: centre_depth and centre_pixels differ in length")
+            raise _damaged(self.path, "centre_depth and centre_pixels differ in length")
+        if self.checksums:
+            for name in ("point_offsets", "target_offsets", "centre_offsets"):
+                self._check_crc(name)
 
     def _array(self, name: str) -> np.ndarray:
         dtype, ndim = _ARRAYS[name]
@@ -331,13 +340,15 @@ class SkyFile:
             shape = tuple(int(v) for v in entry["shape"])
             offset, nbytes = int(entry["offset"]), int(entry["nbytes"])
         except (KeyError, TypeError, ValueError):
-            raise SDMInputError(f"{self.path}: header has no valid entry for array {name!r}") from None
+            raise _damaged(self.path, f"header has no valid entry for array {name!r}") from None
+        if isinstance(entry.get("crc32"), bool) or not isinstance(entry.get("crc32"), int):
+            raise _damaged(self.path, f"header has no CRC-32 for array {name!r}")
         if entry.get("dtype") != dtype or len(shape) != ndim or (ndim == 2 and shape[1] != 2):
-            raise SDMInputError(f"{self.path}: array {name!r} has dtype {entry.get('dtype')!r} shape {shape}, expected {dtype}")
+            raise _damaged(self.path, f"array {name!r} has dtype {entry.get('dtype')!r} shape {shape}, expected {dtype}")
         start = self._data_offset + offset
         expected = int(np.prod(shape)) * np.dtype(dtype).itemsize
         if nbytes != expected or offset % ALIGN or start + nbytes > self._map.shape[0]:
-            raise SDMInputError(f"{self.path}: array {name!r} lies outside the file or has the wrong size")
+            raise _damaged(self.path, f"array {name!r} lies outside the file or has the wrong size")
         return self._map[start : start + nbytes].view(dtype).reshape(shape)
 
     # -- container protocol ---------------------------------------------------------
@@ -361,6 +372,8 @@ class SkyFile:
     def _rows(self, kind: str, name: str, i: int) -> np.ndarray:
         if self._map is None:
             raise ValueError(f"{self.path}: Sky file is closed")
+        if self.checksums and name not in self._verified:
+            self._check_crc(name)
         lo, hi = self._offsets[kind][i], self._offsets[kind][i + 1]
         return np.array(self._arrays[name][lo:hi])
 
@@ -372,7 +385,7 @@ class SkyFile:
         target = torch.zeros(height, width, dtype=torch.bool)
         if target_pixels.size:
             if target_pixels.min() < 0 or target_pixels[:, 0].max() >= height or target_pixels[:, 1].max() >= width:
-                raise SDMInputError(f"{self.path}: configuration {i} has target pixels off the screen (damaged file)")
+                raise _damaged(self.path, f"configuration {i} has target pixels off the screen")
             target[torch.from_numpy(target_pixels[:, 0]), torch.from_numpy(target_pixels[:, 1])] = True
         centres = torch.from_numpy(self._rows("centre", "centre_pixels", i).astype(np.int64))
         centre_depth = torch.from_numpy(self._rows("centre", "centre_depth", i).astype(np.float64))
@@ -392,10 +405,17 @@ class SkyFile:
 
     def verify(self) -> None:
         """Check every array's CRC-32; raise :class:`SDMInputError` naming the file and array on a mismatch."""
+        if self._map is None:
+            raise ValueError(f"{self.path}: Sky file is closed")
+        self._verified.clear()
         for name in _ARRAYS:
-            data = self._arrays[name]
-            if zlib.crc32(data.tobytes()) != int(self._table[name].get("crc32", -1)):
-                raise SDMInputError(f"{self.path}: array {name!r} fails its CRC-32 check (damaged file)")
+            self._check_crc(name)
+
+    def _check_crc(self, name: str) -> None:
+        """Check one array against its stored CRC-32 (zlib reads the memory map directly, no copy)."""
+        if zlib.crc32(self._arrays[name]) != self._table[name]["crc32"]:
+            raise _damaged(self.path, f"array {name!r} fails its CRC-32 check")
+        self._verified.add(name)
 
     @property
     def header(self) -> dict:

@@ -14,6 +14,7 @@ import pandas as pd
 import torch
 
 from ..camera import APOLLO_CAMERA_5, Camera
+from ..errors import SDMInputError
 from ..sky import SkyConfiguration, circle_offsets, noise_displacement
 from .readers import ImageCars
 
@@ -59,6 +60,43 @@ def image_table(images: Sequence[ImageCars], camera: Camera = APOLLO_CAMERA_5) -
             "n_on_screen": [int(on_screen.get(i, 0)) for i in ids],
         }
     )
+
+
+def require_cars_on_screen(images: Sequence[ImageCars], camera: Camera = APOLLO_CAMERA_5, source: str = "annotations") -> int:
+    """Check that an annotation set can give a usable Sky configuration; call it right after reading.
+
+    An image with no car on the screen (none labelled, or all behind the camera
+    or off the screen) gives an *empty* configuration, which every stage
+    accepts; but when *every* image is like that, the Sky dataset has nothing
+    to train or score on, so the workflow should stop at its first stage.
+
+    Args:
+        images: the annotation set (from a reader).
+        camera: its camera and screen.
+        source: what to name in the message (the folder or CSV file read).
+
+    Returns:
+        The number of images with at least one car on the screen (> 0).
+
+    Raises:
+        SDMInputError: naming ``source``, when there is no image or no image
+            has a car on the screen.
+    """
+    images = list(images)
+    if not images:
+        raise SDMInputError(f"{source}: no image in the annotations")
+    per_image = image_table(images, camera)
+    usable = int((per_image["n_on_screen"] > 0).sum())
+    if usable == 0:
+        height, width = camera.screen_shape
+        n_cars = int(per_image["n_cars"].sum())
+        raise SDMInputError(
+            f"{source}: none of its {len(images)} images has a car on the {height} x {width} screen "
+            f"({n_cars} labelled cars in all; a car counts when it is in front of the camera and its centre "
+            "projects into the lower half of the image): every Sky configuration would be empty, "
+            "so there is nothing to train or score on"
+        )
+    return usable
 
 
 def fit_road_plane(images: Sequence[ImageCars]) -> dict[str, float]:

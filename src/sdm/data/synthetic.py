@@ -59,6 +59,7 @@ import torch
 
 from ..camera import APOLLO_CAMERA_5, Camera
 from ..errors import SDMInputError
+from ..io import current_umask
 from .readers import CAMERA_DIR, CAMERA_FILE, CAR_POSES, ImageCars
 
 #: Version of the scene model; written to ``synthetic.json`` in the folder.
@@ -430,7 +431,7 @@ def write_synthetic_apollo(
             "camera": asdict(camera),
         }
         (staging / PROVENANCE_FILE).write_text(json.dumps(provenance, indent=2, sort_keys=True) + "\n", encoding="utf-8")
-        os.chmod(staging, 0o755)
+        os.chmod(staging, 0o777 & ~current_umask())  # mkdtemp made it 0700; a plain mkdir would honour the umask
         if folder.exists():
             trash = Path(tempfile.mkdtemp(prefix=f".{folder.name}.", suffix=".old", dir=folder.parent))
             os.replace(folder, trash / "old")

@@ -1,43 +1,83 @@
 """Figures 1-4 of the paper, theta's path per zoom level and the distance distributions.
 
-Every function returns a :class:`matplotlib.figure.Figure`; :func:`save_figure`
-writes it atomically (PNG, optionally PDF). Screen images are drawn with rows
-down and columns across, like the paper's panels.
+Every function returns a :class:`matplotlib.figure.Figure` (made with pyplot);
+:func:`save_figure` writes it atomically (PNG, optionally PDF) and closes it,
+and :func:`show_figure` shows it inline in a notebook, saving it first when
+given a path, and closes it. Screen images are drawn with rows down and columns
+across, like the paper's panels.
+
+This module leaves the matplotlib backend alone: in a Jupyter kernel (and so
+under papermill) that is the inline backend, so figures render in the
+notebook and in its HTML; in a plain script without a display, matplotlib
+falls back to Agg by itself. (Forcing ``MPLBACKEND=Agg`` hides every plot
+from the rendered notebooks.)
 """
 from __future__ import annotations
 
 from pathlib import Path
 from typing import Sequence
 
-import matplotlib
+import matplotlib.pyplot as plt
+import numpy as np
+import pandas as pd
+import torch
+from matplotlib.colors import ListedColormap
+from matplotlib.patches import Rectangle
 
-matplotlib.use("Agg")
-
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-import pandas as pd  # noqa: E402
-import torch  # noqa: E402
-from matplotlib.colors import ListedColormap  # noqa: E402
-from matplotlib.patches import Rectangle  # noqa: E402
-
-from ..camera import APOLLO_CAMERA_5, Camera  # noqa: E402
-from ..errors import SDMInputError  # noqa: E402
-from ..sky import SKY_SHIFT, SkyConfiguration, add_target_noise  # noqa: E402
-from . import paper  # noqa: E402
-from .io import write_atomic  # noqa: E402
+from ..camera import APOLLO_CAMERA_5, Camera
+from ..errors import SDMInputError
+from ..sky import SKY_SHIFT, SkyConfiguration, add_target_noise
+from . import paper
+from .io import write_atomic
 
 MASK_CMAP = ListedColormap(["#111111", "#f2f2f2"])
 LEVEL_COLOURS = plt.get_cmap("viridis")
 
 
-def save_figure(figure, path: str | Path, pdf: bool = False) -> Path:
-    """Save ``figure`` as PNG (and PDF beside it when ``pdf``), atomically, then close it."""
-    path = Path(path)
+def _write(figure, path: Path, pdf: bool) -> None:
     write_atomic(path, lambda tmp: figure.savefig(tmp, dpi=150, bbox_inches="tight", format="png"))
     if pdf:
         write_atomic(path.with_suffix(".pdf"), lambda tmp: figure.savefig(tmp, bbox_inches="tight", format="pdf"))
+
+
+def save_figure(figure, path: str | Path, pdf: bool = False) -> Path:
+    """Save ``figure`` as PNG (and PDF beside it when ``pdf``), atomically, then close it."""
+    path = Path(path)
+    _write(figure, path, pdf)
     plt.close(figure)
     return path
+
+
+def show_figure(figure, path: str | Path | None = None, pdf: bool = False) -> Path | None:
+    """Show ``figure`` in the notebook (when running in one), after saving it when ``path`` is given; close it.
+
+    Closing keeps memory flat over many figures and keeps the inline backend
+    from showing the figure a second time at the end of the cell. Outside a
+    Jupyter kernel nothing is shown.
+
+    Returns:
+        The PNG path written, or ``None``.
+    """
+    written = None
+    if path is not None:
+        written = Path(path)
+        _write(figure, written, pdf)
+    if _in_notebook():
+        from IPython.display import display
+
+        display(figure)
+    plt.close(figure)
+    return written
+
+
+def _in_notebook() -> bool:
+    """Whether this runs in a Jupyter kernel (papermill included), where ``display`` renders images."""
+    try:
+        from IPython import get_ipython
+    except ImportError:
+        return False
+    shell = get_ipython()
+    return shell is not None and "IPKernelApp" in getattr(shell, "config", {})
 
 
 def _screen_axes(ax, image, title, cmap=MASK_CMAP, **kwargs):

@@ -1,47 +1,10 @@
-"""Atomic writes: a file appears under its name only once it is complete."""
+"""Atomic writes for the report and the notebooks: the library's one writer, :mod:`sdm.io`, re-exported.
+
+A file appears under its name only once it is complete, with the mode a plain
+``open()`` gives it (``0o666 & ~umask``); see :mod:`sdm.io`.
+"""
 from __future__ import annotations
 
-import json
-import os
-import tempfile
-from pathlib import Path
-from typing import Any, Callable
+from ..io import read_json, write_atomic, write_bytes, write_csv, write_json, write_text
 
-
-def write_atomic(path: str | Path, write: Callable[[Path], Any]) -> Path:
-    """Call ``write(temporary path)`` then rename the temporary file to ``path``.
-
-    The temporary file sits in the same folder (so the rename is atomic) and
-    keeps ``path``'s suffix (so writers that infer the format from it work).
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.stem}.", suffix=path.suffix, dir=path.parent)
-    os.close(handle)
-    temporary = Path(temporary)
-    try:
-        write(temporary)
-        os.replace(temporary, path)
-    except BaseException:
-        temporary.unlink(missing_ok=True)
-        raise
-    return path
-
-
-def write_text(path: str | Path, text: str) -> Path:
-    """Write ``text`` (UTF-8) atomically."""
-    return write_atomic(path, lambda tmp: tmp.write_text(text, encoding="utf-8"))
-
-
-def write_json(path: str | Path, data: Any) -> Path:
-    """Write ``data`` as indented JSON atomically."""
-    return write_text(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
-
-
-def read_json(path: str | Path) -> Any:
-    return json.loads(Path(path).read_text(encoding="utf-8"))
-
-
-def write_csv(path: str | Path, frame) -> Path:
-    """Write a pandas DataFrame as CSV (no index) atomically."""
-    return write_atomic(path, lambda tmp: frame.to_csv(tmp, index=False))
+__all__ = ["read_json", "write_atomic", "write_bytes", "write_csv", "write_json", "write_text"]

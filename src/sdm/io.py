@@ -1,0 +1,116 @@
+"""The one atomic file writer of :mod:`sdm` and the workflow: a file appears under its name only once complete.
+
+Every file the library and the workflow write (the Sky file, tables, figures,
+JSON, CSV, the rendered notebooks) goes through :func:`write_atomic`:
+
+1. a temporary file is created in the destination's folder (so the final rename
+   is atomic: same file system), named ``.<stem>.<random>.tmp<suffix>`` -- hidden,
+   and keeping the suffix so writers that infer the format from it still work;
+2. it is created with ``os.open(..., 0o666)``, exactly like a plain ``open(path,
+   "w")``, so the kernel applies the user's umask (and any default ACL): with
+   umask 022 the final file is ``0644`` (readable by group and others), with
+   umask 077 it is ``0600``. (``tempfile.mkstemp`` would give ``0600`` whatever
+   the umask, which made every output private to its owner.);
+3. the content is written, flushed to disk (``fsync``) and renamed over the
+   destination with ``os.replace``;
+4. if anything fails on the way (including ``KeyboardInterrupt``), the
+   temporary file is removed and the destination is left as it was.
+
+This module uses only the standard library and imports nothing from
+:mod:`sdm`, so ``workflow/scripts/run_notebook.py`` can load it by path without
+importing torch.
+"""
+from __future__ import annotations
+
+import json
+import os
+import secrets
+from pathlib import Path
+from typing import Any, Callable
+
+#: Mode requested for new files; the process umask is subtracted by the kernel, as for ``open()``.
+NEW_FILE_MODE = 0o666
+
+
+def current_umask() -> int:
+    """The process umask (e.g. ``0o022``), for modes set by ``chmod`` (a folder made by ``mkdtemp``).
+
+    Read from ``/proc/self/status`` where Linux offers it, so that no other thread
+    ever sees a changed umask; elsewhere set and restored with ``os.umask``.
+    """
+    try:
+        with open("/proc/self/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def _create_temporary(path: Path) -> Path:
+    """Create (exclusively) an empty hidden temporary file beside ``path``, mode ``0o666 & ~umask``."""
+    for _ in range(100):
+        temporary = path.with_name(f".{path.stem}.{secrets.token_hex(6)}.tmp{path.suffix}")
+        try:
+            handle = os.open(temporary, os.O_WRONLY | os.O_CREAT | os.O_EXCL, NEW_FILE_MODE)
+        except FileExistsError:
+            continue
+        os.close(handle)
+        return temporary
+    raise FileExistsError(f"{path.parent}: could not create a temporary file for {path.name}")
+
+
+def write_atomic(path: str | Path, write: Callable[[Path], Any]) -> Path:
+    """Call ``write(temporary path)`` then rename the temporary file to ``path``.
+
+    Args:
+        path: the destination; its folder is created if missing.
+        write: writes the whole content to the path it is given (it may open it
+            in any mode; the file already exists, empty, with the final mode).
+
+    Returns:
+        ``path`` as a :class:`~pathlib.Path`.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    temporary = _create_temporary(path)
+    try:
+        write(temporary)
+        handle = os.open(temporary, os.O_RDONLY)
+        try:
+            os.fsync(handle)
+        finally:
+            os.close(handle)
+        os.replace(temporary, path)
+    except BaseException:
+        temporary.unlink(missing_ok=True)
+        raise
+    return path
+
+
+def write_bytes(path: str | Path, data: bytes) -> Path:
+    """Write ``data`` atomically."""
+    return write_atomic(path, lambda temporary: temporary.write_bytes(data))
+
+
+def write_text(path: str | Path, text: str) -> Path:
+    """Write ``text`` (UTF-8) atomically."""
+    return write_atomic(path, lambda temporary: temporary.write_text(text, encoding="utf-8"))
+
+
+def write_json(path: str | Path, data: Any) -> Path:
+    """Write ``data`` as indented JSON atomically."""
+    return write_text(path, json.dumps(data, indent=2, sort_keys=False) + "\n")
+
+
+def read_json(path: str | Path) -> Any:
+    """Read a JSON file (UTF-8)."""
+    return json.loads(Path(path).read_text(encoding="utf-8"))
+
+
+def write_csv(path: str | Path, frame) -> Path:
+    """Write a pandas DataFrame as CSV (no index) atomically."""
+    return write_atomic(path, lambda temporary: frame.to_csv(temporary, index=False))

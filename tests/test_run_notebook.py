@@ -1,0 +1,115 @@
+"""The notebook runner (workflow/scripts/run_notebook.py) as a rule calls it: a failure's first line is its cause;
+a run renders its plots inline in the HTML (the inline backend, nothing forcing Agg) without tqdm warnings."""
+from __future__ import annotations
+
+import json
+import os
+import re
+import stat
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+RUNNER = ROOT / "workflow" / "scripts" / "run_notebook.py"
+
+HEADER = """# ---
+# jupyter:
+#   jupytext:
+#     text_representation:
+#       extension: .py
+#       format_name: percent
+# ---
+"""
+
+
+def run(tmp_path: Path, name: str, cells: list[str], parameters: dict) -> tuple[subprocess.CompletedProcess, Path, Path]:
+    """Run a percent-format notebook made of ``cells`` (the first is the parameters cell) through the runner."""
+    source = tmp_path / f"{name}.py"
+    body = [HEADER, "# %% tags=[\"parameters\"]\n" + cells[0]] + [f"# %%\n{cell}" for cell in cells[1:]]
+    source.write_text("\n".join(body))
+    executed, html = tmp_path / "logs" / f"{name}.ipynb", tmp_path / "html" / f"{name}.html"
+    env = {key: value for key, value in os.environ.items() if key != "MPLBACKEND"}  # as the rules run it now
+    env["PYTHONPATH"] = str(ROOT / "src") + os.pathsep + env.get("PYTHONPATH", "")
+    env["PYTHONWARNINGS"] = "default"
+    process = subprocess.run(
+        [sys.executable, str(RUNNER), str(source), str(executed), str(html), json.dumps(parameters)],
+        capture_output=True, text=True, env=env, cwd=tmp_path, timeout=300,
+        preexec_fn=lambda: os.umask(0o022),
+    )
+    return process, executed, html
+
+
+def test_a_failed_cell_prints_its_one_line_cause_first_then_the_notebook(tmp_path):
+    cells = [
+        "key = 'sky.n_images'\n",
+        "print('\\x1b[31mcoloured noise\\x1b[0m')\n",
+        "from sdm.errors import SDMInputError\n"
+        "raise SDMInputError(f\"config key '{key}': n_sample = 128 is larger than the number of images (57)\")\n",
+    ]
+    process, executed, html = run(tmp_path, "stage", cells, {"key": "sky.n_images"})
+    assert process.returncode == 1
+    lines = process.stderr.splitlines()
+    assert lines[0] == (f"{tmp_path / 'stage.py'} failed: SDMInputError: config key 'sky.n_images': "
+                        "n_sample = 128 is larger than the number of images (57)")
+    # cell [4]: papermill inserts the injected-parameters cell after the parameters cell
+    assert lines[1] == f"(in cell [4]; the executed notebook, with the traceback, is {executed})"
+    assert process.stdout == ""
+    assert "\x1b" not in process.stderr
+    assert executed.is_file() and not html.exists()
+
+
+def test_a_notebook_that_cannot_be_read_names_it_first(tmp_path):
+    process = subprocess.run(
+        [sys.executable, str(RUNNER), str(tmp_path / "missing.py"), str(tmp_path / "m.ipynb"), str(tmp_path / "m.html"), "{}"],
+        capture_output=True, text=True, timeout=120,
+    )
+    assert process.returncode == 1
+    assert re.match(rf"{re.escape(str(tmp_path / 'missing.py'))} failed: \w+Error: ", process.stderr.splitlines()[0])
+
+
+@pytest.fixture(scope="module")
+def plotting_run(tmp_path_factory):
+    """One run of a notebook that draws as the stage notebooks do and builds configurations with a progress bar."""
+    tmp_path = tmp_path_factory.mktemp("plots")
+    cells = [
+        "out = 'fig.png'\n",
+        "import matplotlib.pyplot as plt\n"
+        "from sdm.data import build_sky_dataset, synthetic_images\n"
+        "from sdm.report import figures\n"
+        "configurations = build_sky_dataset(synthetic_images(4, seed=0), n_sample=3, progress=True)\n",
+        # a pyplot figure shown with plt.show(), as the data / sky / tune notebooks do
+        "fig, ax = plt.subplots()\nax.plot([0, 1], [0, 1])\nplt.show()\n",
+        # a report figure saved and shown, then closed
+        "figures.show_figure(figures.figure1(configurations[0]), out)\n"
+        "assert plt.get_fignums() == []\n",
+    ]
+    process, executed, html = run(tmp_path, "plots", cells, {"out": str(tmp_path / "fig.png")})
+    assert process.returncode == 0, process.stderr
+    return tmp_path, executed, html
+
+
+def test_plots_render_inline_in_the_html(plotting_run):
+    tmp_path, executed, html = plotting_run
+    notebook = json.loads(executed.read_text())
+    images = [
+        output for cell in notebook["cells"] if cell["cell_type"] == "code"
+        for output in cell.get("outputs", []) if "image/png" in output.get("data", {})
+    ]
+    assert len(images) == 2
+    assert html.read_text().count("data:image/png;base64") >= 2
+    assert (tmp_path / "fig.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert stat.S_IMODE(html.stat().st_mode) == 0o644
+
+
+TRAIN_USES_TQDM_AUTO = "tqdm.auto" in (ROOT / "src" / "sdm" / "train.py").read_text()
+
+
+@pytest.mark.xfail(TRAIN_USES_TQDM_AUTO, strict=True,
+                   reason="src/sdm/train.py still imports tqdm.auto (importing sdm warns); use tqdm.std there")
+def test_progress_bars_do_not_warn_in_a_notebook(plotting_run):
+    _, executed, _ = plotting_run
+    text = executed.read_text()
+    assert "TqdmWarning" not in text and "IProgress" not in text
