@@ -16,7 +16,7 @@ SHIPPED = Path(__file__).resolve().parents[1] / "data" / "apollocar3d-sample"
 def test_the_shipped_sample_has_its_files_licence_and_attribution():
     poses = sorted((SHIPPED / "car_poses").glob("*.json"))
     assert len(poses) == 57
-    assert sorted(p.name for p in SHIPPED.iterdir()) == ["LICENSE", "README.md", "camera", "car_poses"]
+    assert sorted(p.name for p in SHIPPED.iterdir()) == ["LICENSE", "README.md", "camera", "car_poses", "config.yaml"]
     assert "Apache License" in (SHIPPED / "LICENSE").read_text() and "Version 2.0" in (SHIPPED / "LICENSE").read_text()
     readme = (SHIPPED / "README.md").read_text()
     assert "ApolloScapeAuto/dataset-api" in readme and "Apache" in readme
