@@ -104,11 +104,8 @@ def test_plots_render_inline_in_the_html(plotting_run):
     assert stat.S_IMODE(html.stat().st_mode) == 0o644
 
 
-TRAIN_USES_TQDM_AUTO = "tqdm.auto" in (ROOT / "src" / "sdm" / "train.py").read_text()
 
 
-@pytest.mark.xfail(TRAIN_USES_TQDM_AUTO, strict=True,
-                   reason="src/sdm/train.py still imports tqdm.auto (importing sdm warns); use tqdm.std there")
 def test_progress_bars_do_not_warn_in_a_notebook(plotting_run):
     _, executed, _ = plotting_run
     text = executed.read_text()

@@ -13,7 +13,7 @@ from dataclasses import dataclass
 
 import torch
 import torch.nn.functional as F
-from tqdm.auto import tqdm
+from tqdm.std import tqdm  # plain text: renders in notebooks without ipywidgets, no IProgress warning
 
 from .batch import ConfigurationSet, PointBatch
 from .camera import Camera
