@@ -39,8 +39,7 @@ split = "results/split/split.json"  # input
 best = "results/tuning/best.json"  # input: SDM's tuned settings (Table 1)
 part = "all"  # tune | runs | table | all
 methods = ["sdm", "silhouette", "chamfer", "sinkhorn", "cmaes"]
-settings = {}  # per method: base settings (config baselines.<method>.settings)
-grids = {}  # per method: setting -> values tried on the dev set (config baselines.<method>.grid)
+settings = {}  # per method (config baselines.<method>): setting -> value, or a list of values to tune over
 tuning_files = []  # one CSV per method (ignored for sdm): output of `tune`, input of `runs` and `table`
 runs_file = "results/baselines/runs.csv"  # output of `runs`: one row per (method, level, run)
 run_files = []  # input of `table` (default: [runs_file])
@@ -64,7 +63,7 @@ from pathlib import Path
 import pandas as pd
 from IPython.display import Markdown, display
 
-from sdm.baselines import best_settings, grid, method, noise_runs, tune
+from sdm.baselines import best_settings, method, noise_runs, settings_grid, tune
 from sdm.errors import SDMInputError
 from sdm.experiments import load_split, settings_for, single_thread
 from sdm.report.io import read_json, write_csv, write_text
@@ -74,7 +73,7 @@ if part not in ("tune", "runs", "table", "all"):
     raise SDMInputError(f"parameter 'part': must be tune, runs, table or all, got {part!r}")
 for name in methods:
     method(name, "baselines.methods")
-for name in list(settings) + list(grids):
+for name in settings:
     method(name, f"baselines.{name}")
 if len(tuning_files) != len(methods):
     raise SDMInputError(f"parameter 'tuning_files': need one per method ({len(methods)}), got {len(tuning_files)}")
@@ -95,7 +94,7 @@ if part in ("tune", "all"):
     for name in methods:
         if name == "sdm":
             continue  # SDM's cell is Table 1's (best.json)
-        cells = grid(name, settings.get(name, {}), grids.get(name, {}))
+        cells = settings_grid(name, settings.get(name, {}))
         tuning = tune(name, train_set, dev_set, cells, seed=train_seed, s=s, shift=shift, camera=camera)
         write_csv(tuning_of[name], tuning)
         chosen = tuning[tuning["best"]].iloc[0]

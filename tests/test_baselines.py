@@ -17,7 +17,7 @@ from scenes import configuration_set
 from sdm import SKY_SHIFT, distance
 from sdm.baselines import (
     CMAESSettings, ChamferSettings, SilhouetteSettings, SinkhornSettings, best_settings, fit, grid, make_settings,
-    noise_run, tune,
+    noise_run, settings_grid, tune,
 )
 from sdm.baselines import chamfer as chamfer_module
 from sdm.baselines import common
@@ -195,7 +195,8 @@ def test_soft_silhouette_is_one_minus_the_product_over_points():
     """Two points, one configuration: the log-space splat equals 1 - prod(1 - w) computed directly."""
     screen = torch.tensor([[3.2, 4.7], [4.1, 5.3]], dtype=torch.float64)
     soft = silhouette_module.soft_silhouette(screen, torch.zeros(2, dtype=torch.int64), 1, 0, 0.8, (8, 16))
-    rows, cols = torch.meshgrid(torch.arange(8) + 0.5, torch.arange(16) + 0.5, indexing="ij")
+    centres = [torch.arange(n, dtype=torch.float64) + 0.5 for n in (8, 16)]
+    rows, cols = torch.meshgrid(*centres, indexing="ij")
     reach = math.ceil(3 * 0.8)
     empty = torch.ones(8, 16, dtype=torch.float64)
     for point in screen:
@@ -221,8 +222,12 @@ def test_unknown_method_and_bad_settings_name_their_config_key():
         make_settings("chamfer", {"radius": 2})
     with pytest.raises(SDMInputError, match=r"'baselines\.sdm\.lr'"):
         make_settings("sdm", {"lr": -1.0})
-    with pytest.raises(SDMInputError, match=r"'baselines\.sinkhorn\.grid\.blur': must be a non-empty list"):
-        grid("sinkhorn", {}, {"blur": []})
+    with pytest.raises(SDMInputError, match=r"'baselines\.sinkhorn\.blur': must be a non-empty list"):
+        settings_grid("sinkhorn", {"blur": []})
+    with pytest.raises(SDMInputError, match=r"'baselines\.sinkhorn\.blur': must be a positive number, got -1"):
+        settings_grid("sinkhorn", {"blur": [1.0, -1], "lr": 0.1})
+    cells = settings_grid("silhouette", {"lr": [0.1, 0.3], "sigma": [0.5, 1.0], "steps": 7})
+    assert [(c.lr, c.sigma, c.steps) for c in cells] == [(0.1, 0.5, 7), (0.1, 1.0, 7), (0.3, 0.5, 7), (0.3, 1.0, 7)]
     with pytest.raises(SDMInputError, match="must be ChamferSettings"):
         fit("chamfer", None, SilhouetteSettings())
 

@@ -118,9 +118,22 @@ def grid(name: str, base: Mapping[str, Any] | None = None, cells: Mapping[str, S
     cells = dict(cells or {})
     for field, values in cells.items():
         if isinstance(values, (str, bytes)) or not isinstance(values, Sequence) or len(values) == 0:
-            raise SDMInputError(f"config key '{key}.grid.{field}': must be a non-empty list, got {values!r}")
+            raise SDMInputError(f"config key '{key}.{field}': must be a non-empty list, got {values!r}")
     combos = itertools.product(*cells.values()) if cells else [()]
     return [make_settings(name, dict(base or {}) | dict(zip(cells, combo)), key) for combo in combos]
+
+
+def settings_grid(name: str, section: Mapping[str, Any] | None = None, key: str | None = None) -> list:
+    """The tuning grid from one config section: a list value is a grid axis, a scalar is fixed.
+
+    ``{"lr": [0.1, 0.3], "sigma": [0.5, 1.0], "steps": 12}`` gives four cells, each with 12 steps.
+    Errors name ``<key>.<field>`` (``key`` defaults to ``baselines.<name>``).
+    """
+    key = key or f"baselines.{name}"
+    section = dict(section or {})
+    axes = {field: value for field, value in section.items() if isinstance(value, (list, tuple))}
+    fixed = {field: value for field, value in section.items() if field not in axes}
+    return grid(name, fixed, axes, key)
 
 
 def fit(name: str, train_set: ConfigurationSet, settings=None, seed: int = 0, camera: Camera | None = None,
@@ -209,5 +222,5 @@ def noise_runs(name: str, train_set: ConfigurationSet, level: int, runs: Sequenc
 __all__ = [
     "METHODS", "Method", "FitResult", "SDMSettings", "SilhouetteSettings", "ChamferSettings", "SinkhornSettings",
     "CMAESSettings", "RUN_COLUMNS", "best_settings", "fit", "grid", "make_settings", "method", "noise_run",
-    "noise_runs", "tune",
+    "noise_runs", "settings_grid", "tune",
 ]
