@@ -49,6 +49,7 @@ run_indices = [0, 1]
 table3_csv = "results/tables/table3.csv"  # output of `table` (with .md and .tex beside it)
 tuning_csv = "results/tables/table3_tuning.csv"  # output of `table` (with .md beside it)
 figure = "results/figures/baselines.png"  # output of `table`
+summary = "results/tables/table3_summary.md"  # output of `table`: the answer in plain words, for the report
 s = 4
 batch_size = 16
 lr_decay = 0.5
@@ -148,7 +149,8 @@ if part in ("runs", "all") and "sdm" in methods and table2_distances:
 # %%
 if part in ("table", "all"):
     from sdm.report.baselines import (
-        TABLE3_FORMAT, TUNING_FORMAT, baselines_figure, table3_display, table3_frame, tuning_frame, write_table3,
+        TABLE3_FORMAT, TUNING_FORMAT, baselines_figure, table3_display, table3_frame, table3_summary, tuning_frame,
+        write_table3,
     )
     from sdm.report.figures import save_figure
     from sdm.report.tables import to_markdown
@@ -165,6 +167,15 @@ if part in ("table", "all"):
         write_text(Path(tuning_csv).with_suffix(".md"), to_markdown(tuning_table, TUNING_FORMAT))
         display(Markdown(to_markdown(tuning_table, TUNING_FORMAT)))
     save_figure(baselines_figure(table3, all_runs, shift), figure)
+
+# %% [markdown]
+# ## The answer, in plain words (every number from Table 3)
+
+# %%
+if part in ("table", "all"):
+    answer = table3_summary(table3) if "sdm" in set(table3["method"]) else "SDM was not run: nothing to compare with.\n"
+    write_text(summary, answer)
+    display(Markdown(answer))
 
 # %% [markdown]
 # Time per run (seconds, this machine, one thread) per method, over all levels:

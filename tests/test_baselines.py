@@ -273,7 +273,7 @@ def _runs():
 
 
 def test_table3_statistics(tmp_path):
-    from sdm.report.baselines import baselines_figure, table3_frame, write_table3
+    from sdm.report.baselines import baselines_figure, table3_frame, table3_summary, write_table3
     from sdm.report.figures import save_figure
 
     runs = _runs()
@@ -296,6 +296,13 @@ def test_table3_statistics(tmp_path):
     assert "2D Chamfer" in paths[1].read_text()
     figure = save_figure(baselines_figure(table, runs), tmp_path / "baselines.png")
     assert figure.stat().st_size > 1000
+
+    summary = table3_summary(table)
+    chamfer2 = table[(table["method"] == "chamfer") & (table["level"] == 2)].iloc[0]
+    sdm2 = table[(table["method"] == "sdm") & (table["level"] == 2)].iloc[0]
+    verdict = "SDM wins" if sdm2["mean_m"] < chamfer2["mean_m"] else "SDM loses"
+    assert f"noise level 2 (6 paired runs): {verdict}" in summary
+    assert "2D Chamfer 0.30 s (3.0x)" in summary
 
     with pytest.raises(SDMInputError, match="twice"):
         table3_frame(pd.concat([runs, runs.head(1)]))

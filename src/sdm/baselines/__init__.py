@@ -183,7 +183,7 @@ def best_settings(name: str, tuning: pd.DataFrame):
         raise SDMInputError(f"tuning of {name!r}: expected one best cell, found {len(chosen)}")
     row = chosen.iloc[0]
     values = {}
-    for field, spec in entry.settings.__dataclass_fields__.items():
+    for field in entry.settings.__dataclass_fields__:
         value = row[field]
         default = getattr(entry.settings(), field)
         values[field] = type(default)(value) if not isinstance(default, str) else str(value)

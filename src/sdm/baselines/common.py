@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import torch
@@ -36,8 +36,6 @@ class PaddedSet:
         centres: ``(N, T, 2)`` float64 centres ``(row + 0.5, col + 0.5)`` of the target's active
             pixels, screen pixels; padding rows are 0 and masked out.
         centre_mask: ``(N, T)`` bool, True for real target pixels.
-        target_ids: ``(K,)`` int64 flat ids ``config * H * W + row * W + col`` of every active
-            target pixel of the set.
         screen_shape: ``(H, W)``.
     """
 
@@ -45,7 +43,6 @@ class PaddedSet:
     point_mask: torch.Tensor
     centres: torch.Tensor
     centre_mask: torch.Tensor
-    target_ids: torch.Tensor
     screen_shape: tuple[int, int]
 
     def __len__(self) -> int:
@@ -76,8 +73,7 @@ def pad_set(data: ConfigurationSet) -> PaddedSet:
     centres[active[:, 0], target_slot] = active[:, 1:].to(data.points.dtype) + 0.5
     centre_mask = torch.zeros(n_configs, width_target, dtype=torch.bool, device=device)
     centre_mask[active[:, 0], target_slot] = True
-    target_ids = active[:, 0] * (height * width) + active[:, 1] * width + active[:, 2]
-    return PaddedSet(points, point_mask, centres, centre_mask, target_ids, (height, width))
+    return PaddedSet(points, point_mask, centres, centre_mask, (height, width))
 
 
 def project_shifted(points: torch.Tensor, theta: torch.Tensor, camera: Camera) -> torch.Tensor:
@@ -251,7 +247,3 @@ def field_error(settings, name: str, problem: str) -> SDMInputError:
     error = SDMInputError(f"{type(settings).__name__}.{name} {problem}")
     error.field, error.problem = name, problem
     return error
-
-
-def settings_fields(cls) -> list[str]:
-    return [f.name for f in fields(cls)]

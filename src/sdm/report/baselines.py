@@ -257,3 +257,44 @@ def baselines_figure(table: pd.DataFrame, runs: pd.DataFrame | None = None, shif
         ax.grid(True, alpha=0.3)
     fig.suptitle("Table 3: SDM against the baselines (same training sets, same noise draws)", fontsize=11)
     return fig
+
+
+# -- plain words ------------------------------------------------------------------------------------
+
+
+def table3_summary(table: pd.DataFrame, reference: str = "sdm") -> str:
+    """The answer to the paper's claim, in plain words from the measured Table 3 (Markdown).
+
+    Per noise level: the best method by mean distance and how SDM compares with the best baseline
+    (ratio of means, share of paired runs won); then each method's time per run relative to SDM's.
+    Every number in the text comes from ``table``.
+    """
+    if reference not in set(table["method"]):
+        raise SDMInputError(f"Table 3 has no {reference!r} rows to compare with")
+    lines = []
+    for level, rows in table.groupby("level", sort=True):
+        ref = rows[rows["method"] == reference]
+        others = rows[rows["method"] != reference]
+        if ref.empty or others.empty:
+            continue
+        ref_mean = float(ref["mean_m"].iloc[0])
+        best_other = others.loc[others["mean_m"].idxmin()]
+        ratio = float(best_other["mean_m"]) / ref_mean if ref_mean > 0 else math.inf
+        runs = int(ref["runs"].iloc[0])
+        if ratio > 1:
+            verdict = (f"SDM wins: {1000 * ref_mean:.3f}e-3 m against {1000 * best_other['mean_m']:.3f}e-3 m for the best "
+                       f"baseline ({best_other['label']}), {ratio:.1f} times SDM's mean")
+        else:
+            verdict = (f"SDM loses: {1000 * ref_mean:.3f}e-3 m against {1000 * best_other['mean_m']:.3f}e-3 m for "
+                       f"{best_other['label']} ({1 / ratio:.1f} times closer than SDM on average)")
+        beaten = [f"{row['label']} {row['wins_vs_sdm']:.0%}" for _, row in others.iterrows() if not math.isnan(row["wins_vs_sdm"])]
+        lines.append(f"- noise level {int(level)} ({runs} paired runs): {verdict}; share of paired runs closer to "
+                     f"theta* than SDM's: {', '.join(beaten)}. SDM's bias {1000 * float(ref['bias_m'].iloc[0]):.3f}e-3 m, "
+                     f"spread {1000 * float(ref['spread_m'].iloc[0]):.3f}e-3 m.")
+    seconds = table.groupby("method", sort=False)["seconds_per_run"].mean()
+    ref_seconds = float(seconds[reference])
+    timing = ", ".join(
+        f"{METHOD_LABELS.get(name, name)} {value:.2f} s ({value / ref_seconds:.1f}x)" for name, value in seconds.items()
+    )
+    lines.append(f"- time per run (mean over levels, one thread; in brackets: relative to SDM): {timing}.")
+    return "\n".join(lines) + "\n"
