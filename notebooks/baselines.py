@@ -43,7 +43,8 @@ settings = {}  # per method (config baselines.<method>): setting -> value, or a 
 tuning_files = []  # one CSV per method (ignored for sdm): output of `tune`, input of `runs` and `table`
 runs_file = "results/baselines/runs.csv"  # output of `runs`: one row per (method, level, run)
 run_files = []  # input of `table` (default: [runs_file])
-table2_distances = ""  # optional input: Table 2's per-run distances, to check SDM's paired runs
+table2_distances = ""  # optional input: Table 2's per-run distances: checks SDM's runs (`runs`), or stands in
+# for them when `sdm` is not among the run files (`table`: SDM's rows are then Table 2's, without seconds)
 levels = [0, 1, 2, 3, 4]
 run_indices = [0, 1]
 table3_csv = "results/tables/table3.csv"  # output of `table` (with .md and .tex beside it)
@@ -156,6 +157,14 @@ if part in ("table", "all"):
     from sdm.report.tables import to_markdown
 
     all_runs = pd.concat([pd.read_csv(path) for path in (run_files or [runs_file])], ignore_index=True)
+    if "sdm" not in set(all_runs["method"]) and table2_distances:
+        # SDM not re-run here: its rows are Table 2's runs with the same (level, run), i.e. the same noisy
+        # targets; Table 2 records no time per run, so SDM's seconds stay empty.
+        table2 = pd.read_csv(table2_distances)
+        pairs = set(zip(all_runs["level"], all_runs["run"]))
+        table2 = table2[[pair in pairs for pair in zip(table2["level"], table2["run"])]]
+        all_runs = pd.concat([table2.assign(method="sdm", seconds=float("nan")), all_runs], ignore_index=True)
+        print(f"SDM rows from Table 2: {len(table2)} runs")
     table3 = table3_frame(all_runs, shift=shift)
     write_table3(table3, Path(table3_csv).with_suffix(""))
     display(Markdown(to_markdown(table3_display(table3), TABLE3_FORMAT)))

@@ -294,7 +294,10 @@ def table3_summary(table: pd.DataFrame, reference: str = "sdm") -> str:
     seconds = table.groupby("method", sort=False)["seconds_per_run"].mean()
     ref_seconds = float(seconds[reference])
     timing = ", ".join(
-        f"{METHOD_LABELS.get(name, name)} {value:.2f} s ({value / ref_seconds:.1f}x)" for name, value in seconds.items()
+        f"{METHOD_LABELS.get(name, name)} {value:.2f} s" + (f" ({value / ref_seconds:.1f}x)" if ref_seconds > 0 else "")
+        for name, value in seconds.items() if not math.isnan(value)
     )
+    if math.isnan(ref_seconds):
+        timing += " (SDM's rows come from Table 2, which records no time per run)"
     lines.append(f"- time per run (mean over levels, one thread; in brackets: relative to SDM): {timing}.")
     return "\n".join(lines) + "\n"
