@@ -204,6 +204,13 @@ def test_soft_silhouette_is_one_minus_the_product_over_points():
         near = ((rows - 0.5 - torch.floor(point[0])).abs() <= reach) & ((cols - 0.5 - torch.floor(point[1])).abs() <= reach)
         empty *= 1 - weight * near
     assert torch.allclose(soft[0], 1 - empty)
+    target = torch.zeros(1, 8, 16, dtype=torch.bool)
+    target[0, 3:5, 4:6] = True
+    expected_l2 = ((soft - target.double()) ** 2).mean()
+    assert torch.isclose(silhouette_module.image_loss(soft, target, "l2"), expected_l2)
+    both = (soft * target).sum()
+    expected_iou = 1 - both / (soft.sum() + target.sum() - both)
+    assert torch.isclose(silhouette_module.image_loss(soft, target, "iou"), expected_iou)
 
 
 # -- interface, tuning and bad input ----------------------------------------------------------------------
