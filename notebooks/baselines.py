@@ -31,13 +31,14 @@
 #
 # One notebook, three parts, chosen by `part`, so the workflow can fan the work out:
 # `tune` (the grids of `methods`), `runs` (`methods` x `levels` x `run_indices`), `table` (Table 3,
-# the tuning table and the figure from the run files); `all` does the three in a row.
+# the tuning table and the figure from the run files); `fit` is `tune` then `runs` (one job per method
+# saves a notebook start per level), `all` does the three in a row.
 
 # %% tags=["parameters"]
 sky = "results/sky/sky.bin"  # input
 split = "results/split/split.json"  # input
 best = "results/tuning/best.json"  # input: SDM's tuned settings (Table 1)
-part = "all"  # tune | runs | table | all
+part = "all"  # tune | runs | fit (tune then runs) | table | all
 methods = ["sdm", "silhouette", "chamfer", "sinkhorn", "cmaes"]
 settings = {}  # per method (config baselines.<method>): setting -> value, or a list of values to tune over
 tuning_files = []  # one CSV per method (ignored for sdm): output of `tune`, input of `runs` and `table`
@@ -71,8 +72,8 @@ from sdm.experiments import load_split, settings_for, single_thread
 from sdm.report.io import read_json, write_csv, write_text
 
 single_thread(threads)
-if part not in ("tune", "runs", "table", "all"):
-    raise SDMInputError(f"parameter 'part': must be tune, runs, table or all, got {part!r}")
+if part not in ("tune", "runs", "fit", "table", "all"):
+    raise SDMInputError(f"parameter 'part': must be tune, runs, fit, table or all, got {part!r}")
 for name in methods:
     method(name, "baselines.methods")
 for name in settings:
@@ -80,7 +81,7 @@ for name in settings:
 if len(tuning_files) != len(methods):
     raise SDMInputError(f"parameter 'tuning_files': need one per method ({len(methods)}), got {len(tuning_files)}")
 tuning_of = dict(zip(methods, tuning_files))
-needs_data = part in ("tune", "runs", "all")
+needs_data = part in ("tune", "runs", "fit", "all")
 if needs_data:
     train_set, dev_set, camera = load_split(sky, read_json(split))
     print(f"{len(train_set)} training and {len(dev_set)} dev configurations")
@@ -92,7 +93,7 @@ if needs_data:
 # lowest dev loss is chosen. The distance to theta* is reported but plays no part in the choice.
 
 # %%
-if part in ("tune", "all"):
+if part in ("tune", "fit", "all"):
     for name in methods:
         if name == "sdm":
             continue  # SDM's cell is Table 1's (best.json)
@@ -118,7 +119,7 @@ def settings_of(name):
     return best_settings(name, pd.read_csv(tuning_of[name]))
 
 
-if part in ("runs", "all"):
+if part in ("runs", "fit", "all"):
     frames = []
     for name in methods:
         chosen = settings_of(name)
@@ -136,7 +137,7 @@ if part in ("runs", "all"):
 # Table 2's distances are given.
 
 # %%
-if part in ("runs", "all") and "sdm" in methods and table2_distances:
+if part in ("runs", "fit", "all") and "sdm" in methods and table2_distances:
     table2 = pd.read_csv(table2_distances).set_index(["level", "run"])
     ours = runs[runs["method"] == "sdm"].set_index(["level", "run"])
     common = ours.index.intersection(table2.index)
