@@ -46,7 +46,7 @@ class ChamferSettings:
     """
 
     lr: float = 0.3
-    steps: int = 12
+    steps: int = 48
     rounds: int = 5
     lr_decay: float = 0.5
     batch_size: int = 16

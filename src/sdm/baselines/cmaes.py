@@ -39,8 +39,8 @@ class CMAESSettings:
         tolx: stop when the search distribution is narrower than this, metres.
     """
 
-    sigma0: float = 0.1
-    budget: int = 120
+    sigma0: float = 0.3
+    budget: int = 240
     popsize: int = 0
     tolx: float = 1e-5
 

@@ -52,7 +52,7 @@ class SilhouetteSettings:
     """
 
     lr: float = 0.1
-    steps: int = 12
+    steps: int = 36
     sigma: float = 0.5
     s: int = 3
     lr_decay: float = 0.5

@@ -54,7 +54,7 @@ class SinkhornSettings:
     """
 
     lr: float = 0.1
-    steps: int = 12
+    steps: int = 24
     blur: float = 1.0
     rounds: int = 5
     lr_decay: float = 0.5
