@@ -1,0 +1,303 @@
+"""Table 3 (SDM against the baselines, paired runs per noise level) and its figure.
+
+Units: the CSV keeps metres (``*_m``) and seconds; the Markdown and LaTeX tables show distances in
+1e-3 m like Table 2. The paper has no Table 3: its SDM figures (Table 2's mean, std and median) sit
+beside our SDM rows only.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from ..errors import SDMInputError
+from ..sky import SKY_SHIFT
+from . import paper
+from .io import write_csv, write_text
+from .tables import TableFormat, to_latex, to_markdown
+
+#: The per-run columns Table 3 needs (``sdm.baselines.RUN_COLUMNS`` has these and more).
+RUN_COLUMNS = ("method", "level", "run", "a", "b", "distance", "seconds")
+
+#: Display order and labels (the registry's order; unknown methods go last under their own name).
+METHOD_LABELS = {
+    "sdm": "SDM",
+    "silhouette": "soft silhouette",
+    "chamfer": "2D Chamfer",
+    "sinkhorn": "Sinkhorn OT",
+    "cmaes": "CMA-ES (pixels)",
+}
+
+
+def _order(methods: Sequence[str]) -> list[str]:
+    known = [m for m in METHOD_LABELS if m in set(methods)]
+    return known + sorted(set(methods) - set(known))
+
+
+def table3_frame(runs: pd.DataFrame, shift: Sequence[float] = SKY_SHIFT, reference: str = "sdm") -> pd.DataFrame:
+    """Table 3: per method and noise level, the distances' statistics, time per run, and the pairing with SDM.
+
+    Args:
+        runs: one row per (method, level, run) with :data:`RUN_COLUMNS` (metres, seconds).
+        shift: theta* (metres).
+        reference: the method the others are paired with (same level and run = same noisy targets).
+
+    Returns:
+        One row per (method, level): ``method, label, level, runs``; ``mean_m, std_m, median_m,
+        q1_m, q3_m`` of ``||theta~ - theta*||``; ``bias_m`` (distance from the mean theta~ to
+        theta*) and ``spread_m`` (root mean square distance of the theta~ to their mean; so
+        ``mean squared distance = bias^2 + spread^2``); ``seconds_per_run`` (mean); ``paper_mean_m,
+        paper_std_m, paper_median_m`` (Table 2's, SDM rows only); ``mean_ratio_to_sdm`` and
+        ``wins_vs_sdm`` (share of paired runs with a smaller distance than the reference's, ties
+        count half), NaN where the reference has no such run.
+    """
+    missing = [c for c in RUN_COLUMNS if c not in runs]
+    if missing:
+        raise SDMInputError(f"Table 3 runs: missing column(s) {missing}; has {list(runs.columns)}")
+    if runs.empty:
+        raise SDMInputError("Table 3 runs: no run")
+    duplicated = runs.duplicated(["method", "level", "run"])
+    if duplicated.any():
+        first = runs[duplicated].iloc[0]
+        raise SDMInputError(f"Table 3 runs: (method, level, run) = ({first['method']}, {first['level']}, {first['run']}) twice")
+    a_star, b_star = (float(v) for v in shift)
+    base = runs[runs["method"] == reference].set_index(["level", "run"])["distance"]
+    rows = []
+    for name in _order(runs["method"].unique()):
+        for level, group in runs[runs["method"] == name].groupby("level", sort=True):
+            values = group["distance"].to_numpy(dtype=float)
+            a, b = group["a"].to_numpy(dtype=float), group["b"].to_numpy(dtype=float)
+            mean_a, mean_b = a.mean(), b.mean()
+            theirs = paper.TABLE2.get(int(level), {}) if name == reference else {}
+            row = {
+                "method": name,
+                "label": METHOD_LABELS.get(name, name),
+                "level": int(level),
+                "runs": int(values.size),
+                "mean_m": float(values.mean()),
+                "std_m": float(values.std(ddof=1)) if values.size > 1 else math.nan,
+                "median_m": float(np.median(values)),
+                "q1_m": float(np.quantile(values, 0.25)),
+                "q3_m": float(np.quantile(values, 0.75)),
+                "bias_m": math.hypot(mean_a - a_star, mean_b - b_star),
+                "spread_m": float(np.sqrt(((a - mean_a) ** 2 + (b - mean_b) ** 2).mean())),
+                "seconds_per_run": float(group["seconds"].mean()),
+                "paper_mean_m": 1e-3 * theirs["mean"] if theirs else math.nan,
+                "paper_std_m": 1e-3 * theirs["std"] if theirs else math.nan,
+                "paper_median_m": 1e-3 * theirs["q2"] if theirs else math.nan,
+            }
+            paired = group.set_index(["level", "run"])["distance"]
+            common = paired.index.intersection(base.index)
+            if len(common):
+                ours, ref = paired.loc[common].to_numpy(float), base.loc[common].to_numpy(float)
+                row["mean_ratio_to_sdm"] = float(ours.mean() / ref.mean()) if ref.mean() > 0 else math.nan
+                row["wins_vs_sdm"] = float(((ours < ref) + 0.5 * (ours == ref)).mean())
+            else:
+                row["mean_ratio_to_sdm"] = row["wins_vs_sdm"] = math.nan
+            rows.append(row)
+    return pd.DataFrame.from_records(rows)
+
+
+#: Distance columns shown in 1e-3 m in the Markdown and LaTeX tables.
+_DISTANCES = ("mean", "std", "median", "bias", "spread")
+
+TABLE3_FORMAT = TableFormat(
+    columns=(
+        "label", "level", "runs", "mean", "paper_mean", "std", "paper_std", "median", "paper_median",
+        "bias", "spread", "seconds_per_run", "mean_ratio_to_sdm", "wins_vs_sdm",
+    ),
+    headers={
+        "label": "method", "level": "noise level", "runs": "runs",
+        "mean": "mean", "paper_mean": "mean (paper)", "std": "std", "paper_std": "std (paper)",
+        "median": "median", "paper_median": "median (paper)", "bias": "bias", "spread": "spread",
+        "seconds_per_run": "s / run", "mean_ratio_to_sdm": "mean / SDM's", "wins_vs_sdm": "beats SDM",
+    },
+    formats={c: ".3f" for c in ("mean", "paper_mean", "std", "paper_std", "median", "paper_median", "bias", "spread")}
+    | {"seconds_per_run": ".2f", "mean_ratio_to_sdm": ".2f", "wins_vs_sdm": ".0%"},
+    caption="Table 3: distance ||theta~ - theta*|| per method and noise level (1e-3 m), paired runs",
+    label="tab:table3",
+    notes=(
+        "Same training configurations and, per (level, run), the same noisy targets for every method. "
+        "bias: distance from the mean theta~ to theta*; spread: RMS distance of the theta~ to their mean. "
+        "beats SDM: share of paired runs closer to theta* than SDM's (ties half). The paper reports SDM only.",
+    ),
+)
+
+
+def table3_display(frame: pd.DataFrame) -> pd.DataFrame:
+    """Table 3 for Markdown / LaTeX: distances in 1e-3 m under short names (``mean``, ``paper_mean``, ...)."""
+    shown = frame.copy()
+    for stat in _DISTANCES:
+        shown[stat] = 1000.0 * frame[f"{stat}_m"]
+        if f"paper_{stat}_m" in frame:
+            shown[f"paper_{stat}"] = 1000.0 * frame[f"paper_{stat}_m"]
+    return shown
+
+
+def write_table3(frame: pd.DataFrame, stem: str | Path) -> list[Path]:
+    """``stem.csv`` (metres, full precision), ``stem.md`` and ``stem.tex`` (1e-3 m), each atomically."""
+    stem = Path(stem)
+    shown = table3_display(frame)
+    return [
+        write_csv(stem.with_suffix(".csv"), frame),
+        write_text(stem.with_suffix(".md"), to_markdown(shown, TABLE3_FORMAT)),
+        write_text(stem.with_suffix(".tex"), to_latex(shown, TABLE3_FORMAT)),
+    ]
+
+
+def tuning_frame(tunings: Sequence[pd.DataFrame]) -> pd.DataFrame:
+    """The baselines' tuning grids side by side (like Table 1): ``method, cell, settings, dev_loss, distance_mm, seconds, best``.
+
+    ``settings`` is the cell's varied fields as ``name=value`` text (fields equal in every cell of a
+    method are left out).
+    """
+    rows = []
+    for tuning in tunings:
+        if tuning.empty:
+            continue
+        skip = {"method", "cell", "dev_loss", "a", "b", "distance", "seconds", "evaluations", "best"}
+        varied = [c for c in tuning.columns if c not in skip and tuning[c].nunique(dropna=False) > 1]
+        for _, row in tuning.iterrows():
+            rows.append({
+                "method": row["method"],
+                "label": METHOD_LABELS.get(row["method"], row["method"]),
+                "cell": int(row["cell"]),
+                "settings": ", ".join(f"{c}={row[c]:g}" if isinstance(row[c], (int, float, np.number))
+                                      and not isinstance(row[c], bool) else f"{c}={row[c]}" for c in varied) or "-",
+                "dev_loss": float(row["dev_loss"]),
+                "distance_mm": 1000.0 * float(row["distance"]),
+                "seconds": float(row["seconds"]),
+                "best": bool(row["best"]),
+            })
+    return pd.DataFrame.from_records(rows)
+
+
+TUNING_FORMAT = TableFormat(
+    columns=("label", "settings", "dev_loss", "distance_mm", "seconds", "best"),
+    headers={"label": "method", "settings": "cell", "dev_loss": "dev loss", "distance_mm": "distance (1e-3 m)",
+             "seconds": "seconds", "best": "chosen"},
+    formats={"dev_loss": ".3f", "distance_mm": ".3f", "seconds": ".2f"},
+    caption="Baseline tuning (like Table 1): dev loss (mean false-positive pixels per dev configuration) per cell",
+    label="tab:table3-tuning",
+    notes=("Each method's cell with the lowest dev loss is used for Table 3; the distance is shown, not used to choose.",),
+)
+
+
+# -- figure -----------------------------------------------------------------------------------------
+
+
+def baselines_figure(table: pd.DataFrame, runs: pd.DataFrame | None = None, shift: Sequence[float] = SKY_SHIFT):
+    """Distance against noise level per method (log scale), bias against spread, and where theta~ lands.
+
+    Args:
+        table: :func:`table3_frame`.
+        runs: the per-run rows (for the third panel: theta~ - theta* at the noisiest level); optional.
+
+    Returns:
+        A matplotlib figure with two panels (three with ``runs``).
+    """
+    from .figures import plt  # the report's matplotlib, already on the Agg backend
+
+    panels = 3 if runs is not None else 2
+    fig, axes = plt.subplots(1, panels, figsize=(5.2 * panels, 4.4), constrained_layout=True)
+    colours = plt.get_cmap("tab10")
+    methods = _order(table["method"].unique())
+    markers = dict(zip(methods, "osD^vP*X"))
+    ax = axes[0]
+    for i, name in enumerate(methods):
+        rows = table[table["method"] == name].sort_values("level")
+        mm = 1000.0
+        ax.errorbar(rows["level"] + 0.06 * (i - len(methods) / 2), mm * rows["median_m"],
+                    yerr=[mm * (rows["median_m"] - rows["q1_m"]), mm * (rows["q3_m"] - rows["median_m"])],
+                    marker=markers[name], color=colours(i), capsize=3, label=METHOD_LABELS.get(name, name))
+        if name == "sdm" and rows["paper_median_m"].notna().any():
+            ax.plot(rows["level"], mm * rows["paper_median_m"], ls=":", color=colours(i), label="SDM (paper)")
+    ax.set_yscale("log")
+    ax.set_xlabel("noise level n (pixels)")
+    ax.set_ylabel("||theta~ - theta*|| (1e-3 m): median, Q1-Q3")
+    ax.set_title("(a) distance per noise level", fontsize=10)
+    ax.set_xticks(sorted(table["level"].unique()))
+    ax.legend(fontsize=7)
+    ax.grid(True, which="both", alpha=0.3)
+
+    ax = axes[1]
+    for i, name in enumerate(methods):
+        rows = table[table["method"] == name].sort_values("level")
+        ax.plot(1000 * rows["bias_m"].clip(lower=1e-6), 1000 * rows["spread_m"].clip(lower=1e-6),
+                marker=markers[name], color=colours(i), label=METHOD_LABELS.get(name, name))
+        for _, row in rows.iterrows():
+            ax.annotate(str(int(row["level"])), (1000 * max(row["bias_m"], 1e-6), 1000 * max(row["spread_m"], 1e-6)),
+                        fontsize=7, xytext=(3, 3), textcoords="offset points", color=colours(i))
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    low = 1000 * min(table["bias_m"].clip(lower=1e-6).min(), table["spread_m"].clip(lower=1e-6).min())
+    high = 1000 * max(table["bias_m"].max(), table["spread_m"].max())
+    ax.plot([low, high], [low, high], color="grey", lw=0.8, ls="--")
+    ax.set_xlabel("bias: |mean theta~ - theta*| (1e-3 m)")
+    ax.set_ylabel("spread: RMS |theta~ - mean| (1e-3 m)")
+    ax.set_title("(b) bias vs spread (labels: noise level)", fontsize=10)
+    ax.grid(True, which="both", alpha=0.3)
+
+    if runs is not None:
+        ax = axes[2]
+        level = int(runs["level"].max())
+        for i, name in enumerate(methods):
+            rows = runs[(runs["method"] == name) & (runs["level"] == level)]
+            ax.scatter(1000 * (rows["a"] - shift[0]), 1000 * (rows["b"] - shift[1]), s=14, marker=markers[name],
+                       color=colours(i), alpha=0.8, label=METHOD_LABELS.get(name, name))
+        ax.axhline(0, color="grey", lw=0.8)
+        ax.axvline(0, color="grey", lw=0.8)
+        ax.set_xlabel("a~ - a* (1e-3 m)")
+        ax.set_ylabel("b~ - b* (1e-3 m)")
+        ax.set_title(f"(c) where theta~ lands, noise level {level}", fontsize=10)
+        ax.legend(fontsize=7)
+        ax.grid(True, alpha=0.3)
+    fig.suptitle("Table 3: SDM against the baselines (same training sets, same noise draws)", fontsize=11)
+    return fig
+
+
+# -- plain words ------------------------------------------------------------------------------------
+
+
+def table3_summary(table: pd.DataFrame, reference: str = "sdm") -> str:
+    """The answer to the paper's claim, in plain words from the measured Table 3 (Markdown).
+
+    Per noise level: the best method by mean distance and how SDM compares with the best baseline
+    (ratio of means, share of paired runs won); then each method's time per run relative to SDM's.
+    Every number in the text comes from ``table``.
+    """
+    if reference not in set(table["method"]):
+        raise SDMInputError(f"Table 3 has no {reference!r} rows to compare with")
+    lines = []
+    for level, rows in table.groupby("level", sort=True):
+        ref = rows[rows["method"] == reference]
+        others = rows[rows["method"] != reference]
+        if ref.empty or others.empty:
+            continue
+        ref_mean = float(ref["mean_m"].iloc[0])
+        best_other = others.loc[others["mean_m"].idxmin()]
+        ratio = float(best_other["mean_m"]) / ref_mean if ref_mean > 0 else math.inf
+        runs = int(ref["runs"].iloc[0])
+        if ratio > 1:
+            verdict = (f"SDM wins: {1000 * ref_mean:.3f}e-3 m against {1000 * best_other['mean_m']:.3f}e-3 m for the best "
+                       f"baseline ({best_other['label']}), {ratio:.1f} times SDM's mean")
+        else:
+            verdict = (f"SDM loses: {1000 * ref_mean:.3f}e-3 m against {1000 * best_other['mean_m']:.3f}e-3 m for "
+                       f"{best_other['label']} ({1 / ratio:.1f} times closer than SDM on average)")
+        beaten = [f"{row['label']} {row['wins_vs_sdm']:.0%}" for _, row in others.iterrows() if not math.isnan(row["wins_vs_sdm"])]
+        lines.append(f"- noise level {int(level)} ({runs} paired runs): {verdict}; share of paired runs closer to "
+                     f"theta* than SDM's: {', '.join(beaten)}. SDM's bias {1000 * float(ref['bias_m'].iloc[0]):.3f}e-3 m, "
+                     f"spread {1000 * float(ref['spread_m'].iloc[0]):.3f}e-3 m.")
+    seconds = table.groupby("method", sort=False)["seconds_per_run"].mean()
+    ref_seconds = float(seconds[reference])
+    timing = ", ".join(
+        f"{METHOD_LABELS.get(name, name)} {value:.2f} s" + (f" ({value / ref_seconds:.1f}x)" if ref_seconds > 0 else "")
+        for name, value in seconds.items() if not math.isnan(value)
+    )
+    if math.isnan(ref_seconds):
+        timing += " (SDM's rows come from Table 2, which records no time per run)"
+    lines.append(f"- time per run (mean over levels, one thread; in brackets: relative to SDM): {timing}.")
+    return "\n".join(lines) + "\n"
