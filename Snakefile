@@ -29,6 +29,7 @@ include: "workflow/rules/stage.smk"
 include: "workflow/rules/data.smk"
 include: "workflow/rules/tuning.smk"
 include: "workflow/rules/noise.smk"
+include: "workflow/rules/baselines.smk"
 include: "workflow/rules/report.smk"
 
 
@@ -46,6 +47,7 @@ localrules:
     split,
     best,
     tables,
+    table3,
 
 
 rule all:
@@ -55,4 +57,5 @@ rule all:
         rules.tables.output,
         rules.figures.output,
         rules.report.output,
+        table3_outputs(),
         notebook_html(),

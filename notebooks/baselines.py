@@ -48,8 +48,11 @@ table2_distances = ""  # optional input: Table 2's per-run distances: checks SDM
 # for them when `sdm` is not among the run files (`table`: SDM's rows are then Table 2's, without seconds)
 levels = [0, 1, 2, 3, 4]
 run_indices = [0, 1]
-table3_csv = "results/tables/table3.csv"  # output of `table` (with .md and .tex beside it)
-tuning_csv = "results/tables/table3_tuning.csv"  # output of `table` (with .md beside it)
+table3_csv = "results/tables/table3.csv"  # output of `table`
+table3_md = "results/tables/table3.md"  # output of `table`: written beside table3_csv, same stem
+table3_tex = "results/tables/table3.tex"  # output of `table`: written beside table3_csv, same stem
+tuning_csv = "results/tables/table3_tuning.csv"  # output of `table`
+tuning_md = "results/tables/table3_tuning.md"  # output of `table`: written beside tuning_csv, same stem
 figure = "results/figures/baselines.png"  # output of `table`
 summary = "results/tables/table3_summary.md"  # output of `table`: the answer in plain words, for the report
 s = 4
@@ -167,14 +170,15 @@ if part in ("table", "all"):
         all_runs = pd.concat([table2.assign(method="sdm", seconds=float("nan")), all_runs], ignore_index=True)
         print(f"SDM rows from Table 2: {len(table2)} runs")
     table3 = table3_frame(all_runs, shift=shift)
-    write_table3(table3, Path(table3_csv).with_suffix(""))
+    written = write_table3(table3, Path(table3_csv).with_suffix(""))
+    assert {str(path) for path in written} == {table3_csv, table3_md, table3_tex}, written
     display(Markdown(to_markdown(table3_display(table3), TABLE3_FORMAT)))
 
     tunings = [pd.read_csv(tuning_of[name]) for name in methods if name != "sdm" and Path(tuning_of[name]).is_file()]
     if tunings:
         tuning_table = tuning_frame(tunings)
         write_csv(tuning_csv, tuning_table)
-        write_text(Path(tuning_csv).with_suffix(".md"), to_markdown(tuning_table, TUNING_FORMAT))
+        write_text(tuning_md, to_markdown(tuning_table, TUNING_FORMAT))
         display(Markdown(to_markdown(tuning_table, TUNING_FORMAT)))
     save_figure(baselines_figure(table3, all_runs, shift), figure)
 

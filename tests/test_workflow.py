@@ -27,7 +27,8 @@ from config_check import ConfigError, check_config, load_config, validate_schema
 
 SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
 APOLLO_SAMPLE = ROOT / "data" / "apollocar3d-sample"
-STAGES = ["synthetic", "data", "sample", "sky", "split", "tune", "best", "noise", "tables", "figures", "report"]
+STAGES = ["synthetic", "data", "sample", "sky", "split", "tune", "best", "noise", "tables", "baseline_fit",
+          "baseline_sdm", "table3", "figures", "report"]
 
 pytestmark = pytest.mark.workflow
 
@@ -99,7 +100,8 @@ def test_dry_run_default_config_plans_every_stage(tmp_path):
     cells = len(config["tuning"]["n_epoch"]) * len(config["tuning"]["lr"])
     chunks = len(config["noise"]["levels"]) * -(-config["noise"]["runs"] // config["noise"]["chunk_size"])
     assert jobs == {"synthetic": 1, "data": 1, "sample": 1, "sky": 1, "split": 1, "tune": cells, "best": 1,
-                    "noise": chunks, "tables": 1, "figures": 1, "report": 1}
+                    "noise": chunks, "tables": 1, "figures": 1, "report": 1,
+                    "baseline_fit": len(config["baselines"]["methods"]), "baseline_sdm": 1, "table3": 1}
 
 
 @pytest.mark.parametrize("flag", ["--workflow-profile", "--profile"])
@@ -328,6 +330,13 @@ def _key_cases() -> dict[str, tuple[dict, str | None]]:
         "noise.seed": ({"noise": {"seed": 1}}, "noise"),
         "figures.example": ({"figures": {"example": 1}}, "figures"),
         "figures.seed": ({"figures": {"seed": 1}}, "figures"),
+        "baselines.enabled": ({"baselines": {"enabled": False}}, "report"),
+        "baselines.methods": ({"baselines": {"methods": ["silhouette", "chamfer", "sinkhorn"]}}, "table3"),
+        "baselines.runs": ({"baselines": {"runs": 1}}, "baseline_fit"),
+        "baselines.silhouette": ({"baselines": {"silhouette": {"lr": 0.2, "steps": 12}}}, "baseline_fit"),
+        "baselines.chamfer": ({"baselines": {"chamfer": {"lr": 0.2, "steps": 12}}}, "baseline_fit"),
+        "baselines.sinkhorn": ({"baselines": {"sinkhorn": {"lr": 0.2, "steps": 8}}}, "baseline_fit"),
+        "baselines.cmaes": ({"baselines": {"cmaes": {"sigma0": 0.2, "budget": 120}}}, "baseline_fit"),
     }
 
 
@@ -335,7 +344,8 @@ def _schema_keys(schema: dict, prefix: str = "") -> list[str]:
     keys = []
     for name, sub in schema.get("properties", {}).items():
         dotted = f"{prefix}{name}"
-        keys += _schema_keys(sub, dotted + ".") if sub.get("type") == "object" else [dotted]
+        nested = sub.get("type") == "object" and "properties" in sub
+        keys += _schema_keys(sub, dotted + ".") if nested else [dotted]
     return keys
 
 
@@ -422,6 +432,7 @@ def _small_real_config(folder: Path, n_images: int) -> dict:
         "split": {"n_selected": 40, "n_train": 24, "n_dev": 16},
         "tuning": {"n_epoch": [2], "lr": [1.0e-3]},
         "noise": {"levels": [0, 2], "runs": 2, "chunk_size": 2},
+        "baselines": {"enabled": False},
     })
 
 

@@ -177,6 +177,36 @@ def noise_files():
     ]
 
 
+# Table 3: the baselines beside SDM (config section baselines), each with its settings grid.
+BASELINES = (
+    {name: config["baselines"].get(name, {}) for name in config["baselines"]["methods"]}
+    if config["baselines"]["enabled"]
+    else {}
+)
+BASELINE_RUNS = list(range(int(config["baselines"]["runs"])))
+BASELINE_PATTERN = "|".join(BASELINES) or "(?!)"  # "(?!)" matches nothing
+
+
+def table3_report_inputs():
+    """What the report reads of Table 3 (nothing when the baselines are off)."""
+    if not config["baselines"]["enabled"]:
+        return {}
+    return {
+        "table3": result("tables/table3.md"),
+        "table3_summary": result("tables/table3_summary.md"),
+    }
+
+
+def baseline_files(pattern):
+    """One file per baseline under results/baselines/, e.g. baseline_files("runs_{method}.csv")."""
+    return [result(f"baselines/{pattern.format(method=name)}") for name in BASELINES]
+
+
+def table3_outputs():
+    """Table 3's files when the baselines are on, else nothing."""
+    return rules.table3.output if config["baselines"]["enabled"] else []
+
+
 def notebook_html():
     """Every rendered notebook of the run."""
     names = ["data", "sample", "sky", "split", "best", "tables", "figures", "report"]
@@ -184,6 +214,12 @@ def notebook_html():
         names.insert(0, "synthetic")
     names += [f"tune_{n}_{lr}" for n, lr in TUNING_CELLS]
     names += [f"noise_level{level}_chunk{chunk}" for level, chunk in NOISE_CHUNKS]
+    if config["baselines"]["enabled"]:
+        names += [
+            "baselines_sdm",
+            *(f"baselines_{name}" for name in BASELINES),
+            "table3",
+        ]
     return [html(name) for name in names]
 
 

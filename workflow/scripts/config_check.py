@@ -83,7 +83,7 @@ def check_config(config: Mapping[str, Any]) -> None:
     - ``split.n_train + split.n_dev == split.n_selected <= sky.n_images``;
     - with synthetic data, ``sky.n_images <= data.synthetic.n_images``;
     - ``figures.example < split.n_train`` (the example is a train configuration);
-    - ``noise.chunk_size <= noise.runs``; the shift is finite (YAML's ``.inf`` is a number);
+    - ``noise.chunk_size <= noise.runs``; ``baselines.runs <= noise.runs``; the shift is finite (YAML's ``.inf`` is a number);
     - the data path for the chosen source is set.
 
     What depends on the data (``sky.n_images`` against the number of real annotated images) is
@@ -139,6 +139,12 @@ def check_config(config: Mapping[str, Any]) -> None:
     runs, chunk = _int(noise, "noise", "runs"), _int(noise, "noise", "chunk_size")
     if chunk > runs:
         raise ConfigError(f"config key 'noise.chunk_size': must not exceed noise.runs = {runs}, got {chunk}")
+    baselines = config.get("baselines") or {}
+    if baselines.get("enabled"):
+        paired = _int(baselines, "baselines", "runs")
+        if paired > runs:
+            raise ConfigError(f"config key 'baselines.runs': the runs are paired with Table 2's, so at most "
+                              f"noise.runs = {runs}, got {paired}")
 
 
 def check_against_annotations(config: Mapping[str, Any], n_annotated: int, where: str) -> None:
