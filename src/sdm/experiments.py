@@ -26,7 +26,7 @@ from .data import SkyFile
 from .errors import SDMInputError
 from .mapping import SpatialDomainMapping
 from .metrics import dev_loss, distance
-from .sky import SKY_SHIFT, add_target_noise
+from .sky import SKY_SHIFT, add_target_noise, shift_vector
 from .train import TrainSettings, train
 
 
@@ -143,13 +143,13 @@ def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed:
         the points entering the zoom level that land on the grid in a block the target leaves empty).
     """
     camera = camera or train_set.camera
-    theta = torch.tensor([float(shift[0]), float(shift[1]), 0.0], dtype=torch.float64)
+    theta = shift_vector(shift, train_set.points)
     rows = []
     for level in levels:
         noisy = train_set.with_targets(noisy_targets(train_set.targets, level, run_seed(seed, level, 0)))
         for zoom in range(s, -1, -1):
             layer = SpatialDomainMapping(camera, s=s, zoom=zoom)
-            flow = torch.zeros(2, dtype=torch.float64)
+            flow = torch.zeros(2, dtype=torch.float64, device=train_set.device)
             entered = unmatched = 0
             for _, batch in noisy.batches(batch_size):
                 result = layer(batch.points + theta, batch.pixels, batch.targets, batch.config, batch.rank).result

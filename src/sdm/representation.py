@@ -19,6 +19,9 @@ import torch
 from .camera import Camera
 from .errors import SDMInputError
 
+#: The ``rmin`` priority of "no fragment": larger than every real rank, so any fragment beats it.
+NO_RANK = torch.iinfo(torch.int64).max
+
 
 def priority_rank(depth: torch.Tensor, tiebreak: torch.Tensor | None = None) -> torch.Tensor:
     """Rank of each fragment in ``rmin`` order: depth, then ``tiebreak``, then index.
@@ -50,7 +53,7 @@ def first_by_rank(cell: torch.Tensor, rank: torch.Tensor, n_cells: int) -> torch
     Returns:
         ``(K,)`` bool, true for exactly one fragment per occupied cell.
     """
-    best = torch.full((n_cells,), torch.iinfo(torch.int64).max, dtype=torch.int64, device=cell.device)
+    best = torch.full((n_cells,), NO_RANK, dtype=torch.int64, device=cell.device)
     best.scatter_reduce_(0, cell, rank, reduce="amin")
     return best[cell] == rank
 
@@ -63,13 +66,14 @@ def inside(pixels: torch.Tensor, height: int, width: int) -> torch.Tensor:
     or of two int64 values is negative exactly when one of them is: a few cheap
     ops, which matters on the SDM layer's hot path.
     """
-    product = pixels * (_last_index(height, width) - pixels)
+    product = pixels * (_last_index(height, width, pixels.device) - pixels)
     return (product[..., 0] | product[..., 1]) >= 0
 
 
 @functools.lru_cache(maxsize=64)
-def _last_index(height: int, width: int) -> torch.Tensor:
-    return torch.tensor([height - 1, width - 1])
+def _last_index(height: int, width: int, device: torch.device) -> torch.Tensor:
+    """``(2,)`` int64 ``(height - 1, width - 1)`` on ``device`` (cached: built once per grid and device)."""
+    return torch.tensor([height - 1, width - 1], device=device)
 
 
 def screen_pixels(screen: torch.Tensor, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:

@@ -12,14 +12,13 @@ import math
 from dataclasses import dataclass
 
 import torch
-import torch.nn.functional as F
 from tqdm.auto import tqdm
 
 from .batch import ConfigurationSet, PointBatch
 from .camera import Camera
 from .errors import SDMInputError
 from .mapping import SpatialDomainMapping
-from .zoom import check_divisible
+from .sky import shift_vector
 
 
 @dataclass(frozen=True)
@@ -61,7 +60,7 @@ class TrainSettings:
 
 @dataclass
 class History:
-    """What a training run did, step by step.
+    """What a training run did, step by step (CPU tensors, whatever device trained).
 
     Attributes:
         theta: ``(steps + 1, 2)`` float64 ``(a, b)`` in metres, before the first step and after each.
@@ -106,6 +105,7 @@ def train(
     progress: bool = True,
     method: str = "fast",
     theta0: tuple[float, float] = (0.0, 0.0),
+    device: torch.device | str | None = None,
 ) -> History:
     """Recover the shift from a training set.
 
@@ -116,46 +116,55 @@ def train(
         progress: show a progress bar.
         method: SDM implementation, ``"fast"`` or ``"dense"``.
         theta0: starting shift ``(a, b)`` in metres.
+        device: where to train (``"cpu"``, ``"cuda"``, ...); default the set's device.
+            The shuffling is drawn on the CPU from ``settings.seed`` whatever the
+            device, so every device trains on the same mini-batches.
 
     Returns:
-        :class:`History`.
+        :class:`History` (on the CPU).
     """
     camera = camera or train_set.camera
-    check_divisible(camera.screen_shape, settings.s)
+    if device is not None:
+        train_set = train_set.to(device)
+    device = train_set.device
+    # Built first: the layer checks that the screen is divisible by 2^s before anything is zoomed out.
+    layers = {level: SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method)
+              for level in range(settings.s, settings.zoom - 1, -1)}
     n_configs = len(train_set)
     if n_configs < settings.batch_size:
         raise SDMInputError(
             f"the training set has {n_configs} configurations, fewer than one batch of {settings.batch_size}"
         )
-    start = torch.as_tensor(theta0, dtype=torch.float64)
+    start = torch.as_tensor(theta0, dtype=torch.float64, device=device)
     if start.shape != (2,) or not bool(torch.isfinite(start).all()):
         raise SDMInputError(f"theta0 must be two finite numbers (a, b), got {theta0!r}")
 
     # Packed data was checked when the set was built; only theta changes, and it is checked every step.
     theta = start.clone().requires_grad_(True)
-    generator = torch.Generator().manual_seed(settings.seed)
+    generator = torch.Generator(device="cpu").manual_seed(settings.seed)
     pyramid = train_set.pyramid(settings.s)
     levels = range(settings.s, settings.zoom - 1, -1)
     batch_size = settings.batch_size
     batches_per_epoch = n_configs // batch_size
     total = len(levels) * settings.n_epoch * batches_per_epoch
 
-    thetas = torch.empty(total + 1, 2, dtype=torch.float64)
-    thetas[0] = start
-    losses = torch.zeros(total, dtype=torch.float64)
+    thetas = torch.empty(total + 1, 2, dtype=torch.float64, device=device)
+    thetas[0] = theta.detach()
+    losses = torch.zeros(total, dtype=torch.float64, device=device)
     step_levels = torch.empty(total, dtype=torch.int64)
     rates = torch.empty(total, dtype=torch.float64)
     step, rate = 0, settings.lr
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
         for level in levels:
-            layer = SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method)
+            layer = layers[level]
             for _ in range(settings.n_epoch):
-                epoch = _EpochLayout(train_set, torch.randperm(n_configs, generator=generator), batch_size)
+                order = torch.randperm(n_configs, generator=generator, device="cpu").to(device)
+                epoch = _EpochLayout(train_set, order, batch_size)
                 for index in range(batches_per_epoch):
                     batch, configs = epoch.batch(index)
                     if batch.points.shape[0]:  # a batch of empty configurations pulls nothing
                         out = layer(
-                            batch.points + F.pad(theta, (0, 1)), batch.pixels, pyramid[level].index_select(0, configs),
+                            batch.points + shift_vector(theta, batch.points), batch.pixels, pyramid[level].index_select(0, configs),
                             batch.config, batch.rank, target_is_zoomed=True, validate=False,
                         )
                         out.loss.backward()
@@ -171,11 +180,11 @@ def train(
                     bar.update()
                 bar.set_postfix(level=level, a=f"{theta[0].item():.4f}", b=f"{theta[1].item():.4f}")
             rate *= settings.lr_decay
-    return History(thetas, losses, step_levels, rates, settings)
+    return History(thetas.cpu(), losses.cpu(), step_levels, rates, settings)
 
 
 class _EpochLayout:
-    """One epoch's shuffled configurations, their points laid out batch after batch.
+    """One epoch's shuffled configurations, their points laid out batch after batch (on ``order``'s device).
 
     Gathering every point of the epoch once makes each mini-batch a
     contiguous slice (a view), instead of a gather per step.
@@ -189,7 +198,7 @@ class _EpochLayout:
         self.pixels = data.pixels.index_select(0, rows)
         self.rank = data.rank.index_select(0, rows)
         counts = data.counts.index_select(0, self.configs)
-        self.local = torch.repeat_interleave(torch.arange(len(self.configs)) % batch_size, counts)
+        self.local = torch.repeat_interleave(torch.arange(len(self.configs), device=order.device) % batch_size, counts)
         per_batch = counts.view(-1, batch_size).sum(1)
         self.bounds = [0] + per_batch.cumsum(0).tolist()
 

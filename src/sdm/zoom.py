@@ -64,9 +64,9 @@ def depth_to_space(x: torch.Tensor, steps: int = 1) -> torch.Tensor:
     return x.squeeze(-3)
 
 
-def subrep_phases(steps: int) -> torch.Tensor:
-    """``(4**k, 2)`` int64 phase ``(row mod 2^k, col mod 2^k)`` of each sub-representation index."""
-    grid = torch.arange(1 << steps)
+def subrep_phases(steps: int, device: torch.device | str | None = None) -> torch.Tensor:
+    """``(4**k, 2)`` int64 phase ``(row mod 2^k, col mod 2^k)`` of each sub-representation index, on ``device``."""
+    grid = torch.arange(1 << steps, device=device)
     rows, cols = torch.meshgrid(grid, grid, indexing="ij")
     phases = torch.stack((rows, cols), dim=-1)  # (B, B, 2): a B x B screen whose pixel (r, c) is its own phase
     return space_to_depth(phases.permute(2, 0, 1), steps).reshape(2, -1).T.contiguous()

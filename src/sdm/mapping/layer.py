@@ -77,7 +77,7 @@ class SDMOutput:
     def depth_map(self) -> torch.Tensor:
         """``(n, H, W)`` the output representation ``L~`` as depth (metres), 0 where empty."""
         height, width = self.camera.screen_shape
-        image = torch.zeros(self.num_configs, height, width, dtype=self.depth.dtype)
+        image = torch.zeros(self.num_configs, height, width, dtype=self.depth.dtype, device=self.depth.device)
         alive = self.result.alive
         pixels = self.result.out_pixels[alive]
         image[self.config[alive], pixels[:, 0], pixels[:, 1]] = self.depth[alive]
@@ -144,7 +144,7 @@ class SpatialDomainMapping(nn.Module):
         if validate:
             self._check(points, pixels, target, config, target_is_zoomed)
         if config is None:
-            config = torch.zeros(points.shape[0], dtype=torch.int64)
+            config = torch.zeros(points.shape[0], dtype=torch.int64, device=points.device)
         if rank is None:
             rank = priority_rank(points.detach()[:, 2])
         zoomed = target if target_is_zoomed else zoom_out(target, self.zoom)
