@@ -10,10 +10,11 @@ from scenes import configurations
 from sdm.batch import ConfigurationSet
 from sdm.camera import APOLLO_CAMERA_5, Camera
 from sdm.errors import SDMInputError
-from sdm.mapping import SpatialDomainMapping, explain_point
+from sdm.mapping import SpatialDomainMapping, dynamic_flow, explain_point
 from sdm.mapping.dense import dense_mapping
 from sdm.mapping.fast import fast_mapping
-from sdm.sky import SKY_SHIFT, pixel_centre_points
+from sdm.representation import inside
+from sdm.sky import SKY_SHIFT, pixel_centre_points, shift_vector
 from sdm.zoom import zoom_out
 
 CAM = APOLLO_CAMERA_5
@@ -22,7 +23,7 @@ SLOW = settings(max_examples=12, deadline=None, suppress_health_check=[HealthChe
 
 
 def shifted(batch, theta):
-    return batch.points + torch.tensor([theta[0], theta[1], 0.0], dtype=torch.float64)
+    return batch.points + shift_vector(theta, batch.points)
 
 
 def brute_force_level(points, pixels, config, level):
@@ -283,3 +284,72 @@ def test_bad_layer_inputs():
         layer(q, torch.tensor([[200, 5]]), torch.zeros(H, W, dtype=torch.bool))
     with pytest.raises(SDMInputError, match="one point per pixel"):
         SpatialDomainMapping(method="dense")(torch.cat((q, q)), torch.cat((pixels, pixels)), torch.zeros(H, W, dtype=torch.bool))
+
+
+# -- the autograd boundary -------------------------------------------------------------------
+
+def small_batch(n=4, seed=2):
+    return ConfigurationSet.from_configurations(configurations(n, seed)).batch(range(n))
+
+
+def test_only_the_loss_carries_a_gradient():
+    batch = small_batch()
+    theta = torch.tensor([0.2, 0.1], dtype=torch.float64, requires_grad=True)
+    out = SpatialDomainMapping(s=4, zoom=1)(batch.points + shift_vector(theta, batch.points), batch.pixels,
+                                             batch.targets, batch.config, batch.rank)
+    assert out.loss.requires_grad
+    result = out.result
+    for name in ("flow", "out_pixels", "entered", "matched", "landed", "loss"):
+        assert not getattr(result, name).requires_grad, name
+    assert bool(result.flow.any())  # something is pulled, so the check above is not vacuous
+
+
+def test_torch_func_grad_sees_the_layer():
+    """forward + setup_context: a functional transform gives the same gradient as backward()."""
+    batch = small_batch()
+    layer = SpatialDomainMapping(s=4, zoom=1)
+
+    def loss_of(theta):
+        return layer(batch.points + shift_vector(theta, batch.points), batch.pixels, batch.targets,
+                     batch.config, batch.rank).loss
+
+    theta = torch.tensor([0.2, 0.1], dtype=torch.float64)
+    functional = torch.func.grad(loss_of)(theta)
+    leaf = theta.clone().requires_grad_(True)
+    loss_of(leaf).backward()
+    assert bool(functional.any()) and torch.equal(functional, leaf.grad)
+
+
+def test_dynamic_flow_is_the_gradient_of_the_layer():
+    """The public rule, called on the fast path's landing, is what backward() delivers."""
+    batch = small_batch()
+    theta = torch.tensor([0.25, -0.05], dtype=torch.float64, requires_grad=True)
+    points = batch.points + shift_vector(theta, batch.points)
+    out = SpatialDomainMapping(s=0, zoom=0)(points, batch.pixels, batch.targets, batch.config, batch.rank)
+    out.loss.backward()
+    result = out.result
+    screen = CAM.project(points.detach())
+    # One level at B = 1: every point enters; it lands on its projected pixel, clamped to its 3x3 window.
+    landing = torch.minimum(torch.maximum(torch.floor(screen).long(), batch.pixels - 1), batch.pixels + 1)
+    landed = inside(landing, H, W)
+    flow, loss, matched = dynamic_flow(screen, points[:, 2].detach(), batch.config, landed, batch.pixels, landing,
+                                       batch.targets, 0, CAM)
+    assert torch.equal(landed, result.landed) and torch.equal(matched, result.matched)
+    assert torch.equal(flow, result.flow) and torch.equal(flow.sum(0), theta.grad)
+    assert float(loss) == float(out.loss)
+
+
+def test_torch_compile_runs_the_layer():
+    """docs/method.md: Dynamo breaks the graph at the input checks and at the pulled points' nonzero, and runs."""
+    batch = small_batch()
+    layer = SpatialDomainMapping(s=4, zoom=1)
+
+    def loss_of(theta):
+        return layer(batch.points + shift_vector(theta, batch.points), batch.pixels, batch.targets,
+                     batch.config, batch.rank).loss
+
+    compiled = torch.compile(loss_of, backend="eager")
+    eager, traced = (torch.tensor([0.2, 0.1], dtype=torch.float64, requires_grad=True) for _ in range(2))
+    loss_of(eager).backward()
+    compiled(traced).backward()
+    assert torch.equal(eager.grad, traced.grad)

@@ -7,7 +7,7 @@ gradient flow to the points, and autograd carries it to whatever produced them
 (in the Sky problem, the shift ``theta``)::
 
     layer = SpatialDomainMapping(s=4, zoom=0)
-    out = layer(q + torch.cat((theta, theta.new_zeros(1))), pixels, target)
+    out = layer(q + shift_vector(theta, q), pixels, target)   # theta (2,) -> (a, b, 0)
     out.loss.backward()          # theta.grad: the summed pulls on (x, y)
 """
 from __future__ import annotations
@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from ..camera import APOLLO_CAMERA_5, Camera, check_points
@@ -32,25 +33,34 @@ class SDMFunction(torch.autograd.Function):
     """``J = SDM(points)``: forward runs the chain, backward returns the dynamic gradient flow.
 
     The flow is not the derivative of a smooth function of the points: it is
-    the paper's eq. 19, the summed sign pulls of the unmatched points towards
-    their active target adjustments. Its z component is zero (c is ignored).
+    the paper's eq. 19 (:func:`~sdm.mapping.flow.dynamic_flow`), the summed sign
+    pulls of the unmatched points towards their active target adjustments. Its
+    z component is zero (c is ignored).
+
+    Written as ``forward`` + ``setup_context`` (no ``ctx`` in the forward), so that
+    ``torch.func`` transforms such as :func:`torch.func.grad` can see it. Outputs
+    (all on the device of ``points``): ``loss`` ``()`` (differentiable, metres),
+    then, marked non-differentiable, ``flow`` ``(P, 2)`` (dtype of ``points``),
+    ``out_pixels`` ``(P, 2)`` int64, ``entered``, ``matched``, ``landed`` ``(P,)`` bool
+    (see :class:`~sdm.mapping.result.MappingResult`).
     """
 
     @staticmethod
-    def forward(ctx, points, pixels, config, rank, target, steps, zoom, camera, method, options, results):
-        """``results``: a list the :class:`MappingResult` is appended to (the forward's non-tensor output)."""
-        with torch.no_grad():
-            result = METHODS[method](points.detach(), pixels, config, rank, target, steps, zoom, camera, **options)
-        flow3 = torch.zeros_like(points)
-        flow3[:, :2] = result.flow.to(points.dtype)
-        ctx.save_for_backward(flow3)
-        results.append(result)
-        return result.loss.to(points.dtype).clone()
+    def forward(points, pixels, config, rank, target, steps, zoom, camera, method, options):
+        result = METHODS[method](points.detach(), pixels, config, rank, target, steps, zoom, camera, **options)
+        return (result.loss.to(points.dtype), result.flow.to(points.dtype), result.out_pixels, result.entered,
+                result.matched, result.landed)
 
     @staticmethod
-    def backward(ctx, grad_loss):
-        (flow3,) = ctx.saved_tensors
-        return (grad_loss * flow3,) + (None,) * 10
+    def setup_context(ctx, inputs, output):
+        _, flow, *masks = output
+        ctx.mark_non_differentiable(flow, *masks)
+        ctx.save_for_backward(flow)
+
+    @staticmethod
+    def backward(ctx, grad_loss, *_no_gradient):
+        (flow,) = ctx.saved_tensors
+        return (grad_loss * F.pad(flow, (0, 1)),) + (None,) * 9
 
 
 @dataclass
@@ -149,11 +159,11 @@ class SpatialDomainMapping(nn.Module):
             rank = priority_rank(points.detach()[:, 2])
         zoomed = target if target_is_zoomed else zoom_out(target, self.zoom)
         options = {"c": self.c} if self.method == "dense" else {}
-        results: list[MappingResult] = []
-        loss = SDMFunction.apply(
-            points, pixels, config, rank, zoomed, self.s, self.zoom, self.camera, self.method, options, results
+        loss, flow, out_pixels, entered, matched, landed = SDMFunction.apply(
+            points, pixels, config, rank, zoomed, self.s, self.zoom, self.camera, self.method, options
         )
-        return SDMOutput(loss, results[0], int(target.shape[0]), self.camera, config, points.detach()[:, 2])
+        result = MappingResult(out_pixels, flow, loss.detach(), entered, matched, self.zoom, landed)
+        return SDMOutput(loss, result, int(target.shape[0]), self.camera, config, points.detach()[:, 2])
 
     def _check(self, points, pixels, target, config, target_is_zoomed) -> None:
         height, width = self.camera.screen_shape
