@@ -353,3 +353,43 @@ def test_torch_compile_runs_the_layer():
     loss_of(eager).backward()
     compiled(traced).backward()
     assert torch.equal(eager.grad, traced.grad)
+
+
+def layer_inputs(n=2):
+    batch = small_batch(n)
+    return {"points": batch.points, "pixels": batch.pixels, "target": batch.targets, "config": batch.config,
+            "rank": batch.rank}
+
+
+def test_half_precision_points_are_refused():
+    inputs = layer_inputs()
+    for dtype in (torch.float16, torch.bfloat16):
+        with pytest.raises(SDMInputError, match=f"points must be float32 or float64.*{str(dtype)}"):
+            SpatialDomainMapping()(**inputs | {"points": inputs["points"].to(dtype)})
+    out32 = SpatialDomainMapping()(**inputs | {"points": inputs["points"].float()})  # float32 is accepted
+    assert out32.loss.dtype == torch.float32
+
+
+@pytest.mark.parametrize("name", ["config", "rank"])
+def test_float_config_or_rank_is_refused(name):
+    inputs = layer_inputs()
+    with pytest.raises(SDMInputError, match=f"{name} must be int64.*torch.float64"):
+        SpatialDomainMapping()(**inputs | {name: inputs[name].double()})
+
+
+def test_config_is_required_for_several_targets():
+    inputs = layer_inputs(2)
+    del inputs["config"]
+    with pytest.raises(SDMInputError, match="config is required: target holds 2 targets"):
+        SpatialDomainMapping()(**inputs)
+    one = layer_inputs(1)
+    del one["config"]
+    SpatialDomainMapping()(**one)  # a single target needs no config
+
+
+@pytest.mark.parametrize("name", ["pixels", "target", "config", "rank"])
+def test_inputs_on_another_device_are_refused(name):
+    """``meta`` stands in for a second device: the check reads devices, never values."""
+    inputs = layer_inputs()
+    with pytest.raises(SDMInputError, match=f"{name} is on meta but points are on cpu"):
+        SpatialDomainMapping()(**inputs | {name: inputs[name].to("meta")})
