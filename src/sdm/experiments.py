@@ -7,8 +7,10 @@ same numbers whenever and wherever it runs:
 - the image sample is :func:`sdm.data.sample_indices` (the data layer's, which
   :func:`sdm.data.build_sky_dataset` uses too); the split uses a ``torch.Generator``
   seeded with the config's seed;
-- a noise run's seed is :func:`run_seed` ``(seed, level, run)``; it fixes both the
-  noise drawn on the training targets and the shuffling of the mini-batches.
+- the seed flows one way: the experiment's seed is ``settings.seed``; noise run
+  ``run`` at ``level`` trains with :func:`run_seed` ``(settings.seed, level, run)``,
+  which fixes both the noise drawn on its training targets and the shuffling of
+  its mini-batches (and is reported in its row).
 """
 from __future__ import annotations
 
@@ -104,28 +106,47 @@ def noisy_targets(targets: torch.Tensor, level: int, seed: int) -> torch.Tensor:
     return torch.stack([add_target_noise(target, level, generator) for target in targets])
 
 
-def noise_run(train_set, level: int, run: int, settings, seed: int, shift: Sequence[float] = SKY_SHIFT,
-              camera: Camera = APOLLO_CAMERA_5) -> dict:
+def noise_run(train_set, level: int, run: int, settings: TrainSettings, shift: Sequence[float] = SKY_SHIFT,
+              camera: Camera | None = None) -> dict:
     """One run of the robustness experiment: noisy training targets, train, distance to theta*.
 
-    The run's seed (:func:`run_seed`) draws the noise and shuffles the mini-batches.
+    The single-run reference that :func:`noise_runs` must reproduce, run for run.
+
+    Args:
+        train_set: the training configurations (noise-free targets).
+        level: noise level ``n`` (screen pixels).
+        run: run index.
+        settings: the tuned settings; ``settings.seed`` is the experiment's seed, from
+            which the run's own seed :func:`run_seed` ``(settings.seed, level, run)`` is
+            derived: it draws the noise and shuffles the mini-batches.
+        shift: theta* ``(a, b)``, metres.
+        camera: default the set's.
 
     Returns:
-        ``{"level", "run", "seed", "a", "b", "distance"}`` (metres).
+        ``{"level", "run", "seed", "a", "b", "distance"}`` (metres; ``seed`` is the run's seed).
     """
-    seed_run = run_seed(seed, level, run)
+    seed_run = run_seed(settings.seed, level, run)
     noisy = train_set.with_targets(noisy_targets(train_set.targets, level, seed_run))
     history = train(noisy, replace(settings, seed=seed_run), camera=camera, progress=False)
     a, b = history.final_theta
-    return {"level": int(level), "run": int(run), "seed": seed_run, "a": float(a), "b": float(b),
+    return _run_record(level, run, seed_run, (a, b), shift)
+
+
+def _run_record(level: int, run: int, seed_run: int, theta, shift) -> dict:
+    a, b = float(theta[0]), float(theta[1])
+    return {"level": int(level), "run": int(run), "seed": seed_run, "a": a, "b": b,
             "distance": float(distance((a, b), tuple(shift)))}
 
 
-def noise_runs(train_set, level: int, runs: Sequence[int], settings, seed: int,
-               shift: Sequence[float] = SKY_SHIFT, camera: Camera = APOLLO_CAMERA_5) -> pd.DataFrame:
+def noise_runs(train_set, level: int, runs: Sequence[int], settings: TrainSettings,
+               shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None) -> pd.DataFrame:
     """Several :func:`noise_run` at one level, one row each."""
-    rows = [noise_run(train_set, level, run, settings, seed, shift, camera) for run in runs]
-    return pd.DataFrame.from_records(rows, columns=["level", "run", "seed", "a", "b", "distance"])
+    rows = [noise_run(train_set, level, run, settings, shift, camera) for run in runs]
+    return pd.DataFrame.from_records(rows, columns=RUN_COLUMNS)
+
+
+#: Columns of a noise-run table.
+RUN_COLUMNS = ["level", "run", "seed", "a", "b", "distance"]
 
 
 def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed: int, s: int = 4,

@@ -81,12 +81,8 @@ def zoom_out(target: torch.Tensor, steps: int) -> torch.Tensor:
     Returns:
         ``(..., H / 2**k, W / 2**k)`` bool.
     """
-    if steps == 0:
-        return target
     check_divisible(tuple(target.shape[-2:]), steps)
-    *lead, height, width = target.shape
-    block = 1 << steps
-    return target.reshape(*lead, height // block, block, width // block, block).any(-1).any(-2)
+    return _pool(target, steps)
 
 
 def target_pyramid(target: torch.Tensor, steps: int) -> list[torch.Tensor]:
@@ -94,5 +90,14 @@ def target_pyramid(target: torch.Tensor, steps: int) -> list[torch.Tensor]:
     check_divisible(tuple(target.shape[-2:]), steps)
     levels = [target]
     for _ in range(steps):
-        levels.append(zoom_out(levels[-1], 1))
+        levels.append(_pool(levels[-1], 1))
     return levels
+
+
+def _pool(target: torch.Tensor, steps: int) -> torch.Tensor:
+    """``B x B`` any-pool of ``(..., H, W)`` bool, ``B = 2**steps``; the caller checked divisibility."""
+    if steps == 0:
+        return target
+    *lead, height, width = target.shape
+    block = 1 << steps
+    return target.reshape(*lead, height // block, block, width // block, block).any(-1).any(-2)
