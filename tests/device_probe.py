@@ -22,7 +22,7 @@ import torch
 
 def probe(data_path: str, device: str) -> dict:
     from sdm.batch import ConfigurationSet
-    from sdm.experiments import flow_at_true_shift, noise_run
+    from sdm.experiments import flow_at_true_shift, noise_run, noise_runs
     from sdm.mapping import SpatialDomainMapping, dynamic_flow, explain_point  # noqa: F401 (import is the probe)
     from sdm.metrics import false_positive_pixels
     from sdm.train import TrainSettings, train
@@ -55,6 +55,8 @@ def probe(data_path: str, device: str) -> dict:
     out["false_positive"] = false_positive_pixels(data, history.final_theta)
     single = noise_run(data, 1, 0, settings)
     out["noise_run"] = torch.tensor([single["a"], single["b"]], dtype=torch.float64, device="cpu")
+    batched = noise_runs(data, 1, [0, 1], settings)
+    out["noise_runs"] = torch.tensor(batched[["a", "b"]].to_numpy(), device="cpu")
     frame = flow_at_true_shift(data, [0], seed=0, s=2)
     out["flow_at_true_shift"] = torch.tensor(frame[["flow_a", "flow_b"]].to_numpy(), device="cpu")
     return out

@@ -29,7 +29,10 @@ from .errors import SDMInputError
 from .mapping import SpatialDomainMapping
 from .metrics import dev_loss, distance
 from .sky import SKY_SHIFT, add_target_noise, shift_vector
-from .train import TrainSettings, train
+from .train import TrainSettings, train, train_runs
+
+#: Noise runs trained together by default (see :func:`noise_runs`).
+NOISE_GROUP_SIZE = 30
 
 
 def run_seed(seed: int, level: int, run: int) -> int:
@@ -139,9 +142,36 @@ def _run_record(level: int, run: int, seed_run: int, theta, shift) -> dict:
 
 
 def noise_runs(train_set, level: int, runs: Sequence[int], settings: TrainSettings,
-               shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None) -> pd.DataFrame:
-    """Several :func:`noise_run` at one level, one row each."""
-    rows = [noise_run(train_set, level, run, settings, shift, camera) for run in runs]
+               shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
+               group_size: int = NOISE_GROUP_SIZE, device: torch.device | str | None = None) -> pd.DataFrame:
+    """Several noise runs at one level, trained together as one program; one row each.
+
+    Run ``r`` is exactly :func:`noise_run` ``(train_set, level, r, settings)``: the same
+    seed :func:`run_seed` ``(settings.seed, level, r)``, hence the same noisy targets
+    and the same shuffling; the runs are packed ``group_size`` at a time into one
+    batch of ``group_size x batch_size`` configurations per step by
+    :func:`sdm.train.train_runs`, each run's theta moved only by its own flow.
+    ``test_train.py`` holds every run's result to :func:`noise_run`'s.
+
+    Args:
+        group_size: runs trained together (memory grows with it: each run keeps its
+            own zoomed-out targets, about 22 MB per 512 configurations of 128 x 256).
+        device: where to train; default the set's device.
+
+    Returns:
+        Columns :data:`RUN_COLUMNS`, one row per run, in the order of ``runs``.
+    """
+    if int(group_size) != group_size or group_size < 1:
+        raise SDMInputError(f"group_size must be a positive integer, got {group_size!r}")
+    runs = [int(run) for run in runs]
+    seeds = [run_seed(settings.seed, level, run) for run in runs]
+    rows = []
+    for first in range(0, len(runs), int(group_size)):
+        group = range(first, min(first + int(group_size), len(runs)))
+        targets = [noisy_targets(train_set.targets, level, seeds[i]) for i in group]
+        history = train_runs(train_set, targets, [replace(settings, seed=seeds[i]) for i in group], camera=camera,
+                             device=device)
+        rows += [_run_record(level, runs[i], seeds[i], theta, shift) for i, theta in zip(group, history.final_theta)]
     return pd.DataFrame.from_records(rows, columns=RUN_COLUMNS)
 
 
