@@ -75,15 +75,72 @@ def dynamic_flow(
 
     # Only the unmatched points are pulled; they are few once training is under way.
     pulled = (landed & ~matched).nonzero().squeeze(1)
-    screen, block, landing = screen.index_select(0, pulled), block.index_select(0, pulled), landing.index_select(0, pulled)
-    config_offset = config_offset.index_select(0, pulled)
-    window = block[:, None, :] + window_offsets(block.device)  # (p, 9, 2) candidate blocks q
-    in_grid = inside(window, grid_h, grid_w)
-    window_cell = torch.where(in_grid, config_offset[:, None] + window[..., 0] * grid_w + window[..., 1], 0)
-    is_landing = (window == landing[:, None, :]).all(-1)
-    weight = (in_grid & flat_target.take(window_cell) & ~is_landing).to(screen.dtype)[..., None]  # (p, 9, 1)
-    offset = screen[:, None, :] - (window + 0.5) * (1 << zoom)  # (p, 9, 2) screen pixels from q's centre
-    flow.index_copy_(0, pulled, (torch.sign(offset) * weight).sum(1).flip(-1))  # (row, col) -> (x, y)
-    metres_per_pixel = torch.stack(camera.metres_per_screen_pixel(depth.index_select(0, pulled)), dim=-1)  # (p, 2)
-    loss = ((offset.abs() * weight).sum(1) * metres_per_pixel).sum()
+    screen, depth = screen.index_select(0, pulled), depth.index_select(0, pulled)
+    block, landing = block.index_select(0, pulled), landing.index_select(0, pulled)
+    # The window is separable: block q = block + (dk, dl) has centre row (block_row + dk + 0.5) B and
+    # centre column (block_col + dl + 0.5) B, so its sign and distance on each axis depend on dk or dl
+    # alone: three values per axis instead of nine.
+    shifts = _axis_shifts(block.device, screen.dtype)  # (3,) -1, 0, 1
+    offset = screen[:, :, None] - (block[:, :, None] + shifts + 0.5) * (1 << zoom)  # (p, 2, 3) screen pixels
+    row_ok, col_ok = (_on_axis(block[:, axis, None] + shifts.long(), size) for axis, size in ((0, grid_h), (1, grid_w)))
+    base_cell = config_offset.index_select(0, pulled) + block[:, 0] * grid_w + block[:, 1]
+    in_grid = (row_ok[:, :, None] & col_ok[:, None, :]).reshape(-1, 9)
+    window_cell = torch.where(in_grid, base_cell[:, None] + _window_deltas(grid_w, block.device), 0)  # (p, 9)
+    landing_index = (landing - block) @ _window_strides(block.device) + 4  # (p,) index of the landing block, 0..8
+    weight = in_grid & flat_target.take(window_cell) & (_window_index(block.device) != landing_index[:, None])
+    weight = weight.view(-1, 3, 3)  # (p, dk, dl) bool: block q pulls the point
+    per_row, per_col = weight.sum(2, dtype=screen.dtype), weight.sum(1, dtype=screen.dtype)  # (p, 3) counts
+    sign = torch.sign(offset)
+    pull = torch.stack(((sign[:, 0] * per_row).sum(1), (sign[:, 1] * per_col).sum(1)), dim=-1)  # (p, 2) (row, col)
+    flow.index_copy_(0, pulled, pull.flip(-1))  # (row, col) -> (x, y)
+    metres_per_pixel = torch.stack(camera.metres_per_screen_pixel(depth), dim=-1)  # (p, 2) (row, col)
+    loss = (_window_l1(offset.abs(), weight) * metres_per_pixel).sum()
     return flow, loss, matched
+
+
+def _on_axis(index: torch.Tensor, size: int) -> torch.Tensor:
+    """``(...)`` bool: integer ``index`` in ``[0, size)``."""
+    return (index >= 0) & (index < size)
+
+
+def _window_l1(distance: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """``(p, 2)``: per axis, the sum over the window's pulling blocks ``q`` (row-major) of ``|p - T_q|``.
+
+    Args:
+        distance: ``(p, 2, 3)`` ``|offset|`` per axis and shift ``-1, 0, 1``.
+        weight: ``(p, 3, 3)`` bool, block ``(dk, dl)`` pulls.
+
+    The terms are added one at a time in the window's row-major order, so the
+    value is the same float as summing the nine ``(p, 9, 2)`` products of the
+    grid formulation (adding an exact zero for blocks that do not pull).
+    """
+    total = torch.zeros_like(distance[:, :, 0])
+    for dk in range(3):
+        for dl in range(3):
+            terms = torch.stack((distance[:, 0, dk], distance[:, 1, dl]), dim=-1)  # (p, 2)
+            total = total + terms * weight[:, dk, dl, None]
+    return total
+
+
+@functools.lru_cache(maxsize=16)
+def _axis_shifts(device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+    """``(3,)`` ``-1, 0, 1`` in ``dtype`` on ``device``."""
+    return torch.tensor([-1, 0, 1], dtype=dtype, device=device)
+
+
+@functools.lru_cache(maxsize=64)
+def _window_deltas(grid_width: int, device: torch.device) -> torch.Tensor:
+    """``(9,)`` int64 flat-cell offset ``dk * grid_width + dl`` of each window block."""
+    return torch.tensor([dk * grid_width + dl for dk, dl in WINDOW_OFFSETS], dtype=torch.int64, device=device)
+
+
+@functools.lru_cache(maxsize=16)
+def _window_strides(device: torch.device) -> torch.Tensor:
+    """``(2,)`` int64 ``(3, 1)``: window index of ``(dk, dl)`` is ``3 dk + dl + 4``."""
+    return torch.tensor([3, 1], dtype=torch.int64, device=device)
+
+
+@functools.lru_cache(maxsize=16)
+def _window_index(device: torch.device) -> torch.Tensor:
+    """``(9,)`` int64 ``0..8``."""
+    return torch.arange(9, dtype=torch.int64, device=device)
