@@ -49,7 +49,7 @@ def test_the_trap_catches_a_fixed_device_tensor(saved_set, tmp_path):
     sabotage = tmp_path / "sitecustomize.py"
     sabotage.write_text(
         "import torch, sdm.mapping.flow as flow\n"
-        "flow.window_offsets = lambda device: torch.tensor(flow.WINDOW_OFFSETS)\n"
+        "flow._axis_shifts = lambda device, dtype: torch.tensor([-1, 0, 1], dtype=dtype)\n"
     )
     command = [sys.executable, "-c",
                f"import sys, runpy, torch; torch.set_default_device('meta'); sys.path.insert(0, {str(tmp_path)!r});"

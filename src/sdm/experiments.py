@@ -106,7 +106,7 @@ def tune_cell(train_set, dev_set, settings, shift: Sequence[float] = SKY_SHIFT, 
 def noisy_targets(targets: torch.Tensor, level: int, seed: int) -> torch.Tensor:
     """Every target moved by noise ``level`` (paper, section 5.2), drawn from ``seed``."""
     generator = torch.Generator().manual_seed(int(seed))
-    return torch.stack([add_target_noise(target, level, generator) for target in targets])
+    return add_target_noise(targets, level, generator)  # one draw for all targets, in target order
 
 
 def noise_run(train_set, level: int, run: int, settings: TrainSettings, shift: Sequence[float] = SKY_SHIFT,

@@ -12,8 +12,6 @@ point survives, so it is fixed here once and used everywhere.
 """
 from __future__ import annotations
 
-import functools
-
 import torch
 
 from .camera import Camera
@@ -61,19 +59,12 @@ def first_by_rank(cell: torch.Tensor, rank: torch.Tensor, n_cells: int) -> torch
 def inside(pixels: torch.Tensor, height: int, width: int) -> torch.Tensor:
     """``(...,)`` bool: integer ``(..., 2)`` pixels (or blocks) inside an ``height x width`` grid.
 
-    ``0 <= x <= n - 1`` exactly when ``x * (n - 1 - x) >= 0`` for integers (both
-    factors negative would need ``x < 0`` and ``x > n - 1 >= 0``), and the bitwise
-    or of two int64 values is negative exactly when one of them is: a few cheap
-    ops, which matters on the SDM layer's hot path.
+    Four comparisons with Python scalars (no constant tensor, so nothing to keep
+    per device); measured on the SDM layer's hot path to be as fast as the
+    branch-free product form it replaced.
     """
-    product = pixels * (_last_index(height, width, pixels.device) - pixels)
-    return (product[..., 0] | product[..., 1]) >= 0
-
-
-@functools.lru_cache(maxsize=64)
-def _last_index(height: int, width: int, device: torch.device) -> torch.Tensor:
-    """``(2,)`` int64 ``(height - 1, width - 1)`` on ``device`` (cached: built once per grid and device)."""
-    return torch.tensor([height - 1, width - 1], device=device)
+    row, col = pixels[..., 0], pixels[..., 1]
+    return (row >= 0) & (row < height) & (col >= 0) & (col < width)
 
 
 def screen_pixels(screen: torch.Tensor, camera: Camera) -> tuple[torch.Tensor, torch.Tensor]:

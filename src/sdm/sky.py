@@ -182,22 +182,33 @@ def add_target_noise(target: torch.Tensor, level: int, generator: torch.Generato
     """Move every active pixel of a target by independent integers uniform on ``[-level, level]``.
 
     Args:
-        target: ``(H, W)`` bool target.
+        target: ``(..., H, W)`` bool target(s). The moves are drawn in the order of
+            ``target.nonzero()`` (target by target, each row-major) as one
+            ``randint`` call: from a CPU generator this is the same sequence as one
+            call per target in turn (torch's CPU generator draws serially;
+            ``test_sky.py`` holds it), so a stack of targets gets the same noise as a
+            loop over them.
         level: noise level ``n >= 0`` in screen pixels.
         generator: source of randomness (seed it for reproducible runs).
 
     Returns:
-        ``(H, W)`` bool occupancy of the moved pixels; off-screen ones are dropped.
+        ``(..., H, W)`` bool occupancy of the moved pixels; off-screen ones are dropped.
     """
     if int(level) != level or level < 0:
         raise SDMInputError(f"noise level must be a non-negative integer, got {level!r}")
     if level == 0:
         return target.clone()
-    active = target.nonzero()
+    active = target.nonzero()  # (K, ndim): leading indices, then (row, col)
     # Drawn on the generator's device (CPU by default): the same seed gives the same moves wherever the target lives.
     draw_device = generator.device if generator is not None else target.device
-    moves = torch.randint(-level, level + 1, active.shape, generator=generator, dtype=torch.int64, device=draw_device)
-    return occupancy(active + moves.to(target.device), tuple(target.shape))
+    moves = torch.randint(-level, level + 1, (active.shape[0], 2), generator=generator, dtype=torch.int64,
+                          device=draw_device)
+    moved = active[:, -2:] + moves.to(target.device)
+    height, width = target.shape[-2:]
+    kept = inside(moved, height, width)
+    noisy = torch.zeros_like(target)
+    noisy[(*active[kept, :-2].unbind(1), *moved[kept].unbind(1))] = True
+    return noisy
 
 
 def noise_displacement(level: int, mean_depth: float, camera: Camera = APOLLO_CAMERA_5) -> float:

@@ -318,13 +318,12 @@ class _RunsEpochLayout:
         self.configs = kept.transpose(0, 1).reshape(-1)  # (steps * R * B,) step-major
         runs = torch.arange(n_runs, device=orders.device)[None, :, None].expand(steps, n_runs, batch_size).reshape(-1)
         self.target_rows = runs * n_configs + self.configs
-        rows, _ = data.rows(self.configs)
+        rows, position = data.rows(self.configs)  # position: each row's index into self.configs
         self.points = data.points.index_select(0, rows)
         self.pixels = data.pixels.index_select(0, rows)
         self.rank = data.rank.index_select(0, rows)
         counts = data.counts.index_select(0, self.configs)
-        slot = torch.arange(len(self.configs), device=orders.device) % (n_runs * batch_size)
-        self.local = torch.repeat_interleave(slot, counts)
+        self.local = position % (n_runs * batch_size)
         self.run = torch.div(self.local, batch_size, rounding_mode="floor")
         self.bounds = [0] + counts.view(steps, -1).sum(1).cumsum(0).tolist()
 

@@ -88,9 +88,17 @@ def zoom_out(target: torch.Tensor, steps: int) -> torch.Tensor:
 def target_pyramid(target: torch.Tensor, steps: int) -> list[torch.Tensor]:
     """Zoomed-out targets at levels ``0..steps``: element ``k`` is ``(..., H / 2**k, W / 2**k)`` bool."""
     check_divisible(tuple(target.shape[-2:]), steps)
+    if steps == 0:
+        return [target]
+    # From the active pixels: a block is active when one of its pixels is, so each level is the
+    # occupancy of (row >> k, col >> k); the work follows the few active pixels, not the screen area.
+    active = target.nonzero()  # (K, ndim)
+    lead, pixels = active[:, :-2].unbind(1), active[:, -2:]
     levels = [target]
-    for _ in range(steps):
-        levels.append(_pool(levels[-1], 1))
+    for level in range(1, steps + 1):
+        zoomed = target.new_zeros(*target.shape[:-2], target.shape[-2] >> level, target.shape[-1] >> level)
+        zoomed[(*lead, *(pixels >> level).unbind(1))] = True
+        levels.append(zoomed)
     return levels
 
 
