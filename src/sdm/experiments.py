@@ -31,8 +31,10 @@ from .metrics import dev_loss, distance
 from .sky import SKY_SHIFT, add_target_noise, shift_vector
 from .train import TrainSettings, train, train_runs
 
-#: Noise runs trained together by default (see :func:`noise_runs`).
-NOISE_GROUP_SIZE = 30
+#: Noise runs trained together by default (see :func:`noise_runs`). On one CPU core larger groups
+#: stop paying: the work is per point, and beyond about 8 runs (70k points a step) the working set
+#: leaves the core's cache (benchmarks/bench_sdm.py measures it).
+NOISE_GROUP_SIZE = 8
 
 
 def run_seed(seed: int, level: int, run: int) -> int:
