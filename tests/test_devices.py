@@ -57,3 +57,14 @@ def test_the_trap_catches_a_fixed_device_tensor(saved_set, tmp_path):
                f"runpy.run_path({str(PROBE)!r}, run_name='__main__')"]
     done = subprocess.run(command, capture_output=True, text=True, env=os.environ | {"OMP_NUM_THREADS": "1"})
     assert done.returncode != 0 and "meta" in done.stderr
+
+
+def test_configuration_set_moves_whole():
+    """ConfigurationSet.to moves every tensor (meta stands in for a second device) and keeps float64."""
+    data = configuration_set(3, seed=2)
+    assert data.to("cpu") is data
+    moved = data.to("meta")
+    assert moved.device.type == "meta" and moved.points.dtype == torch.float64
+    for name in ("points", "pixels", "offsets", "targets", "rank"):
+        assert getattr(moved, name).device.type == "meta", name
+    assert moved.image_ids == data.image_ids and len(moved) == len(data)

@@ -80,7 +80,11 @@ def load_split(sky_path: str | Path, split: dict, camera: Camera | None = None):
 
 
 def settings_for(n_epoch: int, lr: float, s: int, batch_size: int, lr_decay: float, seed: int):
-    """:class:`~sdm.train.TrainSettings` from the config's values (zoom 0: train to full resolution)."""
+    """:class:`~sdm.train.TrainSettings` from the config's values (zoom 0: train to full resolution).
+
+    ``seed`` becomes ``settings.seed``: the shuffling seed of a tuning cell, and the
+    experiment seed from which :func:`noise_run` derives each run's own seed.
+    """
     return TrainSettings(lr=float(lr), n_epoch=int(n_epoch), batch_size=int(batch_size), s=int(s), zoom=0,
                          lr_decay=float(lr_decay), seed=int(seed))
 
