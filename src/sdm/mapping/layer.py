@@ -7,7 +7,7 @@ gradient flow to the points, and autograd carries it to whatever produced them
 (in the Sky problem, the shift ``theta``)::
 
     layer = SpatialDomainMapping(s=4, zoom=0)
-    out = layer(q + shift_vector(theta, q), pixels, target)   # theta (2,) -> (a, b, 0)
+    out = layer(q + sdm.sky.shift_vector(theta, q), pixels, target)   # theta (2,) -> (a, b, 0)
     out.loss.backward()          # theta.grad: the summed pulls on (x, y)
 """
 from __future__ import annotations
