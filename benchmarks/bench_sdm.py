@@ -104,9 +104,11 @@ def report_runs(runs: dict) -> None:
                  "default_groups": f"in groups of {runs['group_size_default']}"}[name]
         row = runs[name]
         print(f"  {label:>22}: {row['wall_s']:7.1f} s wall, {row['cpu_s']:7.1f} s CPU, "
-              f"{row['ms_per_run_step']:6.3f} ms per run-step ({n * row['ms_per_run_step']:.1f} ms per step of all {n})")
+              f"{row['ms_per_run_step']:6.3f} ms per run-step "
+              f"({n * row['ms_per_run_step']:.1f} ms per step of all {n})")
     print(f"  speed-up of one group over one after another: {runs['ratio_one_group']:.2f}x wall "
-          f"({runs['ratio_one_group_cpu']:.2f}x CPU); default groups: {runs['ratio_default_groups']:.2f}x (target: >= 10x)")
+          f"({runs['ratio_one_group_cpu']:.2f}x CPU); default groups: {runs['ratio_default_groups']:.2f}x "
+          "(target: >= 10x)")
 
 
 def step_ms(data: ConfigurationSet, method: str, zoom: int, repeats: int, batch_size: int = 16) -> float:
@@ -119,8 +121,8 @@ def step_ms(data: ConfigurationSet, method: str, zoom: int, repeats: int, batch_
         indices = torch.arange(batch_size) + (repeat * batch_size) % (len(data) - batch_size)
         start = time.perf_counter()
         batch = data.batch(indices)
-        out = layer(batch.points + shift_vector(theta, batch.points), batch.pixels, pyramid[zoom].index_select(0, indices),
-                    batch.config, batch.rank, target_is_zoomed=True)
+        out = layer(batch.points + shift_vector(theta, batch.points), batch.pixels,
+                    pyramid[zoom].index_select(0, indices), batch.config, batch.rank, target_is_zoomed=True)
         theta.grad = None
         out.loss.backward()
         if repeat:  # the first call warms up allocators and caches
@@ -135,7 +137,8 @@ def main() -> None:
     parser.add_argument("--fast-repeats", type=int, default=60)
     parser.add_argument("--dense-repeats", type=int, default=3)
     parser.add_argument("--runs", type=int, default=30, help="runs for the together-vs-alone comparison")
-    parser.add_argument("--table2-runs", type=int, default=60, help="runs per noise level for the Table 2 timing (0: skip)")
+    parser.add_argument("--table2-runs", type=int, default=60,
+                        help="runs per noise level for the Table 2 timing (0: skip)")
     parser.add_argument("--json", help="also write the figures to this JSON file")
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -177,7 +180,8 @@ def main() -> None:
             t2 = tables[-1]
             target = "at most 60 s on one core" if device == "cpu" else "at most 5 s on one H100"
             print(f"\nall {t2['runs']} Table 2 runs (5 levels x {args.table2_runs}, n_epoch 2, lr 1e-4, groups of "
-                  f"{NOISE_GROUP_SIZE}) on {device}: {t2['wall_s']:.1f} s wall, {t2['cpu_s']:.1f} s CPU (target: {target})")
+                  f"{NOISE_GROUP_SIZE}) on {device}: {t2['wall_s']:.1f} s wall, {t2['cpu_s']:.1f} s CPU "
+                  f"(target: {target})")
     if args.json:
         with open(args.json, "w") as handle:
             json.dump({"steps": rows, "training_run_s": runs, "configs": len(data), "sky_build_s": build_s,

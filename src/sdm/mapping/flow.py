@@ -13,7 +13,6 @@ import functools
 import torch
 
 from ..camera import Camera
-from ..representation import inside
 
 #: The 3x3 kernel window, ``(drow, dcol)`` in row-major order: index ``3 * (drow + 1) + (dcol + 1)``.
 WINDOW_OFFSETS: tuple[tuple[int, int], ...] = tuple((dk, dl) for dk in (-1, 0, 1) for dl in (-1, 0, 1))
