@@ -85,15 +85,18 @@ def dynamic_flow(
     base_cell = config_offset.index_select(0, pulled) + block[:, 0] * grid_w + block[:, 1]
     in_grid = (row_ok[:, :, None] & col_ok[:, None, :]).reshape(-1, 9)
     window_cell = torch.where(in_grid, base_cell[:, None] + _window_deltas(grid_w, block.device), 0)  # (p, 9)
-    landing_index = (landing - block) @ _window_strides(block.device) + 4  # (p,) index of the landing block, 0..8
+    step = landing - block  # (p, 2) in {-1, 0, 1}
+    landing_index = step[:, 0] * 3 + step[:, 1] + 4  # (p,) window index of the landing block, 0..8
     weight = in_grid & flat_target.take(window_cell) & (_window_index(block.device) != landing_index[:, None])
-    weight = weight.view(-1, 3, 3)  # (p, dk, dl) bool: block q pulls the point
-    per_row, per_col = weight.sum(2, dtype=screen.dtype), weight.sum(1, dtype=screen.dtype)  # (p, 3) counts
-    sign = torch.sign(offset)
-    pull = torch.stack(((sign[:, 0] * per_row).sum(1), (sign[:, 1] * per_col).sum(1)), dim=-1)  # (p, 2) (row, col)
+    weight = weight.to(screen.dtype)  # (p, 9) 1.0 where block q pulls the point
+    grid = weight.view(-1, 3, 3)  # (p, dk, dl)
+    per_row = grid[:, :, 0] + grid[:, :, 1] + grid[:, :, 2]  # (p, 3) pulling blocks in window row dk
+    per_col = grid[:, 0, :] + grid[:, 1, :] + grid[:, 2, :]  # (p, 3) pulling blocks in window column dl
+    sign = torch.sign(offset)  # (p, 2, 3)
+    pull = torch.stack((_dot3(sign[:, 0], per_row), _dot3(sign[:, 1], per_col)), dim=-1)  # (p, 2) (row, col)
     flow.index_copy_(0, pulled, pull.flip(-1))  # (row, col) -> (x, y)
     metres_per_pixel = torch.stack(camera.metres_per_screen_pixel(depth), dim=-1)  # (p, 2) (row, col)
-    loss = (_window_l1(offset.abs(), weight) * metres_per_pixel).sum()
+    loss = (_window_l1(offset.abs(), grid) * metres_per_pixel).sum()
     return flow, loss, matched
 
 
@@ -107,7 +110,7 @@ def _window_l1(distance: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
 
     Args:
         distance: ``(p, 2, 3)`` ``|offset|`` per axis and shift ``-1, 0, 1``.
-        weight: ``(p, 3, 3)`` bool, block ``(dk, dl)`` pulls.
+        weight: ``(p, 3, 3)`` 1.0 where block ``(dk, dl)`` pulls, else 0.0.
 
     The terms are added one at a time in the window's row-major order, so the
     value is the same float as summing the nine ``(p, 9, 2)`` products of the
@@ -121,6 +124,11 @@ def _window_l1(distance: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
     return total
 
 
+def _dot3(values: torch.Tensor, counts: torch.Tensor) -> torch.Tensor:
+    """``(p,)``: ``sum_i values[:, i] * counts[:, i]`` over three columns (integers here: exact in any order)."""
+    return values[:, 0] * counts[:, 0] + values[:, 1] * counts[:, 1] + values[:, 2] * counts[:, 2]
+
+
 @functools.lru_cache(maxsize=16)
 def _axis_shifts(device: torch.device, dtype: torch.dtype) -> torch.Tensor:
     """``(3,)`` ``-1, 0, 1`` in ``dtype`` on ``device``."""
@@ -131,12 +139,6 @@ def _axis_shifts(device: torch.device, dtype: torch.dtype) -> torch.Tensor:
 def _window_deltas(grid_width: int, device: torch.device) -> torch.Tensor:
     """``(9,)`` int64 flat-cell offset ``dk * grid_width + dl`` of each window block."""
     return torch.tensor([dk * grid_width + dl for dk, dl in WINDOW_OFFSETS], dtype=torch.int64, device=device)
-
-
-@functools.lru_cache(maxsize=16)
-def _window_strides(device: torch.device) -> torch.Tensor:
-    """``(2,)`` int64 ``(3, 1)``: window index of ``(dk, dl)`` is ``3 dk + dl + 4``."""
-    return torch.tensor([3, 1], dtype=torch.int64, device=device)
 
 
 @functools.lru_cache(maxsize=16)
