@@ -5,12 +5,22 @@ Prints, in one run on one thread:
     chain from level s = 4 down to the loss level) for the fast and the dense
     path at each zoom level, and their ratio;
   * the wall time of one full training run (512 configurations, 5 levels, 1 epoch);
-  * the time to build the default Sky data set (4,248 configurations) on one core.
+  * the time to build the default Sky data set (4,248 configurations) on one core;
+  * many runs as one program (issue 10): ``--runs`` (30) noise runs at noise level 2
+    trained one after another (:func:`sdm.experiments.noise_run`) and together
+    (:func:`sdm.experiments.noise_runs`, one group of ``--runs``, and the default
+    group size), ms per run-step of each and the ratio;
+  * all of Table 2: 5 noise levels x ``--table2-runs`` (60) runs, 512 training
+    configurations, the tuned settings of the default workflow (n_epoch 2, lr 1e-4),
+    batched with the default group size;
+  * the last two again on CUDA when a GPU is present.
 
-Ratios are measured in the same run, so they hold on a noisy machine; the
-absolute figures are for reading, never for asserting.
+Times are given as wall seconds and as CPU seconds of this process (the
+latter is what one core spends, whatever else runs on the machine). Ratios are
+measured in the same run, so they hold on a noisy machine; the absolute figures
+are for reading, never for asserting.
 
-    python benchmarks/bench_sdm.py [--configs 512] [--seed 0] [--json out.json]
+    python benchmarks/bench_sdm.py [--configs 512] [--seed 0] [--runs 30] [--table2-runs 60] [--json out.json]
 """
 from __future__ import annotations
 
@@ -20,13 +30,85 @@ import statistics
 import time
 
 import torch
-import torch.nn.functional as F
 
 from sdm.batch import ConfigurationSet
 from sdm.data import build_sky_dataset
 from sdm.data.synthetic import synthetic_images
+from sdm.experiments import NOISE_GROUP_SIZE, noise_run, noise_runs
 from sdm.mapping import SpatialDomainMapping
+from sdm.sky import shift_vector
 from sdm.train import TrainSettings, train
+
+#: Table 2's settings in the default workflow: the tuned cell (n_epoch 2, lr 1e-4), s = 4, batches of 16.
+TABLE2_SETTINGS = TrainSettings(lr=1e-4, n_epoch=2, batch_size=16, s=4, zoom=0, lr_decay=0.5, seed=0)
+TABLE2_LEVELS = (0, 1, 2, 3, 4)
+
+
+class Clock:
+    """Wall and CPU seconds of a block (CUDA work is waited for before reading the clocks)."""
+
+    def __init__(self, device: str = "cpu") -> None:
+        self.device = device
+
+    def __enter__(self) -> "Clock":
+        self._sync()
+        self.wall, self.cpu = time.perf_counter(), time.process_time()
+        return self
+
+    def __exit__(self, *_) -> None:
+        self._sync()
+        self.wall, self.cpu = time.perf_counter() - self.wall, time.process_time() - self.cpu
+
+    def _sync(self) -> None:
+        if self.device != "cpu":
+            torch.cuda.synchronize()
+
+
+def runs_together_vs_alone(data: ConfigurationSet, n_runs: int, device: str) -> dict:
+    """``n_runs`` noise runs (level 2) one after another, then as one group, then in default-size groups."""
+    steps = 5 * TABLE2_SETTINGS.n_epoch * (len(data) // TABLE2_SETTINGS.batch_size)
+    data = data.to(device)
+    with Clock(device) as alone:
+        for run in range(n_runs):
+            noise_run(data, 2, run, TABLE2_SETTINGS)
+    with Clock(device) as together:
+        noise_runs(data, 2, range(n_runs), TABLE2_SETTINGS, group_size=n_runs)
+    with Clock(device) as grouped:
+        noise_runs(data, 2, range(n_runs), TABLE2_SETTINGS)
+    out = {"device": device, "runs": n_runs, "steps_per_run": steps, "group_size_default": NOISE_GROUP_SIZE,
+           "configs": len(data)}
+    for name, clock in (("sequential", alone), ("one_group", together), ("default_groups", grouped)):
+        out[name] = {"wall_s": clock.wall, "cpu_s": clock.cpu,
+                     "ms_per_run_step": 1000 * clock.wall / (n_runs * steps)}
+    out["ratio_one_group"] = alone.wall / together.wall
+    out["ratio_default_groups"] = alone.wall / grouped.wall
+    out["ratio_one_group_cpu"] = alone.cpu / together.cpu
+    return out
+
+
+def table2(data: ConfigurationSet, runs_per_level: int, device: str) -> dict:
+    """All Table 2 runs (5 levels x ``runs_per_level``), batched in default-size groups."""
+    data = data.to(device)
+    with Clock(device) as clock:
+        for level in TABLE2_LEVELS:
+            noise_runs(data, level, range(runs_per_level), TABLE2_SETTINGS)
+    return {"device": device, "runs": len(TABLE2_LEVELS) * runs_per_level, "wall_s": clock.wall, "cpu_s": clock.cpu}
+
+
+def report_runs(runs: dict) -> None:
+    n, steps = runs["runs"], runs["steps_per_run"]
+    print(f"\n{n} noise runs (level 2, {runs['configs']} configurations, n_epoch 2, lr 1e-4: {steps} steps each) "
+          f"on {runs['device']}:")
+    for name in ("sequential", "one_group", "default_groups"):
+        label = {"sequential": "one after another", "one_group": f"as one group of {n}",
+                 "default_groups": f"in groups of {runs['group_size_default']}"}[name]
+        row = runs[name]
+        print(f"  {label:>22}: {row['wall_s']:7.1f} s wall, {row['cpu_s']:7.1f} s CPU, "
+              f"{row['ms_per_run_step']:6.3f} ms per run-step "
+              f"({n * row['ms_per_run_step']:.1f} ms per step of all {n})")
+    print(f"  speed-up of one group over one after another: {runs['ratio_one_group']:.2f}x wall "
+          f"({runs['ratio_one_group_cpu']:.2f}x CPU); default groups: {runs['ratio_default_groups']:.2f}x "
+          "(target: >= 10x)")
 
 
 def step_ms(data: ConfigurationSet, method: str, zoom: int, repeats: int, batch_size: int = 16) -> float:
@@ -39,8 +121,8 @@ def step_ms(data: ConfigurationSet, method: str, zoom: int, repeats: int, batch_
         indices = torch.arange(batch_size) + (repeat * batch_size) % (len(data) - batch_size)
         start = time.perf_counter()
         batch = data.batch(indices)
-        out = layer(batch.points + F.pad(theta, (0, 1)), batch.pixels, pyramid[zoom].index_select(0, indices),
-                    batch.config, batch.rank, target_is_zoomed=True)
+        out = layer(batch.points + shift_vector(theta, batch.points), batch.pixels,
+                    pyramid[zoom].index_select(0, indices), batch.config, batch.rank, target_is_zoomed=True)
         theta.grad = None
         out.loss.backward()
         if repeat:  # the first call warms up allocators and caches
@@ -54,6 +136,9 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--fast-repeats", type=int, default=60)
     parser.add_argument("--dense-repeats", type=int, default=3)
+    parser.add_argument("--runs", type=int, default=30, help="runs for the together-vs-alone comparison")
+    parser.add_argument("--table2-runs", type=int, default=60,
+                        help="runs per noise level for the Table 2 timing (0: skip)")
     parser.add_argument("--json", help="also write the figures to this JSON file")
     args = parser.parse_args()
     torch.set_num_threads(1)
@@ -84,9 +169,23 @@ def main() -> None:
     print(f"\nfull training run ({len(data)} configurations, 5 levels, 1 epoch, {steps} steps): "
           f"median {statistics.median(runs):.3f} s, best {min(runs):.3f} s over {len(runs)} runs "
           f"({1000 * statistics.median(runs) / steps:.2f} ms/step)")
+
+    devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
+    many, tables = [], []
+    for device in devices:
+        many.append(runs_together_vs_alone(data, args.runs, device))
+        report_runs(many[-1])
+        if args.table2_runs:
+            tables.append(table2(data, args.table2_runs, device))
+            t2 = tables[-1]
+            target = "at most 60 s on one core" if device == "cpu" else "at most 5 s on one H100"
+            print(f"\nall {t2['runs']} Table 2 runs (5 levels x {args.table2_runs}, n_epoch 2, lr 1e-4, groups of "
+                  f"{NOISE_GROUP_SIZE}) on {device}: {t2['wall_s']:.1f} s wall, {t2['cpu_s']:.1f} s CPU "
+                  f"(target: {target})")
     if args.json:
         with open(args.json, "w") as handle:
-            json.dump({"steps": rows, "training_run_s": runs, "configs": len(data), "sky_build_s": build_s}, handle, indent=2)
+            json.dump({"steps": rows, "training_run_s": runs, "configs": len(data), "sky_build_s": build_s,
+                       "runs_together_vs_alone": many, "table2": tables}, handle, indent=2)
 
 
 if __name__ == "__main__":

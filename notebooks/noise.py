@@ -15,8 +15,9 @@
 #
 # Robustness (paper, section 5.2): every active pixel of each training target moves by (X, Y), independent
 # integers uniform on [-n, n], off-screen ones dropped; then theta~ is trained with the tuned settings and
-# its distance to theta* measured. A run's seed comes from (seed, level, run) and fixes both its noise and
-# its shuffling, so any chunk of runs can run anywhere and give the same numbers.
+# its distance to theta* measured. The seed flows one way: `seed` goes into the settings, and run r at level n
+# trains with the seed derived from (seed, n, r), which fixes both its noise and its shuffling, so any chunk of
+# runs can run anywhere and give the same numbers.
 
 # %% tags=["parameters"]
 sky = "results/sky/sky.bin"  # input
@@ -41,7 +42,7 @@ tuned = read_json(best)
 train_set, _, camera = load_split(sky, read_json(split))
 settings = settings_for(tuned["n_epoch"], tuned["lr"], s, batch_size, lr_decay, seed)
 print(f"level {level}, runs {run_indices[0]}..{run_indices[-1]}, n_epoch {settings.n_epoch}, lr {settings.lr:g}")
-runs = noise_runs(train_set, level, run_indices, settings, seed, shift=shift, camera=camera)
+runs = noise_runs(train_set, level, run_indices, settings, shift=shift, camera=camera)
 write_csv(chunk_file, runs)
 
 # %%

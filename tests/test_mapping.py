@@ -10,10 +10,11 @@ from scenes import configurations
 from sdm.batch import ConfigurationSet
 from sdm.camera import APOLLO_CAMERA_5, Camera
 from sdm.errors import SDMInputError
-from sdm.mapping import SpatialDomainMapping, explain_point
+from sdm.mapping import SpatialDomainMapping, dynamic_flow, explain_point
 from sdm.mapping.dense import dense_mapping
 from sdm.mapping.fast import fast_mapping
-from sdm.sky import SKY_SHIFT, pixel_centre_points
+from sdm.representation import inside
+from sdm.sky import SKY_SHIFT, pixel_centre_points, shift_vector
 from sdm.zoom import zoom_out
 
 CAM = APOLLO_CAMERA_5
@@ -22,7 +23,7 @@ SLOW = settings(max_examples=12, deadline=None, suppress_health_check=[HealthChe
 
 
 def shifted(batch, theta):
-    return batch.points + torch.tensor([theta[0], theta[1], 0.0], dtype=torch.float64)
+    return batch.points + shift_vector(theta, batch.points)
 
 
 def brute_force_level(points, pixels, config, level):
@@ -283,3 +284,112 @@ def test_bad_layer_inputs():
         layer(q, torch.tensor([[200, 5]]), torch.zeros(H, W, dtype=torch.bool))
     with pytest.raises(SDMInputError, match="one point per pixel"):
         SpatialDomainMapping(method="dense")(torch.cat((q, q)), torch.cat((pixels, pixels)), torch.zeros(H, W, dtype=torch.bool))
+
+
+# -- the autograd boundary -------------------------------------------------------------------
+
+def small_batch(n=4, seed=2):
+    return ConfigurationSet.from_configurations(configurations(n, seed)).batch(range(n))
+
+
+def test_only_the_loss_carries_a_gradient():
+    batch = small_batch()
+    theta = torch.tensor([0.2, 0.1], dtype=torch.float64, requires_grad=True)
+    out = SpatialDomainMapping(s=4, zoom=1)(batch.points + shift_vector(theta, batch.points), batch.pixels,
+                                             batch.targets, batch.config, batch.rank)
+    assert out.loss.requires_grad
+    result = out.result
+    for name in ("flow", "out_pixels", "entered", "matched", "landed", "loss"):
+        assert not getattr(result, name).requires_grad, name
+    assert bool(result.flow.any())  # something is pulled, so the check above is not vacuous
+
+
+def test_torch_func_grad_sees_the_layer():
+    """forward + setup_context: a functional transform gives the same gradient as backward()."""
+    batch = small_batch()
+    layer = SpatialDomainMapping(s=4, zoom=1)
+
+    def loss_of(theta):
+        return layer(batch.points + shift_vector(theta, batch.points), batch.pixels, batch.targets,
+                     batch.config, batch.rank).loss
+
+    theta = torch.tensor([0.2, 0.1], dtype=torch.float64)
+    functional = torch.func.grad(loss_of)(theta)
+    leaf = theta.clone().requires_grad_(True)
+    loss_of(leaf).backward()
+    assert bool(functional.any()) and torch.equal(functional, leaf.grad)
+
+
+def test_dynamic_flow_is_the_gradient_of_the_layer():
+    """The public rule, called on the fast path's landing, is what backward() delivers."""
+    batch = small_batch()
+    theta = torch.tensor([0.25, -0.05], dtype=torch.float64, requires_grad=True)
+    points = batch.points + shift_vector(theta, batch.points)
+    out = SpatialDomainMapping(s=0, zoom=0)(points, batch.pixels, batch.targets, batch.config, batch.rank)
+    out.loss.backward()
+    result = out.result
+    screen = CAM.project(points.detach())
+    # One level at B = 1: every point enters; it lands on its projected pixel, clamped to its 3x3 window.
+    landing = torch.minimum(torch.maximum(torch.floor(screen).long(), batch.pixels - 1), batch.pixels + 1)
+    landed = inside(landing, H, W)
+    flow, loss, matched = dynamic_flow(screen, points[:, 2].detach(), batch.config, landed, batch.pixels, landing,
+                                       batch.targets, 0, CAM)
+    assert torch.equal(landed, result.landed) and torch.equal(matched, result.matched)
+    assert torch.equal(flow, result.flow) and torch.equal(flow.sum(0), theta.grad)
+    assert float(loss) == float(out.loss)
+
+
+def test_torch_compile_runs_the_layer():
+    """docs/method.md: Dynamo breaks the graph at the input checks and at the pulled points' nonzero, and runs."""
+    batch = small_batch()
+    layer = SpatialDomainMapping(s=4, zoom=1)
+
+    def loss_of(theta):
+        return layer(batch.points + shift_vector(theta, batch.points), batch.pixels, batch.targets,
+                     batch.config, batch.rank).loss
+
+    compiled = torch.compile(loss_of, backend="eager")
+    eager, traced = (torch.tensor([0.2, 0.1], dtype=torch.float64, requires_grad=True) for _ in range(2))
+    loss_of(eager).backward()
+    compiled(traced).backward()
+    assert torch.equal(eager.grad, traced.grad)
+
+
+def layer_inputs(n=2):
+    batch = small_batch(n)
+    return {"points": batch.points, "pixels": batch.pixels, "target": batch.targets, "config": batch.config,
+            "rank": batch.rank}
+
+
+def test_half_precision_points_are_refused():
+    inputs = layer_inputs()
+    for dtype in (torch.float16, torch.bfloat16):
+        with pytest.raises(SDMInputError, match=f"points must be float32 or float64.*{str(dtype)}"):
+            SpatialDomainMapping()(**inputs | {"points": inputs["points"].to(dtype)})
+    out32 = SpatialDomainMapping()(**inputs | {"points": inputs["points"].float()})  # float32 is accepted
+    assert out32.loss.dtype == torch.float32
+
+
+@pytest.mark.parametrize("name", ["config", "rank"])
+def test_float_config_or_rank_is_refused(name):
+    inputs = layer_inputs()
+    with pytest.raises(SDMInputError, match=f"{name} must be int64.*torch.float64"):
+        SpatialDomainMapping()(**inputs | {name: inputs[name].double()})
+
+
+def test_config_is_required_for_several_targets():
+    inputs = layer_inputs(2)
+    del inputs["config"]
+    with pytest.raises(SDMInputError, match="config is required: target holds 2 targets"):
+        SpatialDomainMapping()(**inputs)
+    one = layer_inputs(1)
+    del one["config"]
+    SpatialDomainMapping()(**one)  # a single target needs no config
+
+
+@pytest.mark.parametrize("name", ["pixels", "target", "config", "rank"])
+def test_inputs_on_another_device_are_refused(name):
+    """``meta`` stands in for a second device: the check reads devices, never values."""
+    inputs = layer_inputs()
+    with pytest.raises(SDMInputError, match=f"{name} is on meta but points are on cpu"):
+        SpatialDomainMapping()(**inputs | {name: inputs[name].to("meta")})

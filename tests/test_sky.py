@@ -92,3 +92,17 @@ def test_road_scene_helper_is_seeded():
     a = road_centres(torch.Generator().manual_seed(5), 4)
     b = road_centres(torch.Generator().manual_seed(5), 4)
     assert torch.equal(a, b)
+
+
+def test_noise_on_a_stack_of_targets_equals_noise_target_by_target():
+    """add_target_noise draws one randint for a stack: the same moves as one call per target in turn."""
+    from sdm.sky import add_target_noise
+
+    targets = torch.rand(5, 128, 256, generator=torch.Generator().manual_seed(0)) > 0.99
+    targets[2] = False  # an empty target draws nothing
+    for level in (1, 3):
+        loop_generator = torch.Generator().manual_seed(11)
+        one_by_one = torch.stack([add_target_noise(target, level, loop_generator) for target in targets])
+        together = add_target_noise(targets, level, torch.Generator().manual_seed(11))
+        assert torch.equal(together, one_by_one)
+        assert not torch.equal(together, targets)

@@ -1,4 +1,5 @@
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -96,3 +97,56 @@ def test_bad_training_input(sky768):
         train(train_set.subset(range(16)), theta0=(math.nan, 0.0), progress=False)
     with pytest.raises(SDMInputError, match="not divisible"):
         train(train_set.subset(range(16)), TrainSettings(s=8, zoom=0), progress=False)
+
+
+# -- many runs as one program ------------------------------------------------------------------
+
+def test_runs_trained_together_follow_their_own_histories(sky768):
+    """Each run of train_runs has train()'s theta history to the bit (flows are exact sums of signs)."""
+    from sdm.experiments import noisy_targets
+    from sdm.train import train_runs
+
+    train_set, _ = sky768
+    small = train_set.subset(range(48))
+    base = TrainSettings(lr=3e-4, n_epoch=2, s=3)
+    settings = [replace(base, seed=seed) for seed in (4, 9, 4)]
+    targets = [small.targets, noisy_targets(small.targets, 2, 1), noisy_targets(small.targets, 1, 5)]
+    together = train_runs(small, targets, settings)
+    assert together.theta.shape == (len(together.loss) + 1, 3, 2)
+    for run, (one, run_targets) in enumerate(zip(settings, targets)):
+        alone = train(small.with_targets(run_targets), one, progress=False)
+        assert torch.equal(together.theta[:, run], alone.theta), run
+    assert not torch.equal(together.theta[:, 0], together.theta[:, 2])  # same seed, other noise: other run
+    assert torch.equal(together.lr, alone.lr) and torch.equal(together.level, alone.level)
+
+
+def test_noise_runs_equal_single_noise_runs(sky768):
+    """Issue 10: each batched run's final theta equals noise_run's for that run alone, to 1e-12 m."""
+    from sdm.experiments import noise_run, noise_runs
+
+    train_set, _ = sky768
+    small = train_set.subset(range(64))
+    settings = TrainSettings(lr=1e-4, n_epoch=2, seed=3)
+    for level in (0, 2):
+        table = noise_runs(small, level, [0, 1, 2, 5], settings, group_size=3)  # two groups: 3 runs, then 1
+        assert table["run"].tolist() == [0, 1, 2, 5]
+        for row in table.to_dict("records"):
+            alone = noise_run(small, level, row["run"], settings)
+            assert row["seed"] == alone["seed"]
+            assert abs(row["a"] - alone["a"]) <= 1e-12 and abs(row["b"] - alone["b"]) <= 1e-12
+            assert row == alone  # in fact bit-identical
+        if level:
+            assert table["a"].nunique() > 1  # the runs differ: each has its own noise and shuffling
+
+
+def test_bad_runs_input(sky768):
+    from sdm.train import train_runs
+
+    train_set, _ = sky768
+    small = train_set.subset(range(16))
+    with pytest.raises(SDMInputError, match="differ only in seed"):
+        train_runs(small, [small.targets] * 2, [TrainSettings(lr=1e-4), TrainSettings(lr=3e-4)])
+    with pytest.raises(SDMInputError, match="one target set per run"):
+        train_runs(small, [small.targets], [TrainSettings(), TrainSettings(seed=1)])
+    with pytest.raises(SDMInputError, match=r"targets\[0\] must be bool"):
+        train_runs(small, [small.targets.float()], [TrainSettings()])

@@ -6,7 +6,8 @@ Public API (everything else is reachable through the submodules):
 * data: :func:`build_configuration`, :class:`SkyConfiguration`, :data:`SKY_SHIFT`,
   :func:`add_target_noise`, :func:`noise_displacement`, :class:`ConfigurationSet`
 * the layer: :class:`SpatialDomainMapping`
-* training: :class:`TrainSettings`, :func:`train`, :class:`History`
+* training: :class:`TrainSettings`, :func:`train`, :class:`History`; many runs as one program:
+  :func:`train_runs`, :class:`RunsHistory`
 * metrics: :func:`distance`, :func:`dev_loss`
 * errors: :class:`SDMInputError`
 """
@@ -16,12 +17,12 @@ from .errors import SDMInputError
 from .mapping import SpatialDomainMapping
 from .metrics import dev_loss, distance
 from .sky import SKY_SHIFT, SkyConfiguration, add_target_noise, build_configuration, noise_displacement
-from .train import History, TrainSettings, train
+from .train import History, RunsHistory, TrainSettings, train, train_runs
 
 __version__ = "0.1.0"
 
 __all__ = [
     "APOLLO_CAMERA_5", "Camera", "ConfigurationSet", "History", "PointBatch", "SDMInputError", "SKY_SHIFT",
-    "SkyConfiguration", "SpatialDomainMapping", "TrainSettings", "add_target_noise", "build_configuration",
-    "dev_loss", "distance", "noise_displacement", "train",
+    "RunsHistory", "SkyConfiguration", "SpatialDomainMapping", "TrainSettings", "add_target_noise",
+    "build_configuration", "dev_loss", "distance", "noise_displacement", "train", "train_runs",
 ]

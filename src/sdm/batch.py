@@ -3,6 +3,10 @@
 A :class:`ConfigurationSet` stores the points of ``N`` configurations one after
 another (CSR layout: configuration ``i`` owns rows ``offsets[i]:offsets[i+1]``)
 with their targets, so a mini-batch is a cheap gather, not a Python loop.
+
+A set lives on one device (that of its tensors, CPU when packed from
+configurations); :meth:`ConfigurationSet.to` moves it. Every tensor a set
+creates is created on its own device.
 """
 from __future__ import annotations
 
@@ -44,6 +48,8 @@ class PointBatch:
 class ConfigurationSet:
     """``N`` configurations, packed.
 
+    All tensors live on one device, :attr:`device`.
+
     Attributes:
         points: ``(P, 3)`` float64 metres, all configurations' points ``Q``.
         pixels: ``(P, 2)`` int64 their pixels.
@@ -54,7 +60,8 @@ class ConfigurationSet:
         camera: the camera and screen.
     """
 
-    def __init__(self, points, pixels, offsets, targets, camera: Camera = APOLLO_CAMERA_5, image_ids=None):
+    def __init__(self, points, pixels, offsets, targets, camera: Camera = APOLLO_CAMERA_5, image_ids=None,
+                 rank: torch.Tensor | None = None):
         self.points = points
         self.pixels = pixels
         self.offsets = offsets
@@ -63,7 +70,7 @@ class ConfigurationSet:
         self.image_ids = list(image_ids) if image_ids is not None else [str(i) for i in range(len(self))]
         if targets.shape[1:] != camera.screen_shape:
             raise SDMInputError(f"targets have screen {tuple(targets.shape[1:])}, camera has {camera.screen_shape}")
-        self.rank = priority_rank(points[:, 2])
+        self.rank = priority_rank(points[:, 2]) if rank is None else rank
         self._pyramids: dict[int, list[torch.Tensor]] = {}
 
     @classmethod
@@ -81,14 +88,33 @@ class ConfigurationSet:
                 )
         pixels = torch.cat([cfg.pixels for cfg in configurations])
         depth = torch.cat([cfg.depth.to(torch.float64) for cfg in configurations])
-        counts = torch.tensor([cfg.num_points for cfg in configurations], dtype=torch.int64)
-        offsets = torch.cat((torch.zeros(1, dtype=torch.int64), counts.cumsum(0)))
+        device = pixels.device
+        counts = torch.tensor([cfg.num_points for cfg in configurations], dtype=torch.int64, device=device)
+        offsets = _offsets(counts)
         targets = torch.stack([cfg.target for cfg in configurations])
-        points = pixel_centre_points(pixels, depth, camera) if len(depth) else torch.zeros(0, 3, dtype=torch.float64)
+        if len(depth):
+            points = pixel_centre_points(pixels, depth, camera)
+        else:
+            points = torch.zeros(0, 3, dtype=torch.float64, device=device)
         return cls(points, pixels, offsets, targets, camera, [cfg.image_id for cfg in configurations])
 
     def __len__(self) -> int:
         return int(self.offsets.numel() - 1)
+
+    @property
+    def device(self) -> torch.device:
+        """The device every tensor of the set lives on."""
+        return self.points.device
+
+    def to(self, device: torch.device | str) -> "ConfigurationSet":
+        """The same set on ``device`` (``self`` when it is there already); float64 stays float64."""
+        device = torch.device(device)
+        if device == self.device:
+            return self
+        return ConfigurationSet(
+            self.points.to(device), self.pixels.to(device), self.offsets.to(device), self.targets.to(device),
+            self.camera, self.image_ids, rank=self.rank.to(device),
+        )
 
     @property
     def counts(self) -> torch.Tensor:
@@ -99,14 +125,14 @@ class ConfigurationSet:
         """Rows of the given configurations: ``(row index (p,), batch-local config (p,))``."""
         starts = self.offsets[indices]
         counts = self.offsets[indices + 1] - starts
-        local = torch.repeat_interleave(torch.arange(len(indices)), counts)
+        local = torch.repeat_interleave(torch.arange(len(indices), device=self.device), counts)
         first_row = torch.cumsum(counts, 0) - counts
-        rows = (starts - first_row).index_select(0, local) + torch.arange(local.numel())
+        rows = (starts - first_row).index_select(0, local) + torch.arange(local.numel(), device=self.device)
         return rows, local
 
     def batch(self, indices: Sequence[int] | torch.Tensor) -> PointBatch:
         """Gather configurations ``indices`` into a :class:`PointBatch`."""
-        indices = torch.as_tensor(indices, dtype=torch.int64)
+        indices = torch.as_tensor(indices, dtype=torch.int64, device=self.device)
         rows, local = self.rows(indices)
         return PointBatch(
             self.points.index_select(0, rows),
@@ -124,7 +150,7 @@ class ConfigurationSet:
         counts for empty ones).
         """
         for first in range(0, len(self), batch_size):
-            indices = torch.arange(first, min(first + batch_size, len(self)))
+            indices = torch.arange(first, min(first + batch_size, len(self)), device=self.device)
             batch = self.batch(indices)
             if batch.points.shape[0]:
                 yield indices, batch
@@ -137,19 +163,23 @@ class ConfigurationSet:
 
     def subset(self, indices: Sequence[int]) -> "ConfigurationSet":
         """A new set with configurations ``indices``, in that order."""
-        indices = torch.as_tensor(indices, dtype=torch.int64)
+        indices = torch.as_tensor(indices, dtype=torch.int64, device=self.device)
         if indices.numel() and (int(indices.min()) < 0 or int(indices.max()) >= len(self)):
             raise SDMInputError(f"subset indices must lie in [0, {len(self)}), got {indices.min()}..{indices.max()}")
         rows, _ = self.rows(indices)
-        counts = self.counts[indices]
-        offsets = torch.cat((torch.zeros(1, dtype=torch.int64), counts.cumsum(0)))
         return ConfigurationSet(
-            self.points[rows], self.pixels[rows], offsets, self.targets[indices], self.camera,
+            self.points[rows], self.pixels[rows], _offsets(self.counts[indices]), self.targets[indices], self.camera,
             [self.image_ids[i] for i in indices.tolist()],
         )
 
     def with_targets(self, targets: torch.Tensor) -> "ConfigurationSet":
-        """The same points with other targets (e.g. noisy ones), ``(N, H, W)`` bool."""
+        """The same points with other targets (e.g. noisy ones), ``(N, H, W)`` bool (moved to the set's device)."""
         if targets.shape != self.targets.shape:
             raise SDMInputError(f"targets must have shape {tuple(self.targets.shape)}, got {tuple(targets.shape)}")
-        return ConfigurationSet(self.points, self.pixels, self.offsets, targets.bool(), self.camera, self.image_ids)
+        return ConfigurationSet(self.points, self.pixels, self.offsets, targets.bool().to(self.device), self.camera,
+                                self.image_ids, rank=self.rank)
+
+
+def _offsets(counts: torch.Tensor) -> torch.Tensor:
+    """``(N + 1,)`` int64 CSR row offsets of configurations holding ``counts`` ``(N,)`` points (same device)."""
+    return torch.cat((counts.new_zeros(1), counts.cumsum(0)))

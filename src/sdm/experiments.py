@@ -7,8 +7,10 @@ same numbers whenever and wherever it runs:
 - the image sample is :func:`sdm.data.sample_indices` (the data layer's, which
   :func:`sdm.data.build_sky_dataset` uses too); the split uses a ``torch.Generator``
   seeded with the config's seed;
-- a noise run's seed is :func:`run_seed` ``(seed, level, run)``; it fixes both the
-  noise drawn on the training targets and the shuffling of the mini-batches.
+- the seed flows one way: the experiment's seed is ``settings.seed``; noise run
+  ``run`` at ``level`` trains with :func:`run_seed` ``(settings.seed, level, run)``,
+  which fixes both the noise drawn on its training targets and the shuffling of
+  its mini-batches (and is reported in its row).
 """
 from __future__ import annotations
 
@@ -26,8 +28,13 @@ from .data import SkyFile
 from .errors import SDMInputError
 from .mapping import SpatialDomainMapping
 from .metrics import dev_loss, distance
-from .sky import SKY_SHIFT, add_target_noise
-from .train import TrainSettings, train
+from .sky import SKY_SHIFT, add_target_noise, shift_vector
+from .train import TrainSettings, train, train_runs
+
+#: Noise runs trained together by default (see :func:`noise_runs`). On one CPU core larger groups
+#: stop paying: the work is per point, and beyond about 8 runs (70k points a step) the working set
+#: leaves the core's cache (benchmarks/bench_sdm.py measures it).
+NOISE_GROUP_SIZE = 8
 
 
 def run_seed(seed: int, level: int, run: int) -> int:
@@ -73,7 +80,11 @@ def load_split(sky_path: str | Path, split: dict, camera: Camera | None = None):
 
 
 def settings_for(n_epoch: int, lr: float, s: int, batch_size: int, lr_decay: float, seed: int):
-    """:class:`~sdm.train.TrainSettings` from the config's values (zoom 0: train to full resolution)."""
+    """:class:`~sdm.train.TrainSettings` from the config's values (zoom 0: train to full resolution).
+
+    ``seed`` becomes ``settings.seed``: the shuffling seed of a tuning cell, and the
+    experiment seed from which :func:`noise_run` derives each run's own seed.
+    """
     return TrainSettings(lr=float(lr), n_epoch=int(n_epoch), batch_size=int(batch_size), s=int(s), zoom=0,
                          lr_decay=float(lr_decay), seed=int(seed))
 
@@ -101,31 +112,77 @@ def tune_cell(train_set, dev_set, settings, shift: Sequence[float] = SKY_SHIFT, 
 def noisy_targets(targets: torch.Tensor, level: int, seed: int) -> torch.Tensor:
     """Every target moved by noise ``level`` (paper, section 5.2), drawn from ``seed``."""
     generator = torch.Generator().manual_seed(int(seed))
-    return torch.stack([add_target_noise(target, level, generator) for target in targets])
+    return add_target_noise(targets, level, generator)  # one draw for all targets, in target order
 
 
-def noise_run(train_set, level: int, run: int, settings, seed: int, shift: Sequence[float] = SKY_SHIFT,
-              camera: Camera = APOLLO_CAMERA_5) -> dict:
+def noise_run(train_set, level: int, run: int, settings: TrainSettings, shift: Sequence[float] = SKY_SHIFT,
+              camera: Camera | None = None) -> dict:
     """One run of the robustness experiment: noisy training targets, train, distance to theta*.
 
-    The run's seed (:func:`run_seed`) draws the noise and shuffles the mini-batches.
+    The single-run reference that :func:`noise_runs` must reproduce, run for run.
+
+    Args:
+        train_set: the training configurations (noise-free targets).
+        level: noise level ``n`` (screen pixels).
+        run: run index.
+        settings: the tuned settings; ``settings.seed`` is the experiment's seed, from
+            which the run's own seed :func:`run_seed` ``(settings.seed, level, run)`` is
+            derived: it draws the noise and shuffles the mini-batches.
+        shift: theta* ``(a, b)``, metres.
+        camera: default the set's.
 
     Returns:
-        ``{"level", "run", "seed", "a", "b", "distance"}`` (metres).
+        ``{"level", "run", "seed", "a", "b", "distance"}`` (metres; ``seed`` is the run's seed).
     """
-    seed_run = run_seed(seed, level, run)
+    seed_run = run_seed(settings.seed, level, run)
     noisy = train_set.with_targets(noisy_targets(train_set.targets, level, seed_run))
     history = train(noisy, replace(settings, seed=seed_run), camera=camera, progress=False)
     a, b = history.final_theta
-    return {"level": int(level), "run": int(run), "seed": seed_run, "a": float(a), "b": float(b),
+    return _run_record(level, run, seed_run, (a, b), shift)
+
+
+def _run_record(level: int, run: int, seed_run: int, theta, shift) -> dict:
+    a, b = float(theta[0]), float(theta[1])
+    return {"level": int(level), "run": int(run), "seed": seed_run, "a": a, "b": b,
             "distance": float(distance((a, b), tuple(shift)))}
 
 
-def noise_runs(train_set, level: int, runs: Sequence[int], settings, seed: int,
-               shift: Sequence[float] = SKY_SHIFT, camera: Camera = APOLLO_CAMERA_5) -> pd.DataFrame:
-    """Several :func:`noise_run` at one level, one row each."""
-    rows = [noise_run(train_set, level, run, settings, seed, shift, camera) for run in runs]
-    return pd.DataFrame.from_records(rows, columns=["level", "run", "seed", "a", "b", "distance"])
+def noise_runs(train_set, level: int, runs: Sequence[int], settings: TrainSettings,
+               shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
+               group_size: int = NOISE_GROUP_SIZE, device: torch.device | str | None = None) -> pd.DataFrame:
+    """Several noise runs at one level, trained together as one program; one row each.
+
+    Run ``r`` is exactly :func:`noise_run` ``(train_set, level, r, settings)``: the same
+    seed :func:`run_seed` ``(settings.seed, level, r)``, hence the same noisy targets
+    and the same shuffling; the runs are packed ``group_size`` at a time into one
+    batch of ``group_size x batch_size`` configurations per step by
+    :func:`sdm.train.train_runs`, each run's theta moved only by its own flow.
+    ``test_train.py`` holds every run's result to :func:`noise_run`'s.
+
+    Args:
+        group_size: runs trained together (memory grows with it: each run keeps its
+            own zoomed-out targets, about 22 MB per 512 configurations of 128 x 256).
+        device: where to train; default the set's device.
+
+    Returns:
+        Columns :data:`RUN_COLUMNS`, one row per run, in the order of ``runs``.
+    """
+    if int(group_size) != group_size or group_size < 1:
+        raise SDMInputError(f"group_size must be a positive integer, got {group_size!r}")
+    runs = [int(run) for run in runs]
+    seeds = [run_seed(settings.seed, level, run) for run in runs]
+    rows = []
+    for first in range(0, len(runs), int(group_size)):
+        group = range(first, min(first + int(group_size), len(runs)))
+        targets = [noisy_targets(train_set.targets, level, seeds[i]) for i in group]
+        history = train_runs(train_set, targets, [replace(settings, seed=seeds[i]) for i in group], camera=camera,
+                             device=device)
+        rows += [_run_record(level, runs[i], seeds[i], theta, shift) for i, theta in zip(group, history.final_theta)]
+    return pd.DataFrame.from_records(rows, columns=RUN_COLUMNS)
+
+
+#: Columns of a noise-run table.
+RUN_COLUMNS = ["level", "run", "seed", "a", "b", "distance"]
 
 
 def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed: int, s: int = 4,
@@ -143,13 +200,13 @@ def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed:
         the points entering the zoom level that land on the grid in a block the target leaves empty).
     """
     camera = camera or train_set.camera
-    theta = torch.tensor([float(shift[0]), float(shift[1]), 0.0], dtype=torch.float64)
+    theta = shift_vector(shift, train_set.points)
     rows = []
     for level in levels:
         noisy = train_set.with_targets(noisy_targets(train_set.targets, level, run_seed(seed, level, 0)))
         for zoom in range(s, -1, -1):
             layer = SpatialDomainMapping(camera, s=s, zoom=zoom)
-            flow = torch.zeros(2, dtype=torch.float64)
+            flow = torch.zeros(2, dtype=torch.float64, device=train_set.device)
             entered = unmatched = 0
             for _, batch in noisy.batches(batch_size):
                 result = layer(batch.points + theta, batch.pixels, batch.targets, batch.config, batch.rank).result

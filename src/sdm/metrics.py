@@ -8,7 +8,7 @@ import torch
 from .batch import ConfigurationSet
 from .camera import Camera
 from .mapping import SpatialDomainMapping
-from .sky import SKY_SHIFT
+from .sky import SKY_SHIFT, shift_vector
 
 
 def distance(theta, theta_star=SKY_SHIFT) -> float:
@@ -28,12 +28,12 @@ def false_positive_pixels(
         s: coarsest zoom level of the chain.
 
     Returns:
-        ``(N,)`` int64 counts.
+        ``(N,)`` int64 counts, on the set's device.
     """
     camera = camera or data.camera
     layer = SpatialDomainMapping(camera, s=s, zoom=0)
-    shift = torch.tensor([float(theta[0]), float(theta[1]), 0.0], dtype=torch.float64)
-    counts = torch.zeros(len(data), dtype=torch.int64)
+    shift = shift_vector(theta, data.points)
+    counts = torch.zeros(len(data), dtype=torch.int64, device=data.device)
     with torch.no_grad():
         for indices, batch in data.batches(batch_size):  # empty configurations render nothing: count 0
             out = layer(batch.points + shift, batch.pixels, batch.targets, batch.config, batch.rank)

@@ -21,6 +21,7 @@ from dataclasses import dataclass, field
 from itertools import product
 
 import torch
+import torch.nn.functional as F
 
 from .camera import APOLLO_CAMERA_5, Camera
 from .errors import SDMInputError
@@ -63,7 +64,7 @@ class SkyConfiguration:
 
     def circles(self, camera: Camera = APOLLO_CAMERA_5) -> torch.Tensor:
         """``(H, W)`` float64 representation ``E'`` (depth, 0 where empty)."""
-        image = torch.zeros(camera.screen_shape, dtype=torch.float64)
+        image = torch.zeros(camera.screen_shape, dtype=torch.float64, device=self.depth.device)
         image[self.pixels[:, 0], self.pixels[:, 1]] = self.depth
         return image
 
@@ -103,12 +104,12 @@ def draw_circles(centre_image: torch.Tensor, radius: float = CIRCLE_RADIUS) -> t
     active = centre_image.nonzero()
     if active.shape[0] == 0:
         return torch.zeros_like(centre_image)
-    offsets = circle_offsets(radius)
+    offsets = circle_offsets(radius).to(centre_image.device)
     painted = (active[:, None, :] + offsets[None, :, :]).reshape(-1, 2)
     values = centre_image[active[:, 0], active[:, 1]].repeat_interleave(offsets.shape[0])
     on_screen = inside(painted, height, width)
     cells = painted[on_screen, 0] * width + painted[on_screen, 1]
-    image = torch.full((height * width,), math.inf, dtype=centre_image.dtype)
+    image = torch.full((height * width,), math.inf, dtype=centre_image.dtype, device=centre_image.device)
     image.scatter_reduce_(0, cells, values[on_screen], reduce="amin")
     image[torch.isinf(image)] = 0
     return image.view(height, width)
@@ -137,8 +138,7 @@ def shifted_target(points: torch.Tensor, shift: tuple[float, float], camera: Cam
     Returns:
         ``(H, W)`` bool; points leaving the screen are dropped.
     """
-    a, b = check_shift(shift)
-    moved = points + torch.tensor([a, b, 0.0], dtype=points.dtype)
+    moved = points + shift_vector(shift, points)
     pixels, _ = screen_pixels(camera.project(moved), camera)
     return occupancy(pixels, camera.screen_shape)
 
@@ -182,20 +182,33 @@ def add_target_noise(target: torch.Tensor, level: int, generator: torch.Generato
     """Move every active pixel of a target by independent integers uniform on ``[-level, level]``.
 
     Args:
-        target: ``(H, W)`` bool target.
+        target: ``(..., H, W)`` bool target(s). The moves are drawn in the order of
+            ``target.nonzero()`` (target by target, each row-major) as one
+            ``randint`` call: from a CPU generator this is the same sequence as one
+            call per target in turn (torch's CPU generator draws serially;
+            ``test_sky.py`` holds it), so a stack of targets gets the same noise as a
+            loop over them.
         level: noise level ``n >= 0`` in screen pixels.
         generator: source of randomness (seed it for reproducible runs).
 
     Returns:
-        ``(H, W)`` bool occupancy of the moved pixels; off-screen ones are dropped.
+        ``(..., H, W)`` bool occupancy of the moved pixels; off-screen ones are dropped.
     """
     if int(level) != level or level < 0:
         raise SDMInputError(f"noise level must be a non-negative integer, got {level!r}")
     if level == 0:
         return target.clone()
-    active = target.nonzero()
-    moves = torch.randint(-level, level + 1, active.shape, generator=generator, dtype=torch.int64)
-    return occupancy(active + moves, tuple(target.shape))
+    active = target.nonzero()  # (K, ndim): leading indices, then (row, col)
+    # Drawn on the generator's device (CPU by default): the same seed gives the same moves wherever the target lives.
+    draw_device = generator.device if generator is not None else target.device
+    moves = torch.randint(-level, level + 1, (active.shape[0], 2), generator=generator, dtype=torch.int64,
+                          device=draw_device)
+    moved = active[:, -2:] + moves.to(target.device)
+    height, width = target.shape[-2:]
+    kept = inside(moved, height, width)
+    noisy = torch.zeros_like(target)
+    noisy[(*active[kept, :-2].unbind(1), *moved[kept].unbind(1))] = True
+    return noisy
 
 
 def noise_displacement(level: int, mean_depth: float, camera: Camera = APOLLO_CAMERA_5) -> float:
@@ -219,6 +232,25 @@ def _check_centres(centres: torch.Tensor) -> torch.Tensor:
     if not bool(torch.isfinite(centres).all()):
         raise SDMInputError("car centres must be finite")
     return centres.to(torch.float64)
+
+
+def shift_vector(theta, like: torch.Tensor) -> torch.Tensor:
+    """The shift ``theta = (a, b)`` as the 3-vector ``(a, b, 0)`` that moves points: the one conversion.
+
+    Args:
+        theta: ``(..., 2)`` tensor (kept differentiable: its gradient is the flow on x and y)
+            or two numbers ``(a, b)``, metres.
+        like: tensor whose dtype and device the result takes (the points it will move).
+
+    Returns:
+        ``(..., 3)`` ``(a, b, 0)`` in metres, dtype and device of ``like``.
+    """
+    if isinstance(theta, torch.Tensor):
+        if theta.shape[-1:] != (2,):
+            raise SDMInputError(f"theta must have shape (..., 2), got {tuple(theta.shape)}")
+        return F.pad(theta.to(dtype=like.dtype, device=like.device), (0, 1))
+    a, b = check_shift(theta)
+    return torch.tensor([a, b, 0.0], dtype=like.dtype, device=like.device)
 
 
 def check_shift(shift) -> tuple[float, float]:

@@ -64,9 +64,9 @@ def depth_to_space(x: torch.Tensor, steps: int = 1) -> torch.Tensor:
     return x.squeeze(-3)
 
 
-def subrep_phases(steps: int) -> torch.Tensor:
-    """``(4**k, 2)`` int64 phase ``(row mod 2^k, col mod 2^k)`` of each sub-representation index."""
-    grid = torch.arange(1 << steps)
+def subrep_phases(steps: int, device: torch.device | str | None = None) -> torch.Tensor:
+    """``(4**k, 2)`` int64 phase ``(row mod 2^k, col mod 2^k)`` of each sub-representation index, on ``device``."""
+    grid = torch.arange(1 << steps, device=device)
     rows, cols = torch.meshgrid(grid, grid, indexing="ij")
     phases = torch.stack((rows, cols), dim=-1)  # (B, B, 2): a B x B screen whose pixel (r, c) is its own phase
     return space_to_depth(phases.permute(2, 0, 1), steps).reshape(2, -1).T.contiguous()
@@ -81,18 +81,31 @@ def zoom_out(target: torch.Tensor, steps: int) -> torch.Tensor:
     Returns:
         ``(..., H / 2**k, W / 2**k)`` bool.
     """
-    if steps == 0:
-        return target
     check_divisible(tuple(target.shape[-2:]), steps)
-    *lead, height, width = target.shape
-    block = 1 << steps
-    return target.reshape(*lead, height // block, block, width // block, block).any(-1).any(-2)
+    return _pool(target, steps)
 
 
 def target_pyramid(target: torch.Tensor, steps: int) -> list[torch.Tensor]:
     """Zoomed-out targets at levels ``0..steps``: element ``k`` is ``(..., H / 2**k, W / 2**k)`` bool."""
     check_divisible(tuple(target.shape[-2:]), steps)
+    if steps == 0:
+        return [target]
+    # From the active pixels: a block is active when one of its pixels is, so each level is the
+    # occupancy of (row >> k, col >> k); the work follows the few active pixels, not the screen area.
+    active = target.nonzero()  # (K, ndim)
+    lead, pixels = active[:, :-2].unbind(1), active[:, -2:]
     levels = [target]
-    for _ in range(steps):
-        levels.append(zoom_out(levels[-1], 1))
+    for level in range(1, steps + 1):
+        zoomed = target.new_zeros(*target.shape[:-2], target.shape[-2] >> level, target.shape[-1] >> level)
+        zoomed[(*lead, *(pixels >> level).unbind(1))] = True
+        levels.append(zoomed)
     return levels
+
+
+def _pool(target: torch.Tensor, steps: int) -> torch.Tensor:
+    """``B x B`` any-pool of ``(..., H, W)`` bool, ``B = 2**steps``; the caller checked divisibility."""
+    if steps == 0:
+        return target
+    *lead, height, width = target.shape
+    block = 1 << steps
+    return target.reshape(*lead, height // block, block, width // block, block).any(-1).any(-2)

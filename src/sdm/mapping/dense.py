@@ -16,11 +16,12 @@ them:
    disappears; as ``c`` grows the output converges to the fast path's.
 4. The inverse reshape restores the full-resolution screen for the next level.
 
-At the loss level the dynamic gradient flow (eq. 19) is read off the same
-grids: the landing adjustment is the nearest one (``argmax D``; the backward
-"removes the role of the kernel"), and an unmatched point is pulled by
-``sign(p - T)`` towards every other adjustment whose block is active in the
-zoomed-out target.
+At the loss level the landing adjustment of each point is read off the same
+grids: the nearest one (``argmax D``; the backward "removes the role of the
+kernel"); the dynamic gradient flow itself is :func:`~sdm.mapping.flow.dynamic_flow`,
+the one rule every path shares.
+
+Every tensor is created on the device of ``points``.
 """
 from __future__ import annotations
 
@@ -29,11 +30,10 @@ import torch.nn.functional as F
 
 from ..camera import Camera
 from ..errors import SDMInputError
+from ..representation import NO_RANK, inside
 from ..zoom import depth_to_space, space_to_depth
+from .flow import WINDOW_OFFSETS, dynamic_flow, window_offsets
 from .result import MappingResult
-
-_OFFSETS = [(dk, dl) for dk in (-1, 0, 1) for dl in (-1, 0, 1)]
-_NO_RANK = torch.iinfo(torch.int64).max
 
 
 def dense_mapping(
@@ -69,9 +69,10 @@ def dense_mapping(
         "x": _scatter(cell, points[:, 0], n_configs, camera, 0.0),
         "y": _scatter(cell, points[:, 1], n_configs, camera, 0.0),
         "z": _scatter(cell, points[:, 2], n_configs, camera, 0.0),
-        "id": _scatter(cell, torch.arange(n_points), n_configs, camera, -1),
-        "rank": _scatter(cell, rank, n_configs, camera, _NO_RANK),
+        "id": _scatter(cell, torch.arange(n_points, device=points.device), n_configs, camera, -1),
+        "rank": _scatter(cell, rank, n_configs, camera, NO_RANK),
     }
+    device = points.device
     for level in range(steps, zoom - 1, -1):
         sub = {name: space_to_depth(values, level) for name, values in grid.items()}
         active = sub["id"] >= 0  # (n, S, h, w)
@@ -81,30 +82,33 @@ def dense_mapping(
         kernel = torch.softmax(-c * distance, dim=2)
         selected = (kernel > 0.5) & active[:, :, None]
         if level == zoom:
-            flow_grid, loss, matched_grid, landed_grid = _dynamic_flow(kernel, offset, active, target, sub["z"].shape)
-            ids = sub["id"]
+            # Each point's input block and landing block (the nearest adjustment, argmax D) at the loss level.
+            present = active.nonzero()  # (p, 4): configuration, sub-representation, block row, block col
+            ids = sub["id"][active]
+            nearest = kernel.argmax(2)[active]  # (p,) index into the 3x3 window
+            entered_block = present[:, 2:]
+            entered_landing = entered_block + window_offsets(device).index_select(0, nearest)
         sub = _aggregate(sub, selected)
         grid = {name: depth_to_space(values, level) for name, values in sub.items()}
 
-    out_pixels = torch.full((n_points, 2), -1, dtype=torch.int64)
+    out_pixels = torch.full((n_points, 2), -1, dtype=torch.int64, device=device)
     out_id = grid["id"]
     where = (out_id >= 0).nonzero()
     out_pixels[out_id[out_id >= 0]] = where[:, 1:]
-    flow = torch.zeros(n_points, 2, dtype=points.dtype)
-    matched = torch.zeros(n_points, dtype=torch.bool)
-    entered = torch.zeros(n_points, dtype=torch.bool)
-    landed = torch.zeros(n_points, dtype=torch.bool)
-    present = ids >= 0
-    landed[ids[present]] = landed_grid[present]
-    flow[ids[present]] = flow_grid[present]
-    matched[ids[present]] = matched_grid[present]
-    entered[ids[present]] = True
+    entered = torch.zeros(n_points, dtype=torch.bool, device=device)
+    entered[ids] = True
+    block = torch.zeros(n_points, 2, dtype=torch.int64, device=device)
+    landing = torch.zeros(n_points, 2, dtype=torch.int64, device=device)
+    block[ids], landing[ids] = entered_block, entered_landing
+    landed = entered & inside(landing, *target.shape[1:])
+    flow, loss, matched = dynamic_flow(camera.project(points), points[:, 2], config, landed, block, landing, target,
+                                       zoom, camera)
     return MappingResult(out_pixels, flow, loss, entered, matched, zoom, landed)
 
 
 def _scatter(cell, values, n_configs, camera, empty):
     height, width = camera.screen_shape
-    grid = torch.full((n_configs * height * width,), empty, dtype=values.dtype)
+    grid = torch.full((n_configs * height * width,), empty, dtype=values.dtype, device=values.device)
     grid[cell] = values
     return grid.view(n_configs, height, width)
 
@@ -113,11 +117,11 @@ def _adjustments(depth: torch.Tensor, level: int, camera: Camera) -> torch.Tenso
     """XY-adjustments ``T``: ``(n, S, 9, h, w, 2)`` (x, y) in metres at each cell's depth."""
     block_size = 1 << level
     h, w = depth.shape[-2:]
-    rows = torch.arange(h, dtype=depth.dtype)[:, None].expand(h, w)
-    cols = torch.arange(w, dtype=depth.dtype)[None, :].expand(h, w)
+    rows = torch.arange(h, dtype=depth.dtype, device=depth.device)[:, None].expand(h, w)
+    cols = torch.arange(w, dtype=depth.dtype, device=depth.device)[None, :].expand(h, w)
     safe_depth = torch.where(depth > 0, depth, torch.ones_like(depth))  # inactive cells: any valid depth
     adjustments = []
-    for dk, dl in _OFFSETS:
+    for dk, dl in WINDOW_OFFSETS:
         centre = torch.stack(((rows + dk + 0.5) * block_size, (cols + dl + 0.5) * block_size), -1)
         points = camera.backproject(centre.expand(*depth.shape, 2), safe_depth)
         adjustments.append(points[..., :2])
@@ -139,36 +143,20 @@ def _aggregate(sub: dict, selected: torch.Tensor) -> dict:
     ``rmin``: the smallest depth wins; among equal depths the smallest priority rank.
     """
     candidates_z, candidates_rank, sources = [], [], []
-    for index, (dk, dl) in enumerate(_OFFSETS):
+    for index, (dk, dl) in enumerate(WINDOW_OFFSETS):
         chosen = _shift(selected[:, :, index], dk, dl, False)
         shifted = {name: _shift(values, dk, dl, 0) for name, values in sub.items()}
         candidates_z.append(torch.where(chosen, shifted["z"], torch.inf))
-        candidates_rank.append(torch.where(chosen, shifted["rank"], _NO_RANK))
+        candidates_rank.append(torch.where(chosen, shifted["rank"], NO_RANK))
         sources.append(shifted)
     z = torch.stack(candidates_z, 2)  # (n, S, 9, h, w)
     nearest = z.min(2, keepdim=True).values
-    rank = torch.where((z == nearest) & torch.isfinite(z), torch.stack(candidates_rank, 2), _NO_RANK)
+    rank = torch.where((z == nearest) & torch.isfinite(z), torch.stack(candidates_rank, 2), NO_RANK)
     best = rank.argmin(2, keepdim=True)
     occupied = torch.isfinite(nearest).squeeze(2)
     out = {}
-    for name, empty in (("x", 0.0), ("y", 0.0), ("z", 0.0), ("id", -1), ("rank", _NO_RANK)):
+    for name, empty in (("x", 0.0), ("y", 0.0), ("z", 0.0), ("id", -1), ("rank", NO_RANK)):
         stacked = torch.stack([source[name] for source in sources], 2)
         out[name] = torch.where(occupied, stacked.gather(2, best).squeeze(2), empty)
     return out
 
-
-def _dynamic_flow(kernel, offset, active, target, shape):
-    """Eq. 19 on grids: ``(flow (n, S, h, w, 2), loss (), matched, landed (n, S, h, w))``."""
-    n_configs, n_subreps, h, w = shape
-    window = torch.stack([_shift(target, -dk, -dl, False) for dk, dl in _OFFSETS], 1)  # (n, 9, h, w): target at I+dk
-    window = window[:, None].expand(n_configs, n_subreps, 9, h, w)
-    on_grid = torch.stack([_shift(torch.ones_like(target), -dk, -dl, False) for dk, dl in _OFFSETS], 1)[:, None]
-    nearest = kernel.argmax(2, keepdim=True)  # (n, S, 1, h, w)
-    landed_on_grid = on_grid.expand_as(window).gather(2, nearest).squeeze(2)
-    matched = active & window.gather(2, nearest).squeeze(2)
-    pulled = active & landed_on_grid & ~matched
-    others = torch.ones_like(window).scatter(2, nearest, False)
-    weight = (window & others & pulled[:, :, None]).to(offset.dtype)[..., None]  # (n, S, 9, h, w, 1)
-    flow = (torch.sign(offset) * weight).sum(2)
-    loss = (offset.abs() * weight).sum()
-    return flow, loss, matched, active & landed_on_grid

@@ -5,9 +5,9 @@ import torch
 
 from ..camera import APOLLO_CAMERA_5, Camera, check_points
 from ..errors import SDMInputError
+from ..representation import inside
 from ..zoom import zoom_out
-
-_OFFSETS = torch.tensor([(dk, dl) for dk in (-1, 0, 1) for dl in (-1, 0, 1)], dtype=torch.int64)
+from .flow import dynamic_flow, window_offsets
 
 
 def explain_point(
@@ -20,10 +20,13 @@ def explain_point(
 ) -> dict:
     """Forward and backward of one SDM level for a single point.
 
+    The landing block is the nearest XY-adjustment (the forward's choice); the
+    pull is :func:`~sdm.mapping.flow.dynamic_flow`, the rule the layer's backward uses.
+
     Args:
-        point: ``(3,)`` the (shifted) point in metres.
+        point: ``(3,)`` the (shifted) point in metres; its device is used throughout.
         pixel: ``(row, col)`` the pixel it sits in at this level's input.
-        target: ``(H, W)`` bool target at full resolution.
+        target: ``(H, W)`` bool target at full resolution, on the device of ``point``.
         level: zoom level ``k`` (blocks of ``2^k`` pixels).
         c: kernel shape constant, 1/metres (finite, so the kernel is visibly soft).
         camera: camera and screen.
@@ -36,36 +39,36 @@ def explain_point(
         ``(3, 3)`` bool target blocks of the window, ``pull`` ``(2,)`` the
         dynamic gradient flow on ``(x, y)``, and ``point_screen`` ``(2,)``.
     """
-    point = torch.as_tensor(point, dtype=torch.float64)
+    point = point.to(torch.float64) if isinstance(point, torch.Tensor) else torch.tensor(point, dtype=torch.float64)
     check_points(point, "point")
     if target.shape != camera.screen_shape:
         raise SDMInputError(f"target must have shape {camera.screen_shape}, got {tuple(target.shape)}")
+    device = point.device
     block_size = 1 << level
-    block = torch.tensor(pixel, dtype=torch.int64) >> level
-    window = block + _OFFSETS  # (9, 2) blocks
+    block = torch.tensor(pixel, dtype=torch.int64, device=device) >> level
+    window = block + window_offsets(device)  # (9, 2) blocks
     centres = (window.to(torch.float64) + 0.5) * block_size
     adjustments = camera.backproject(centres, point[2].expand(9))
     distance = (point[:2] - adjustments[:, :2]).norm(dim=-1)
     kernel = torch.softmax(-c * distance, dim=0)
     nearest = int(distance.argmin())
     zoomed = zoom_out(target, level)
-    inside = (window >= 0).all(1) & (window[:, 0] < zoomed.shape[0]) & (window[:, 1] < zoomed.shape[1])
-    active = torch.zeros(9, dtype=torch.bool)
-    active[inside] = zoomed[window[inside, 0], window[inside, 1]]
-    matched = bool(active[nearest])
-    pulling = active.clone()
-    pulling[nearest] = False
-    if matched or not bool(inside[nearest]):
-        pulling[:] = False
-    pull = (torch.sign(point[:2] - adjustments[:, :2]) * pulling[:, None]).sum(0)
+    in_grid = inside(window, *zoomed.shape)
+    active = torch.zeros(9, dtype=torch.bool, device=device)
+    active[in_grid] = zoomed[window[in_grid, 0], window[in_grid, 1]]
+    landing = window[nearest]
+    flow, _, matched = dynamic_flow(
+        camera.project(point)[None], point[2:], torch.zeros(1, dtype=torch.int64, device=device),
+        in_grid[nearest : nearest + 1], block[None], landing[None], zoomed[None], level, camera,
+    )
     return {
         "block": block,
         "adjustments": adjustments.view(3, 3, 3),
         "screen": centres.view(3, 3, 2),
         "kernel": kernel.view(3, 3),
-        "landing": window[nearest],
-        "matched": matched,
+        "landing": landing,
+        "matched": bool(matched[0]),
         "active": active.view(3, 3),
-        "pull": pull,
+        "pull": flow[0],
         "point_screen": camera.project(point),
     }

@@ -7,7 +7,7 @@ gradient flow to the points, and autograd carries it to whatever produced them
 (in the Sky problem, the shift ``theta``)::
 
     layer = SpatialDomainMapping(s=4, zoom=0)
-    out = layer(q + torch.cat((theta, theta.new_zeros(1))), pixels, target)
+    out = layer(q + sdm.sky.shift_vector(theta, q), pixels, target)   # theta (2,) -> (a, b, 0)
     out.loss.backward()          # theta.grad: the summed pulls on (x, y)
 """
 from __future__ import annotations
@@ -15,6 +15,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from ..camera import APOLLO_CAMERA_5, Camera, check_points
@@ -27,30 +28,42 @@ from .result import MappingResult
 
 METHODS = {"fast": fast_mapping, "dense": dense_mapping}
 
+#: Point dtypes the layer accepts: screen coordinates need at least float32's 24-bit mantissa.
+POINT_DTYPES = (torch.float32, torch.float64)
+
 
 class SDMFunction(torch.autograd.Function):
     """``J = SDM(points)``: forward runs the chain, backward returns the dynamic gradient flow.
 
     The flow is not the derivative of a smooth function of the points: it is
-    the paper's eq. 19, the summed sign pulls of the unmatched points towards
-    their active target adjustments. Its z component is zero (c is ignored).
+    the paper's eq. 19 (:func:`~sdm.mapping.flow.dynamic_flow`), the summed sign
+    pulls of the unmatched points towards their active target adjustments. Its
+    z component is zero (c is ignored).
+
+    Written as ``forward`` + ``setup_context`` (no ``ctx`` in the forward), so that
+    ``torch.func`` transforms such as :func:`torch.func.grad` can see it. Outputs
+    (all on the device of ``points``): ``loss`` ``()`` (differentiable, metres),
+    then, marked non-differentiable, ``flow`` ``(P, 2)`` (dtype of ``points``),
+    ``out_pixels`` ``(P, 2)`` int64, ``entered``, ``matched``, ``landed`` ``(P,)`` bool
+    (see :class:`~sdm.mapping.result.MappingResult`).
     """
 
     @staticmethod
-    def forward(ctx, points, pixels, config, rank, target, steps, zoom, camera, method, options, results):
-        """``results``: a list the :class:`MappingResult` is appended to (the forward's non-tensor output)."""
-        with torch.no_grad():
-            result = METHODS[method](points.detach(), pixels, config, rank, target, steps, zoom, camera, **options)
-        flow3 = torch.zeros_like(points)
-        flow3[:, :2] = result.flow.to(points.dtype)
-        ctx.save_for_backward(flow3)
-        results.append(result)
-        return result.loss.to(points.dtype).clone()
+    def forward(points, pixels, config, rank, target, steps, zoom, camera, method, options):
+        result = METHODS[method](points.detach(), pixels, config, rank, target, steps, zoom, camera, **options)
+        return (result.loss.to(points.dtype), result.flow.to(points.dtype), result.out_pixels, result.entered,
+                result.matched, result.landed)
 
     @staticmethod
-    def backward(ctx, grad_loss):
-        (flow3,) = ctx.saved_tensors
-        return (grad_loss * flow3,) + (None,) * 10
+    def setup_context(ctx, inputs, output):
+        _, flow, *masks = output
+        ctx.mark_non_differentiable(flow, *masks)
+        ctx.save_for_backward(flow)
+
+    @staticmethod
+    def backward(ctx, grad_loss, *_no_gradient):
+        (flow,) = ctx.saved_tensors
+        return (grad_loss * F.pad(flow, (0, 1)),) + (None,) * 9
 
 
 @dataclass
@@ -77,7 +90,7 @@ class SDMOutput:
     def depth_map(self) -> torch.Tensor:
         """``(n, H, W)`` the output representation ``L~`` as depth (metres), 0 where empty."""
         height, width = self.camera.screen_shape
-        image = torch.zeros(self.num_configs, height, width, dtype=self.depth.dtype)
+        image = torch.zeros(self.num_configs, height, width, dtype=self.depth.dtype, device=self.depth.device)
         alive = self.result.alive
         pixels = self.result.out_pixels[alive]
         image[self.config[alive], pixels[:, 0], pixels[:, 1]] = self.depth[alive]
@@ -123,40 +136,68 @@ class SpatialDomainMapping(nn.Module):
     ) -> SDMOutput:
         """Map shifted points and measure them against the target.
 
+        Every tensor argument must live on the device of ``points`` (any device);
+        the outputs live there too.
+
         Args:
-            points: ``(P, 3)`` float points ``rinv(I~)`` in metres, ``z > 0``;
+            points: ``(P, 3)`` float32 or float64 points ``rinv(I~)`` in metres, ``z > 0``;
                 differentiable (usually ``Q + theta``).
             pixels: ``(P, 2)`` int64 ``(row, col)`` pixel each point sits in (its
                 pixel in ``I~``; the shift moves the point, not its pixel).
             target: ``(n, H, W)`` or ``(H, W)`` bool target ``L`` (or, with
                 ``target_is_zoomed``, the ``(n, H / 2^zoom, W / 2^zoom)`` zoomed-out one).
-            config: ``(P,)`` int64 configuration of each point in ``[0, n)``; default all 0.
+            config: ``(P,)`` int64 configuration of each point in ``[0, n)``; may be
+                omitted only for a single target (``n = 1``).
             rank: ``(P,)`` int64 ``rmin`` priority; default: depth, then row order.
             target_is_zoomed: ``target`` is already zoomed out to level ``zoom``.
             validate: check every input (the default). Only callers that checked
-                their inputs once up front (the trainer) turn this off.
+                their inputs once up front (the trainer, on a packed set) turn this off.
 
         Returns:
             :class:`SDMOutput`.
+
+        Raises:
+            SDMInputError: naming the argument, for a wrong shape, dtype or device,
+                points behind the camera or non-finite, pixels off the screen,
+                configuration indices out of range, or a missing ``config`` with
+                several targets.
         """
         if target.ndim == 2:
             target = target[None]
         if validate:
-            self._check(points, pixels, target, config, target_is_zoomed)
+            self._check(points, pixels, target, config, rank, target_is_zoomed)
         if config is None:
-            config = torch.zeros(points.shape[0], dtype=torch.int64)
+            config = torch.zeros(points.shape[0], dtype=torch.int64, device=points.device)
         if rank is None:
             rank = priority_rank(points.detach()[:, 2])
         zoomed = target if target_is_zoomed else zoom_out(target, self.zoom)
         options = {"c": self.c} if self.method == "dense" else {}
-        results: list[MappingResult] = []
-        loss = SDMFunction.apply(
-            points, pixels, config, rank, zoomed, self.s, self.zoom, self.camera, self.method, options, results
+        loss, flow, out_pixels, entered, matched, landed = SDMFunction.apply(
+            points, pixels, config, rank, zoomed, self.s, self.zoom, self.camera, self.method, options
         )
-        return SDMOutput(loss, results[0], int(target.shape[0]), self.camera, config, points.detach()[:, 2])
+        result = MappingResult(out_pixels, flow, loss.detach(), entered, matched, self.zoom, landed)
+        return SDMOutput(loss, result, int(target.shape[0]), self.camera, config, points.detach()[:, 2])
 
-    def _check(self, points, pixels, target, config, target_is_zoomed) -> None:
+    def _check(self, points, pixels, target, config, rank, target_is_zoomed) -> None:
         height, width = self.camera.screen_shape
+        if not isinstance(points, torch.Tensor):
+            raise SDMInputError(f"points must be a torch.Tensor, got {type(points).__name__}")
+        if points.dtype not in POINT_DTYPES:
+            raise SDMInputError(
+                f"points must be float32 or float64 (float64 is the default), got {points.dtype}: "
+                "half precision cannot place a point at 100 m to a screen pixel"
+            )
+        # Devices first: any later check would otherwise fail inside torch on a mixed-device op.
+        for name, tensor in (("pixels", pixels), ("target", target), ("config", config), ("rank", rank)):
+            if tensor is None:
+                continue
+            if not isinstance(tensor, torch.Tensor):
+                raise SDMInputError(f"{name} must be a torch.Tensor, got {type(tensor).__name__}")
+            if tensor.device != points.device:
+                raise SDMInputError(
+                    f"{name} is on {tensor.device} but points are on {points.device}: "
+                    "every input of the layer must live on one device (move them with .to(device))"
+                )
         check_points(points, "points")
         if points.ndim != 2:
             raise SDMInputError(f"points must have shape (P, 3), got {tuple(points.shape)}")
@@ -173,7 +214,17 @@ class SpatialDomainMapping(nn.Module):
         if not bool(inside(pixels, height, width).all()):
             raise SDMInputError(f"pixels must lie on the {height} x {width} screen")
         n_configs = int(target.shape[0])
-        if config is not None and (
-            config.shape != (n_points,) or not 0 <= int(config.min()) <= int(config.max()) < n_configs
-        ):
-            raise SDMInputError(f"config must be ({n_points},) indices into the {n_configs} targets")
+        if config is None:
+            if n_configs > 1:
+                raise SDMInputError(
+                    f"config is required: target holds {n_configs} targets, and without config every point "
+                    "would be compared with target 0"
+                )
+        else:
+            if config.shape != (n_points,) or config.dtype != torch.int64:
+                raise SDMInputError(f"config must be int64 of shape ({n_points},), got {config.dtype} {tuple(config.shape)}")
+            if not 0 <= int(config.min()) <= int(config.max()) < n_configs:
+                raise SDMInputError(f"config must hold indices into the {n_configs} targets, got "
+                                    f"{int(config.min())}..{int(config.max())}")
+        if rank is not None and (rank.shape != (n_points,) or rank.dtype != torch.int64):
+            raise SDMInputError(f"rank must be int64 of shape ({n_points},), got {rank.dtype} {tuple(rank.shape)}")

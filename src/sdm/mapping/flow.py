@@ -1,0 +1,147 @@
+"""The dynamic gradient flow (paper, eq. 19): one rule, used by every SDM path.
+
+Both implementations of the layer (:mod:`~sdm.mapping.fast` and the dense grid
+reference :mod:`~sdm.mapping.dense`) and the single-point explainer
+(:func:`~sdm.mapping.explain.explain_point`) decide *where* each point lands;
+what the backward pass does with that is decided here, once (docs/method.md,
+"Backward pass").
+"""
+from __future__ import annotations
+
+import functools
+
+import torch
+
+from ..camera import Camera
+
+#: The 3x3 kernel window, ``(drow, dcol)`` in row-major order: index ``3 * (drow + 1) + (dcol + 1)``.
+WINDOW_OFFSETS: tuple[tuple[int, int], ...] = tuple((dk, dl) for dk in (-1, 0, 1) for dl in (-1, 0, 1))
+
+
+@functools.lru_cache(maxsize=16)
+def window_offsets(device: torch.device) -> torch.Tensor:
+    """``(9, 2)`` int64 :data:`WINDOW_OFFSETS` on ``device`` (built once per device)."""
+    return torch.tensor(WINDOW_OFFSETS, dtype=torch.int64, device=device)
+
+
+def dynamic_flow(
+    screen: torch.Tensor,
+    depth: torch.Tensor,
+    config: torch.Tensor,
+    landed: torch.Tensor,
+    block: torch.Tensor,
+    landing: torch.Tensor,
+    target: torch.Tensor,
+    zoom: int,
+    camera: Camera,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The dynamic gradient flow at the loss level ``zoom`` (paper, eq. 19).
+
+    A point whose landing block is active in the zoomed-out target is matched
+    and gets nothing. Every other point that entered the level and landed on
+    the grid is pulled, per axis, towards each active target block ``q !=
+    landing`` of the 3x3 window around its input block:
+    ``d|p - T_q|_1 / d(x, y) = sign(p - T_q)``. The sign is taken in screen
+    coordinates, where it equals the sign in metres (at a fixed depth, x grows
+    with the column and y with the row). Points landing off the grid get
+    nothing: they have left the screen, as their counterparts in the target
+    did, so even the true shift could not match them.
+
+    All tensors on one device (any); the outputs live there too.
+
+    Args:
+        screen: ``(P, 2)`` float ``(row, col)`` projection ``P(p)`` of each point, screen pixels.
+        depth: ``(P,)`` float depth ``z`` of each point, metres.
+        config: ``(P,)`` int64 configuration of each point in ``[0, n)``.
+        landed: ``(P,)`` bool, the point entered the level and its landing block is on the grid.
+        block: ``(P, 2)`` int64 input block ``(row, col) >> zoom`` of each point.
+        landing: ``(P, 2)`` int64 landing block (the nearest XY-adjustment); read only where ``landed``.
+        target: ``(n, H / 2^zoom, W / 2^zoom)`` bool zoomed-out target.
+        zoom: the loss level (blocks of ``2^zoom`` screen pixels).
+        camera: camera and screen (metres per screen pixel for the loss).
+
+    Returns:
+        ``(flow, loss, matched)``: ``(P, 2)`` flow ``dJ/d(x, y)`` (dtype of ``screen``,
+        dimensionless sums of signs), ``()`` loss ``J`` in metres (the summed L1 distance
+        of the pulled points to the adjustments pulling them) and ``(P,)`` bool matched.
+    """
+    grid_h, grid_w = target.shape[1:]
+    flat_target = target.reshape(-1)
+    config_offset = config * (grid_h * grid_w)
+    landing_cell = torch.where(landed, config_offset + landing[:, 0] * grid_w + landing[:, 1], 0)
+    matched = landed & flat_target.take(landing_cell)
+    flow = torch.zeros_like(screen)
+
+    # Only the unmatched points are pulled; they are few once training is under way.
+    pulled = (landed & ~matched).nonzero().squeeze(1)
+    screen, depth = screen.index_select(0, pulled), depth.index_select(0, pulled)
+    block, landing = block.index_select(0, pulled), landing.index_select(0, pulled)
+    # The window is separable: block q = block + (dk, dl) has centre row (block_row + dk + 0.5) B and
+    # centre column (block_col + dl + 0.5) B, so its sign and distance on each axis depend on dk or dl
+    # alone: three values per axis instead of nine.
+    shifts = _axis_shifts(block.device, screen.dtype)  # (3,) -1, 0, 1
+    offset = screen[:, :, None] - (block[:, :, None] + shifts + 0.5) * (1 << zoom)  # (p, 2, 3) screen pixels
+    row_ok, col_ok = (_on_axis(block[:, axis, None] + shifts.long(), size) for axis, size in ((0, grid_h), (1, grid_w)))
+    base_cell = config_offset.index_select(0, pulled) + block[:, 0] * grid_w + block[:, 1]
+    in_grid = (row_ok[:, :, None] & col_ok[:, None, :]).reshape(-1, 9)
+    window_cell = torch.where(in_grid, base_cell[:, None] + _window_deltas(grid_w, block.device), 0)  # (p, 9)
+    step = landing - block  # (p, 2) in {-1, 0, 1}
+    landing_index = step[:, 0] * 3 + step[:, 1] + 4  # (p,) window index of the landing block, 0..8
+    weight = in_grid & flat_target.take(window_cell) & (_window_index(block.device) != landing_index[:, None])
+    weight = weight.to(screen.dtype)  # (p, 9) 1.0 where block q pulls the point
+    grid = weight.view(-1, 3, 3)  # (p, dk, dl)
+    per_row = grid[:, :, 0] + grid[:, :, 1] + grid[:, :, 2]  # (p, 3) pulling blocks in window row dk
+    per_col = grid[:, 0, :] + grid[:, 1, :] + grid[:, 2, :]  # (p, 3) pulling blocks in window column dl
+    sign = torch.sign(offset)  # (p, 2, 3)
+    pull = torch.stack((_dot3(sign[:, 0], per_row), _dot3(sign[:, 1], per_col)), dim=-1)  # (p, 2) (row, col)
+    flow.index_copy_(0, pulled, pull.flip(-1))  # (row, col) -> (x, y)
+    metres_per_pixel = torch.stack(camera.metres_per_screen_pixel(depth), dim=-1)  # (p, 2) (row, col)
+    loss = (_window_l1(offset.abs(), grid) * metres_per_pixel).sum()
+    return flow, loss, matched
+
+
+def _on_axis(index: torch.Tensor, size: int) -> torch.Tensor:
+    """``(...)`` bool: integer ``index`` in ``[0, size)``."""
+    return (index >= 0) & (index < size)
+
+
+def _window_l1(distance: torch.Tensor, weight: torch.Tensor) -> torch.Tensor:
+    """``(p, 2)``: per axis, the sum over the window's pulling blocks ``q`` (row-major) of ``|p - T_q|``.
+
+    Args:
+        distance: ``(p, 2, 3)`` ``|offset|`` per axis and shift ``-1, 0, 1``.
+        weight: ``(p, 3, 3)`` 1.0 where block ``(dk, dl)`` pulls, else 0.0.
+
+    The terms are added one at a time in the window's row-major order, so the
+    value is the same float as summing the nine ``(p, 9, 2)`` products of the
+    grid formulation (adding an exact zero for blocks that do not pull).
+    """
+    total = torch.zeros_like(distance[:, :, 0])
+    for dk in range(3):
+        for dl in range(3):
+            terms = torch.stack((distance[:, 0, dk], distance[:, 1, dl]), dim=-1)  # (p, 2)
+            total = total + terms * weight[:, dk, dl, None]
+    return total
+
+
+def _dot3(values: torch.Tensor, counts: torch.Tensor) -> torch.Tensor:
+    """``(p,)``: ``sum_i values[:, i] * counts[:, i]`` over three columns (integers here: exact in any order)."""
+    return values[:, 0] * counts[:, 0] + values[:, 1] * counts[:, 1] + values[:, 2] * counts[:, 2]
+
+
+@functools.lru_cache(maxsize=16)
+def _axis_shifts(device: torch.device, dtype: torch.dtype) -> torch.Tensor:
+    """``(3,)`` ``-1, 0, 1`` in ``dtype`` on ``device``."""
+    return torch.tensor([-1, 0, 1], dtype=dtype, device=device)
+
+
+@functools.lru_cache(maxsize=64)
+def _window_deltas(grid_width: int, device: torch.device) -> torch.Tensor:
+    """``(9,)`` int64 flat-cell offset ``dk * grid_width + dl`` of each window block."""
+    return torch.tensor([dk * grid_width + dl for dk, dl in WINDOW_OFFSETS], dtype=torch.int64, device=device)
+
+
+@functools.lru_cache(maxsize=16)
+def _window_index(device: torch.device) -> torch.Tensor:
+    """``(9,)`` int64 ``0..8``."""
+    return torch.arange(9, dtype=torch.int64, device=device)
