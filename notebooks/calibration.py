@@ -17,20 +17,20 @@
 # ApolloCar3D cannot be downloaded here, so the workflow's default input is a
 # seeded synthetic annotation set in ApolloCar3D's own layout
 # (`sdm.data.write_synthetic_apollo`). This notebook puts its statistics next
-# to those of the 57 real frames in `../shared/apollocar3d-sample` and next to
+# to those of the 57 real frames in `data/apollocar3d-sample` and next to
 # the figures the paper gives about ApolloCar3D as a whole:
 #
 # * about 11.4 labelled cars per image (over 60K cars on 5,277 images);
 # * a mean depth of the Sky target points of about 50.95 m, which is what
 #   Table 2's "Avg. Dist." column (283.4, 494.6, 699.8, 904.8 mm) stands for
-#   (method notes, section 7).
+#   (docs/method.md, Experiments).
 #
 # The real sample is one short, light-traffic street sequence, so it is
 # *expected* to be sparser and nearer than the whole dataset; it anchors the
 # geometry (road plane, screen positions, labelling thresholds), not the counts.
 
 # %% tags=["parameters"]
-apollo_sample = "../shared/apollocar3d-sample"  # real sample, relative to the project root; skipped if absent
+apollo_sample = "data/apollocar3d-sample"  # real sample, relative to the project root; skipped if absent
 synthetic_dir = ""  # an existing ApolloCar3D-layout folder to read; empty: generate one in a temporary folder
 n_images = 5277  # images to generate when synthetic_dir is ""
 seed = 0  # seed of the generator and of the Sky sample

@@ -13,14 +13,14 @@
 # %% [markdown]
 # # Stage 3: build the Sky dataset
 #
-# For every sampled image (paper, section 3; method notes, section 2):
+# For every sampled image (paper, section 3; docs/method.md, Geometry):
 #
 # 1. **E**: the car centres rendered with rmin (r = depth) on the 128 x 256 screen;
 # 2. **E'**: a disc of radius 3 ln 4 (57 pixels) around each active pixel of E, the nearest car winning;
 # 3. **Q**: one 3D point per active pixel of E' (the pixel centre back-projected at its depth);
 # 4. **L**, the target: the occupancy of Q moved by theta* = (a, b, 0).
 #
-# The solver sees Q and L, never the shift. The construction is `sdm.data.build_sky_dataset` (one
+# The solver sees Q and L, never the shift. The construction is `sdm.data.build_configurations` (one
 # `sdm.sky.build_configuration` per image); the file is written by `sdm.data.write_sky_file`.
 
 # %% tags=["parameters"]
@@ -36,7 +36,7 @@ threads = 1
 import matplotlib.pyplot as plt
 import pandas as pd
 
-from sdm.data import build_sky_dataset, read_annotations, write_sky_file
+from sdm.data import build_configurations, read_annotations, write_sky_file
 from sdm.data.stats import PAPER_TARGET_DEPTH, configuration_table, summarize
 from sdm.experiments import single_thread
 from sdm.report.io import write_json
@@ -45,8 +45,7 @@ single_thread(threads)
 cars_by_image, camera = read_annotations(source_kind, annotations)
 by_id = {image.image_id: image for image in cars_by_image}
 chosen = [by_id[image_id] for image_id in pd.read_csv(sample, dtype={"image_id": str})["image_id"]]
-configurations = build_sky_dataset(chosen, n_sample=len(chosen), seed=0, shift=tuple(shift), camera=camera,
-                                   progress=False)
+configurations = build_configurations(chosen, shift=tuple(shift), camera=camera, progress=False)
 write_sky_file(sky, configurations, tuple(shift), camera, metadata={"sample": sample, "source": source_kind})
 print(f"{len(configurations)} configurations written to {sky}")
 

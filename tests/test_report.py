@@ -8,7 +8,8 @@ import torch
 from scenes import configuration_set, configurations
 from sdm.errors import SDMInputError
 from sdm.experiments import noise_run, noisy_targets, run_seed, settings_for, split_indices, tune_cell
-from sdm.report import figures, paper
+from sdm import paper
+from sdm.report import figures
 from sdm.report.io import read_json, write_json
 from sdm.report.reproduction import build_report, checks
 from sdm.report.tables import (

@@ -1,4 +1,4 @@
-"""Accuracy and dev loss (paper, section 6.2; notes, section 6)."""
+"""Accuracy and dev loss (paper, section 6.2; docs/method.md, Training and evaluation)."""
 from __future__ import annotations
 
 import math

@@ -1,4 +1,4 @@
-"""Training: SGD on the shift theta = (a, b) through the SDM layer (paper, section 6; notes, section 6).
+"""Training: SGD on the shift theta = (a, b) through the SDM layer (paper, section 6; docs/method.md, Training and evaluation).
 
 theta starts at (0, 0). For zoom level ``s, s-1, ..., zoom``: ``n_epoch`` passes
 over the training set in shuffled mini-batches of 16 configurations (the

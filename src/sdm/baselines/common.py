@@ -18,11 +18,11 @@ from dataclasses import dataclass, field
 from typing import Callable, Sequence
 
 import torch
-import torch.nn.functional as F
 
 from ..batch import ConfigurationSet
 from ..camera import Camera
 from ..errors import SDMInputError
+from ..sky import shift_vector
 
 
 @dataclass(frozen=True)
@@ -86,7 +86,7 @@ def project_shifted(points: torch.Tensor, theta: torch.Tensor, camera: Camera) -
     Returns:
         ``(..., 2)`` ``(row, col)`` in screen pixels, differentiable in ``theta``.
     """
-    return camera.project(points + F.pad(theta, (0, 1)), validate=False)
+    return camera.project(points + shift_vector(theta, points), validate=False)
 
 
 def on_screen(screen: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:

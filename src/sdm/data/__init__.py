@@ -8,11 +8,12 @@ See ``docs/data.md``. Public API::
     read_pku_csv(path)                                 # -> list[ImageCars], sorted by id
     write_synthetic_apollo(folder, n_images=5277, seed=0)  # -> Path
     build_sky_dataset(images, n_sample=4248, seed=0, shift=SKY_SHIFT, camera=APOLLO_CAMERA_5, progress=True)
+    build_configurations(images, shift=SKY_SHIFT, camera=APOLLO_CAMERA_5, progress=True)  # no sampling
     write_sky_file(path, configurations, shift, camera, metadata=None)
     SkyFile(path, checksums=True)                      # lazy, verified: len, [i], image_ids, shift, camera, load_all()
     require_cars_on_screen(images, camera, source)     # SDMInputError naming source if no image has a car on screen
 """
-from .dataset import SKY_N_IMAGES, build_sky_dataset, sample_indices
+from .dataset import SKY_N_IMAGES, build_configurations, build_sky_dataset, sample_indices
 from .readers import (
     SOURCE_KINDS, ImageCars, read_annotations, read_apollo_camera, read_apollo_folder, read_car_poses, read_pku_csv,
 )
@@ -27,6 +28,7 @@ __all__ = [
     "SKY_N_IMAGES",
     "SceneModel",
     "SkyFile",
+    "build_configurations",
     "build_sky_dataset",
     "read_apollo_camera",
     "read_apollo_folder",

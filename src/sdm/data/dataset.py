@@ -1,4 +1,4 @@
-"""Sampling images and building the Sky dataset's configurations (paper, section 3; method notes, section 7)."""
+"""Sampling images and building the Sky dataset's configurations (paper, section 3; docs/method.md, Experiments)."""
 from __future__ import annotations
 
 from collections.abc import Sequence
@@ -75,12 +75,33 @@ def build_sky_dataset(
             bad seed, an element that is not :class:`ImageCars`.
     """
     images = list(images)
+    chosen = sample_indices(len(images), n_sample, seed, n_sample_name=n_sample_name, seed_name=seed_name)
+    return build_configurations([images[index] for index in chosen.tolist()], shift, camera, progress)
+
+
+def build_configurations(
+    images: Sequence[ImageCars],
+    shift: tuple[float, float] = SKY_SHIFT,
+    camera: Camera = APOLLO_CAMERA_5,
+    progress: bool = True,
+) -> list[SkyConfiguration]:
+    """One Sky configuration per image, in the given order (no sampling: the images are already chosen).
+
+    Args:
+        images: the images, e.g. the workflow's sample (:func:`sample_indices` of the annotation set).
+        shift: the true shift ``(a, b)`` in metres.
+        camera: camera and screen.
+        progress: show a progress bar (tqdm, on stderr).
+
+    Returns:
+        ``len(images)`` configurations; an image with no car on screen gives an empty configuration.
+
+    Raises:
+        SDMInputError: an element that is not :class:`ImageCars`.
+    """
+    images = list(images)
     for index, image in enumerate(images):
         if not isinstance(image, ImageCars):
             raise SDMInputError(f"images[{index}] must be ImageCars, got {type(image).__name__}")
-    chosen = sample_indices(len(images), n_sample, seed, n_sample_name=n_sample_name, seed_name=seed_name)
-    configurations = []
-    for index in tqdm(chosen.tolist(), desc="Sky configurations", unit="image", disable=not progress):
-        image = images[index]
-        configurations.append(build_configuration(image.centres, shift, camera, image_id=image.image_id))
-    return configurations
+    return [build_configuration(image.centres, shift, camera, image_id=image.image_id)
+            for image in tqdm(images, desc="Sky configurations", unit="image", disable=not progress)]

@@ -15,15 +15,10 @@ import torch
 
 from ..camera import APOLLO_CAMERA_5, Camera
 from ..errors import SDMInputError
+from ..paper import PAPER_AVG_DIST_MM, PAPER_CARS_PER_IMAGE, PAPER_TARGET_DEPTH  # noqa: F401 (the calibration targets)
 from ..sky import SkyConfiguration, circle_offsets, noise_displacement
 from .readers import ImageCars
 
-#: ApolloCar3D: over 60K cars on 5,277 images (paper, section 3).
-PAPER_CARS_PER_IMAGE = 11.4
-#: Mean depth (m) of the Sky target points that reproduces Table 2's "Avg. Dist." (method notes, section 7).
-PAPER_TARGET_DEPTH = 50.95
-#: Table 2's "Avg. Dist." column, millimetres, per noise level.
-PAPER_AVG_DIST_MM = {1: 283.4, 2: 494.6, 3: 699.8, 4: 904.8}
 
 
 def car_table(images: Sequence[ImageCars], camera: Camera = APOLLO_CAMERA_5) -> pd.DataFrame:
@@ -227,7 +222,7 @@ def summarize(
     return summary
 
 
-#: Targets of the synthetic default, by :func:`summarize` key (paper / method notes).
+#: Targets of the synthetic default, by :func:`summarize` key (paper; docs/method.md).
 TARGETS = {
     "cars_per_image": PAPER_CARS_PER_IMAGE,
     "target_mean_depth": PAPER_TARGET_DEPTH,

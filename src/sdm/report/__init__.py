@@ -1,6 +1,6 @@
 """Tables, figures and the reproduction report of the workflow, with the paper's numbers beside ours.
 
-- :mod:`sdm.report.paper`: the paper's Tables 1 and 2 (method notes, section 8);
+- the paper's numbers are :mod:`sdm.paper` (the one module that holds them);
 - :mod:`sdm.report.tables`: Table 1/2 frames and CSV / Markdown / LaTeX writers;
 - :mod:`sdm.report.figures`: Figures 1-4, theta's path, distance distributions;
 - :mod:`sdm.report.reproduction`: the text of ``results/report/reproduction.md``;

@@ -15,7 +15,7 @@ import pandas as pd
 
 from ..errors import SDMInputError
 from ..sky import SKY_SHIFT
-from . import paper
+from .. import paper
 from .io import write_csv, write_text
 from .tables import TableFormat, to_latex, to_markdown
 

@@ -26,8 +26,8 @@ from matplotlib.patches import Rectangle
 
 from ..camera import APOLLO_CAMERA_5, Camera
 from ..errors import SDMInputError
-from ..sky import SKY_SHIFT, SkyConfiguration, add_target_noise
-from . import paper
+from .. import paper
+from ..sky import SKY_SHIFT, SkyConfiguration, add_target_noise, shift_vector
 from .io import write_atomic
 
 MASK_CMAP = ListedColormap(["#111111", "#f2f2f2"])
@@ -127,7 +127,8 @@ def pick_point(configuration: SkyConfiguration, theta: Sequence[float], camera: 
 
     if configuration.num_points == 0:
         raise SDMInputError(f"configuration {configuration.image_id!r} has no point to draw")
-    points = configuration.points(camera) + torch.tensor([theta[0], theta[1], 0.0], dtype=torch.float64)
+    points = configuration.points(camera)
+    points = points + shift_vector(theta, points)
     median = configuration.depth.median()
     order = torch.argsort((configuration.depth - median).abs(), stable=True)
     fallback = None

@@ -13,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from ..errors import SDMInputError
-from . import paper
+from .. import paper
 from .io import write_csv, write_text
 
 #: Statistics of Table 2, in the paper's order.
