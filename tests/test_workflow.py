@@ -539,3 +539,18 @@ def test_a_damaged_sky_file_is_refused_and_a_rebuilt_one_gives_the_same_tables(c
     for table in ["table1.csv", "table2.csv", "table2.md", "table1.tex"]:
         assert (directory / "results" / "tables" / table).read_bytes() == \
             (completed_run / "results" / "tables" / table).read_bytes(), table
+
+
+def test_conda_environment_pins_the_tested_versions():
+    """workflow/envs/sdm.yaml (used with --software-deployment-method conda) pins what constraints.txt pins."""
+    tested = {}
+    for line in (ROOT / "constraints.txt").read_text().splitlines():
+        if "==" in line and not line.startswith("#"):
+            name, version = line.split("==")
+            tested[name.lower()] = version.strip()
+    environment = yaml.safe_load((ROOT / "workflow" / "envs" / "sdm.yaml").read_text())
+    pip = next(item["pip"] for item in environment["dependencies"] if isinstance(item, dict))
+    assert len(pip) >= 10
+    for requirement in pip:
+        name, version = requirement.split("==")
+        assert tested.get(name.lower()) == version, (requirement, tested.get(name.lower()))
