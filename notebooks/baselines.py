@@ -157,7 +157,7 @@ if part in ("table", "all"):
         TABLE3_FORMAT, TUNING_FORMAT, baselines_figure, table3_display, table3_frame, table3_summary, tuning_frame,
         write_table3,
     )
-    from sdm.report.figures import save_figure
+    from sdm.report.figures import show_figure
     from sdm.report.tables import to_markdown
 
     all_runs = pd.concat([pd.read_csv(path) for path in (run_files or [runs_file])], ignore_index=True)
@@ -180,7 +180,7 @@ if part in ("table", "all"):
         write_csv(tuning_csv, tuning_table)
         write_text(tuning_md, to_markdown(tuning_table, TUNING_FORMAT))
         display(Markdown(to_markdown(tuning_table, TUNING_FORMAT)))
-    save_figure(baselines_figure(table3, all_runs, shift), figure)
+    show_figure(baselines_figure(table3, all_runs, shift), figure)
 
 # %% [markdown]
 # ## The answer, in plain words (every number from Table 3)

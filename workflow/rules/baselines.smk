@@ -75,21 +75,13 @@ use rule notebook_stage as table3 with:
             *baseline_files("runs_{method}.csv"),
         ],
     output:
-        table3_csv=report(
-            result("tables/table3.csv"),
-            caption="../report/table3.rst",
-            category="Tables",
-        ),
+        table3_csv=table("table3", "table3"),
         table3_md=result("tables/table3.md"),
         table3_tex=result("tables/table3.tex"),
         tuning_csv=result("tables/table3_tuning.csv"),
         tuning_md=result("tables/table3_tuning.md"),
         summary=result("tables/table3_summary.md"),
-        figure=report(
-            result("figures/baselines.png"),
-            caption="../report/baselines.rst",
-            category="Figures",
-        ),
+        figure=figure("baselines", "baselines"),
         html=html("table3"),
     log:
         **notebook_log("table3"),

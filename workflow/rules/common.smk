@@ -47,6 +47,24 @@ def html(name):
     return result(f"notebooks/{name}.html")
 
 
+def figure(name, caption, category="Figures"):
+    """A figure under results/figures/, flagged for `snakemake --report` with its caption."""
+    return report(
+        result(f"figures/{name}.png"),
+        caption=f"../report/{caption}.rst",
+        category=category,
+    )
+
+
+def table(name, caption):
+    """A table's CSV under results/tables/, flagged for `snakemake --report` with its caption."""
+    return report(
+        result(f"tables/{name}.csv"),
+        caption=f"../report/{caption}.rst",
+        category="Tables",
+    )
+
+
 def benchmark_file(name):
     """Wall time and memory of a job (Snakemake's benchmark TSV)."""
     return f"{BENCHMARKS}/{name}.tsv"

@@ -11,18 +11,10 @@ use rule notebook_stage as tables with:
         chunks=noise_files(),
     output:
         distances=result("noise/distances.csv"),
-        table1_csv=report(
-            result("tables/table1.csv"),
-            caption="../report/table1.rst",
-            category="Tables",
-        ),
+        table1_csv=table("table1", "table1"),
         table1_md=result("tables/table1.md"),
         table1_tex=result("tables/table1.tex"),
-        table2_csv=report(
-            result("tables/table2.csv"),
-            caption="../report/table2.rst",
-            category="Tables",
-        ),
+        table2_csv=table("table2", "table2"),
         table2_md=result("tables/table2.md"),
         table2_tex=result("tables/table2.tex"),
         html=html("tables"),
@@ -45,36 +37,12 @@ use rule notebook_stage as figures with:
         best_history=result("tuning/best_history.csv"),
         distances=result("noise/distances.csv"),
     output:
-        fig1=report(
-            result("figures/fig1_configuration.png"),
-            caption="../report/fig1.rst",
-            category="Figures",
-        ),
-        fig2=report(
-            result("figures/fig2_forward.png"),
-            caption="../report/fig2.rst",
-            category="Figures",
-        ),
-        fig3=report(
-            result("figures/fig3_backward.png"),
-            caption="../report/fig3.rst",
-            category="Figures",
-        ),
-        fig4=report(
-            result("figures/fig4_noise.png"),
-            caption="../report/fig4.rst",
-            category="Figures",
-        ),
-        theta_path=report(
-            result("figures/theta_path.png"),
-            caption="../report/theta_path.rst",
-            category="Figures",
-        ),
-        distances_plot=report(
-            result("figures/distances.png"),
-            caption="../report/distances.rst",
-            category="Figures",
-        ),
+        fig1=figure("fig1_configuration", "fig1"),
+        fig2=figure("fig2_forward", "fig2"),
+        fig3=figure("fig3_backward", "fig3"),
+        fig4=figure("fig4_noise", "fig4"),
+        theta_path=figure("theta_path", "theta_path"),
+        distances_plot=figure("distances", "distances"),
         html=html("figures"),
     log:
         **notebook_log("figures"),
