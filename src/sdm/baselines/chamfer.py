@@ -27,9 +27,7 @@ import torch
 
 from ..batch import ConfigurationSet
 from ..camera import Camera
-from .common import (
-    FitResult, check_positive, check_positive_int, on_screen, pad_set, project_shifted, staged_adam, subsample, timed,
-)
+from .common import FitResult, check_positive, check_positive_int, pad_set, sampled_pair, staged_adam, timed
 
 
 @dataclass(frozen=True)
@@ -102,12 +100,8 @@ def fit(train_set: ConfigurationSet, settings: ChamferSettings = ChamferSettings
         padded = pad_set(train_set)
 
         def loss(configs, theta, stage, generator):
-            index, kept = subsample(padded.point_mask[configs], settings.max_points, generator)
-            points = padded.points[configs].gather(1, index.unsqueeze(-1).expand(-1, -1, 3))
-            screen = project_shifted(points, theta, camera)
-            kept = kept & on_screen(screen, camera.screen_shape)
-            target_index, target_kept = subsample(padded.centre_mask[configs], settings.max_points, generator)
-            centres = padded.centres[configs].gather(1, target_index.unsqueeze(-1).expand(-1, -1, 2))
+            screen, kept, centres, target_kept = sampled_pair(padded, configs, theta, camera, settings.max_points,
+                                                              generator)
             value = chamfer_2d(screen, kept, centres, target_kept)
             usable = torch.isfinite(value)
             if not bool(usable.any()):  # nothing to match in this batch: a zero loss with a zero gradient

@@ -247,3 +247,23 @@ def field_error(settings, name: str, problem: str) -> SDMInputError:
     error = SDMInputError(f"{type(settings).__name__}.{name} {problem}")
     error.field, error.problem = name, problem
     return error
+
+
+def sampled_pair(padded: PaddedSet, configs: torch.Tensor, theta: torch.Tensor, camera: Camera, max_points: int,
+                 generator: torch.Generator):
+    """The two point sets the Chamfer and Sinkhorn losses compare, for a batch of configurations.
+
+    Up to ``max_points`` points per configuration, shifted by ``theta`` and projected, and up to
+    ``max_points`` target pixel centres, each drawn without replacement from ``generator`` (points first).
+
+    Returns:
+        ``(screen, kept, centres, target_kept)``: ``(B, n, 2)`` projected points (screen pixels, float),
+        ``(B, n)`` bool (a real point that lands on screen), ``(B, m, 2)`` target centres, ``(B, m)`` bool.
+    """
+    index, kept = subsample(padded.point_mask[configs], max_points, generator)
+    points = padded.points[configs].gather(1, index.unsqueeze(-1).expand(-1, -1, 3))
+    screen = project_shifted(points, theta, camera)
+    kept = kept & on_screen(screen, camera.screen_shape)
+    target_index, target_kept = subsample(padded.centre_mask[configs], max_points, generator)
+    centres = padded.centres[configs].gather(1, target_index.unsqueeze(-1).expand(-1, -1, 2))
+    return screen, kept, centres, target_kept
