@@ -19,6 +19,7 @@ from .batch import ConfigurationSet, PointBatch
 from .camera import Camera
 from .errors import SDMInputError
 from .mapping import SpatialDomainMapping
+from .mapping.rules import FLOW_RULES
 from .sky import shift_vector
 from .zoom import target_pyramid
 
@@ -35,6 +36,7 @@ class TrainSettings:
         zoom: finest level trained (0 = full resolution).
         lr_decay: factor applied to the learning rate after each level.
         seed: seeds the shuffling.
+        flow: the gradient rule, a name of :data:`sdm.FLOW_RULES` (default ``"paper"``, eq. 19).
     """
 
     lr: float = 3e-4
@@ -44,6 +46,7 @@ class TrainSettings:
     zoom: int = 0
     lr_decay: float = 0.5
     seed: int = 0
+    flow: str = "paper"
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.lr) and self.lr > 0):
@@ -58,6 +61,8 @@ class TrainSettings:
             raise SDMInputError(f"zoom must be an integer in [0, s] = [0, {self.s}], got {self.zoom!r}")
         if not (math.isfinite(self.lr_decay) and self.lr_decay > 0):
             raise SDMInputError(f"lr_decay must be a positive finite number, got {self.lr_decay!r}")
+        if self.flow not in FLOW_RULES:
+            raise SDMInputError(f"flow must be one of {sorted(FLOW_RULES)}, got {self.flow!r}")
 
 
 @dataclass
@@ -130,7 +135,7 @@ def train(
         train_set = train_set.to(device)
     device = train_set.device
     # Built first: the layer checks that the screen is divisible by 2^s before anything is zoomed out.
-    layers = {level: SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method)
+    layers = {level: SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method, flow=settings.flow)
               for level in range(settings.s, settings.zoom - 1, -1)}
     n_configs = len(train_set)
     if n_configs < settings.batch_size:
@@ -249,7 +254,7 @@ def train_runs(
     if device is not None:
         train_set = train_set.to(device)
     device = train_set.device
-    layers = {level: SpatialDomainMapping(camera, s=common.s, zoom=level)
+    layers = {level: SpatialDomainMapping(camera, s=common.s, zoom=level, flow=common.flow)
               for level in range(common.s, common.zoom - 1, -1)}
     n_configs, batch_size = len(train_set), common.batch_size
     if n_configs < batch_size:
