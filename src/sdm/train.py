@@ -39,7 +39,8 @@ class TrainSettings:
         flow: the gradient rule, a name of :data:`sdm.FLOW_RULES` (default ``"paper"``, eq. 19).
         fit_depth: train the general shift ``(a, b, c)`` with the depth flow of :mod:`sdm.depth`
             (beyond the paper); theta, its history and ``final_theta`` then have three entries.
-        depth_lr_scale: the learning rate of ``c`` relative to ``lr`` (with ``fit_depth``).
+        depth_lr_scale: the learning rate of ``c`` relative to ``lr`` (with ``fit_depth``); 20 by a
+            measured sweep (1: c lags, 10-30: within 1e-2 m, 100: diverges; docs/method.md).
     """
 
     lr: float = 3e-4
@@ -51,7 +52,7 @@ class TrainSettings:
     seed: int = 0
     flow: str = "paper"
     fit_depth: bool = False
-    depth_lr_scale: float = 1.0
+    depth_lr_scale: float = 20.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.lr) and self.lr > 0):
