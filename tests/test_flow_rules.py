@@ -66,3 +66,33 @@ def test_true_shift_is_an_exact_fixed_point_without_noise(batch, name):
 def test_bounded_rules_pull_each_point_at_most_once_per_axis(batch, name, bound):
     result = _map(batch, (0.2, 0.1), batch.targets, 0, FLOW_RULES[name])
     assert bool(result.flow.any()) and float(result.flow.abs().max()) <= bound
+
+
+def _mean_flow_at_true_shift(batch, level, rule, draws):
+    """``(draws, 2)`` summed flow per configuration at theta*, zoom 0, one noise draw per row (seeds 100 * level + d)."""
+    points = batch.points + shift_vector(SKY_SHIFT, batch.points)
+    n_configs = int(batch.targets.shape[0])
+    flows = []
+    for draw in range(draws):
+        noisy = add_target_noise(batch.targets, level, torch.Generator().manual_seed(100 * level + draw))
+        result = fast_mapping(points, batch.pixels, batch.config, batch.rank, noisy, 4, 0, CAM, flow_rule=rule)
+        flows.append(result.flow.sum(0) / n_configs)
+    return torch.stack(flows)
+
+
+@pytest.mark.parametrize("name", ["closed", "closed5"])
+@pytest.mark.parametrize("level", [2, 4])
+def test_closing_the_target_removes_most_of_the_bias_at_the_true_shift(batch, name, level):
+    """No rule here is exactly unbiased (measured: docs/method.md, "Beyond the paper"); the closed ones cut the
+    paper's pull at theta* under noise to a small fraction.
+
+    On the same draws the paper's mean y pull is about -80 per configuration (the bias SGD follows), with a
+    standard error near 1; the closed rules' is below 15 in magnitude (3 to 14 measured on 32 scenes, 40
+    draws). The bound, a quarter of the paper's own mean on the same draws, sits well clear of both
+    (the standard errors over 12 draws are about 1 to 2).
+    """
+    paper = _mean_flow_at_true_shift(batch, level, FLOW_RULES["paper"], 12).mean(0)
+    rule = _mean_flow_at_true_shift(batch, level, FLOW_RULES[name], 12).mean(0)
+    assert float(paper[1]) < -20  # the bias is there to remove
+    assert abs(float(rule[1])) < abs(float(paper[1])) / 4
+    assert abs(float(rule[0])) < max(abs(float(paper[0])), 5.0)
