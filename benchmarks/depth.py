@@ -31,11 +31,14 @@ def main(argv=None) -> int:
     parser.add_argument("--levels", default="0")
     parser.add_argument("--runs", type=int, default=20)
     parser.add_argument("--flow", default="paper")
+    parser.add_argument("--depth-lr-scale", type=float, default=None, help="default TrainSettings'")
     parser.add_argument("--threads", type=int, default=1)
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     train_set, _, _ = load_split(args.sky, json.load(open(args.split)))
     settings = replace(settings_for(**TUNED), fit_depth=True, flow=args.flow)
+    if args.depth_lr_scale is not None:
+        settings = replace(settings, depth_lr_scale=args.depth_lr_scale)
     rows = []
     for c in (float(v) for v in args.depths.split(",")):
         truth = (0.517, 0.303, c)

@@ -142,6 +142,7 @@ FLOW_RULES: dict[str, FlowRule] = {
     "reached": _rule(select=_reached),
     "closed": _rule(prepare=_closing(3)),
     "closed5": _rule(prepare=_closing(5)),
+    "closed7": _rule(prepare=_closing(7)),
 }
 
 
