@@ -134,6 +134,30 @@ def _closing(size: int):
     return close
 
 
+def _closing_pixels(radius: int, at_least: int = 0):
+    """Closing with a square of ``radius`` *screen pixels*: ``2 (radius >> zoom) + 1`` blocks at level ``zoom``.
+
+    Noise moves a pixel by at most ``level`` screen pixels, so it opens holes of
+    that size at full resolution; zooming out already fills them once a block is
+    wider than the noise. A closing of a fixed number of *blocks* (``closed5``)
+    over-fills the coarse levels (5 blocks of 16 pixels bridge whole gaps between
+    cars, every point is matched, theta hardly moves until the fine levels, where
+    the 3x3 kernel can no longer reach). Measured in docs/method.md. ``at_least``
+    blocks of radius are closed at every level (``closed_m2``: 1, i.e. 3x3 at the coarse levels as ``closed``).
+    """
+    closings = {}
+
+    def close(target, zoom):
+        blocks = max(radius >> zoom, at_least)
+        if blocks == 0:
+            return target
+        if blocks not in closings:
+            closings[blocks] = _closing(2 * blocks + 1)
+        return closings[blocks](target, zoom)
+
+    return close
+
+
 #: The gradient rules by name. ``"paper"`` is eq. 19 (:func:`~sdm.mapping.flow.dynamic_flow`), the default.
 FLOW_RULES: dict[str, FlowRule] = {
     "paper": dynamic_flow,
@@ -143,6 +167,10 @@ FLOW_RULES: dict[str, FlowRule] = {
     "closed": _rule(prepare=_closing(3)),
     "closed5": _rule(prepare=_closing(5)),
     "closed7": _rule(prepare=_closing(7)),
+    "closed_r2": _rule(prepare=_closing_pixels(2)),
+    "closed_r3": _rule(prepare=_closing_pixels(3)),
+    "closed_r4": _rule(prepare=_closing_pixels(4)),
+    "closed_m2": _rule(prepare=_closing_pixels(2, at_least=1)),
 }
 
 
