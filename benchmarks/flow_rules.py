@@ -33,7 +33,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("sky")
     parser.add_argument("split")
-    parser.add_argument("--rules", default=",".join(FLOW_RULES))
+    parser.add_argument("--rules", default="paper,closed", help=f"comma-separated, of {','.join(FLOW_RULES)}")
     parser.add_argument("--runs", type=int, default=20)
     parser.add_argument("--levels", default="0,1,2,3,4")
     parser.add_argument("--threads", type=int, default=1)

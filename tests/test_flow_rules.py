@@ -96,3 +96,17 @@ def test_closing_the_target_removes_most_of_the_bias_at_the_true_shift(batch, na
     assert float(paper[1]) < -20  # the bias is there to remove
     assert abs(float(rule[1])) < abs(float(paper[1])) / 4
     assert abs(float(rule[0])) < max(abs(float(paper[0])), 5.0)
+
+
+def test_a_named_rule_reaches_training_alone_and_in_packed_runs():
+    """TrainSettings(flow=...) is honoured by train and train_runs alike (same history), and changes the training."""
+    from sdm import train, train_runs
+
+    data = ConfigurationSet.from_configurations(configurations(32, 9))
+    noisy = add_target_noise(data.targets, 2, torch.Generator().manual_seed(3))
+    settings = TrainSettings(lr=1e-4, n_epoch=1, s=2, seed=4, flow="closed")
+    alone = train(data.with_targets(noisy), settings, progress=False)
+    packed = train_runs(data, [noisy], [settings])
+    assert torch.equal(alone.theta, packed.theta[:, 0])
+    paper = train(data.with_targets(noisy), TrainSettings(lr=1e-4, n_epoch=1, s=2, seed=4), progress=False)
+    assert not torch.equal(alone.theta, paper.theta)
