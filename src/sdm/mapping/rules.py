@@ -117,11 +117,11 @@ def _normalised(offset, weight):
 def _closing(size: int):
     """Morphological closing of the zoomed target with a ``size x size`` square: fills the holes noise leaves.
 
-    Dilation then erosion (max pools, float32 images ``(n, 1, h, w)``); beyond the
-    grid the erosion sees active blocks, so closing never removes a block at the border.
-    A noise-free target is a set of projected surfaces whose holes are at most a
-    block or so wide, so closing changes little there (theta* stays a fixed point:
-    no point is unmatched at theta*, and closing only adds blocks).
+    ``(n, h, w)`` bool in, ``(n, h, w)`` bool out, on the target's device. Dilation
+    then erosion (max pools over float32 images ``(n, 1, h, w)``); beyond the grid
+    the erosion sees active blocks, so closing never removes a block at the border.
+    Closing only adds blocks, so a point matched at theta* stays matched: without
+    noise theta* stays an exact fixed point (``tests/test_flow_rules.py``).
     """
     pad = size // 2
 
@@ -143,7 +143,8 @@ def _closing_pixels(radius: int, at_least: int = 0):
     over-fills the coarse levels (5 blocks of 16 pixels bridge whole gaps between
     cars, every point is matched, theta hardly moves until the fine levels, where
     the 3x3 kernel can no longer reach). Measured in docs/method.md. ``at_least``
-    blocks of radius are closed at every level (``closed_m2``: 1, i.e. 3x3 at the coarse levels as ``closed``).
+    blocks of radius are closed at every level (``closed_m2``: 1, i.e. 3x3 at the
+    coarse levels, as ``closed``).
     """
     closings = {}
 
