@@ -5,7 +5,7 @@ Public API (everything else is reachable through the submodules):
 * geometry: :class:`Camera`, :data:`APOLLO_CAMERA_5`
 * data: :func:`build_configuration`, :class:`SkyConfiguration`, :data:`SKY_SHIFT`,
   :func:`add_target_noise`, :func:`noise_displacement`, :class:`ConfigurationSet`
-* the layer: :class:`SpatialDomainMapping`
+* the layer: :class:`SpatialDomainMapping`; its gradient rules by name: :data:`FLOW_RULES`
 * training: :class:`TrainSettings`, :func:`train`, :class:`History`; many runs as one program:
   :func:`train_runs`, :class:`RunsHistory`
 * metrics: :func:`distance`, :func:`dev_loss`
@@ -15,6 +15,7 @@ from .batch import ConfigurationSet, PointBatch
 from .camera import APOLLO_CAMERA_5, Camera
 from .errors import SDMInputError
 from .mapping import SpatialDomainMapping
+from .mapping.rules import FLOW_RULES
 from .metrics import dev_loss, distance
 from .sky import SKY_SHIFT, SkyConfiguration, add_target_noise, build_configuration, noise_displacement
 from .train import History, RunsHistory, TrainSettings, train, train_runs
@@ -22,7 +23,7 @@ from .train import History, RunsHistory, TrainSettings, train, train_runs
 __version__ = "0.1.0"
 
 __all__ = [
-    "APOLLO_CAMERA_5", "Camera", "ConfigurationSet", "History", "PointBatch", "SDMInputError", "SKY_SHIFT",
+    "APOLLO_CAMERA_5", "Camera", "FLOW_RULES", "ConfigurationSet", "History", "PointBatch", "SDMInputError", "SKY_SHIFT",
     "RunsHistory", "SkyConfiguration", "SpatialDomainMapping", "TrainSettings", "add_target_noise",
     "build_configuration", "dev_loss", "distance", "noise_displacement", "train", "train_runs",
 ]

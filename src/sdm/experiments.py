@@ -187,12 +187,14 @@ RUN_COLUMNS = ["level", "run", "seed", "a", "b", "distance"]
 
 def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed: int, s: int = 4,
                        shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
-                       batch_size: int = 64) -> pd.DataFrame:
+                       batch_size: int = 64, flow: str = "paper") -> pd.DataFrame:
     """The dynamic gradient flow *at* theta*, on each noise level's training targets (run 0's draw).
 
     Without noise theta* is a fixed point (the flow vanishes at every zoom level). With noisy
     targets it need not be: a non-zero mean flow at theta* is a pull that SGD follows past
     theta*, i.e. a bias of the noisy estimates, measured here instead of guessed.
+
+    ``flow`` names the gradient rule measured (:data:`sdm.FLOW_RULES`, default the paper's).
 
     Returns:
         One row per (noise level, zoom): ``level, zoom, flow_a, flow_b`` (summed flow per
@@ -205,16 +207,16 @@ def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed:
     for level in levels:
         noisy = train_set.with_targets(noisy_targets(train_set.targets, level, run_seed(seed, level, 0)))
         for zoom in range(s, -1, -1):
-            layer = SpatialDomainMapping(camera, s=s, zoom=zoom)
-            flow = torch.zeros(2, dtype=torch.float64, device=train_set.device)
+            layer = SpatialDomainMapping(camera, s=s, zoom=zoom, flow=flow)
+            total = torch.zeros(2, dtype=torch.float64, device=train_set.device)
             entered = unmatched = 0
             for _, batch in noisy.batches(batch_size):
                 result = layer(batch.points + theta, batch.pixels, batch.targets, batch.config, batch.rank).result
-                flow += result.flow.sum(0)
+                total += result.flow.sum(0)
                 entered += int(result.entered.sum())
                 unmatched += int(result.missed.sum())
-            rows.append({"level": int(level), "zoom": zoom, "flow_a": float(flow[0]) / len(noisy),
-                         "flow_b": float(flow[1]) / len(noisy), "unmatched": unmatched / max(entered, 1)})
+            rows.append({"level": int(level), "zoom": zoom, "flow_a": float(total[0]) / len(noisy),
+                         "flow_b": float(total[1]) / len(noisy), "unmatched": unmatched / max(entered, 1)})
     return pd.DataFrame.from_records(rows, columns=["level", "zoom", "flow_a", "flow_b", "unmatched"])
 
 

@@ -153,7 +153,7 @@ def build_configuration(
 
     Args:
         centres: ``(M, 3)`` car centres in metres, camera frame (``M`` may be 0).
-        shift: the true shift ``(a, b)`` in metres.
+        shift: the true shift ``(a, b)`` in metres, or ``(a, b, c)`` with depth (:mod:`sdm.depth`).
         camera: camera and screen.
         image_id: name of the source image, kept for provenance.
 
@@ -237,6 +237,8 @@ def _check_centres(centres: torch.Tensor) -> torch.Tensor:
 def shift_vector(theta, like: torch.Tensor) -> torch.Tensor:
     """The shift ``theta = (a, b)`` as the 3-vector ``(a, b, 0)`` that moves points: the one conversion.
 
+    A 3-element ``theta = (a, b, c)`` (the general shift with depth, :mod:`sdm.depth`) passes through.
+
     Args:
         theta: ``(..., 2)`` tensor (kept differentiable: its gradient is the flow on x and y)
             or two numbers ``(a, b)``, metres.
@@ -246,9 +248,14 @@ def shift_vector(theta, like: torch.Tensor) -> torch.Tensor:
         ``(..., 3)`` ``(a, b, 0)`` in metres, dtype and device of ``like``.
     """
     if isinstance(theta, torch.Tensor):
+        if theta.shape[-1:] == (3,):  # the general shift (a, b, c) with depth (sdm.depth)
+            return theta.to(dtype=like.dtype, device=like.device)
         if theta.shape[-1:] != (2,):
-            raise SDMInputError(f"theta must have shape (..., 2), got {tuple(theta.shape)}")
+            raise SDMInputError(f"theta must have shape (..., 2) or (..., 3), got {tuple(theta.shape)}")
         return F.pad(theta.to(dtype=like.dtype, device=like.device), (0, 1))
+    if isinstance(theta, (tuple, list)) and len(theta) == 3:  # (a, b, c): checked as (a, b) and c
+        (a, b), (c, _) = check_shift(theta[:2]), check_shift((theta[2], 0.0))
+        return torch.tensor([a, b, c], dtype=like.dtype, device=like.device)
     a, b = check_shift(theta)
     return torch.tensor([a, b, 0.0], dtype=like.dtype, device=like.device)
 

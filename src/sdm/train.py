@@ -19,6 +19,7 @@ from .batch import ConfigurationSet, PointBatch
 from .camera import Camera
 from .errors import SDMInputError
 from .mapping import SpatialDomainMapping
+from .mapping.rules import FLOW_RULES
 from .sky import shift_vector
 from .zoom import target_pyramid
 
@@ -35,6 +36,11 @@ class TrainSettings:
         zoom: finest level trained (0 = full resolution).
         lr_decay: factor applied to the learning rate after each level.
         seed: seeds the shuffling.
+        flow: the gradient rule, a name of :data:`sdm.FLOW_RULES` (default ``"paper"``, eq. 19).
+        fit_depth: train the general shift ``(a, b, c)`` with the depth flow of :mod:`sdm.depth`
+            (beyond the paper); theta, its history and ``final_theta`` then have three entries.
+        depth_lr_scale: the learning rate of ``c`` relative to ``lr`` (with ``fit_depth``); 20 by a
+            measured sweep (1: c lags, 10-30: within 1e-2 m, 100: diverges; docs/method.md).
     """
 
     lr: float = 3e-4
@@ -44,6 +50,9 @@ class TrainSettings:
     zoom: int = 0
     lr_decay: float = 0.5
     seed: int = 0
+    flow: str = "paper"
+    fit_depth: bool = False
+    depth_lr_scale: float = 20.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.lr) and self.lr > 0):
@@ -58,6 +67,10 @@ class TrainSettings:
             raise SDMInputError(f"zoom must be an integer in [0, s] = [0, {self.s}], got {self.zoom!r}")
         if not (math.isfinite(self.lr_decay) and self.lr_decay > 0):
             raise SDMInputError(f"lr_decay must be a positive finite number, got {self.lr_decay!r}")
+        if self.flow not in FLOW_RULES:
+            raise SDMInputError(f"flow must be one of {sorted(FLOW_RULES)}, got {self.flow!r}")
+        if not (math.isfinite(self.depth_lr_scale) and self.depth_lr_scale > 0):
+            raise SDMInputError(f"depth_lr_scale must be a positive finite number, got {self.depth_lr_scale!r}")
 
 
 @dataclass
@@ -79,9 +92,9 @@ class History:
     settings: TrainSettings
 
     @property
-    def final_theta(self) -> tuple[float, float]:
-        a, b = self.theta[-1].tolist()
-        return a, b
+    def final_theta(self) -> tuple[float, ...]:
+        """``(a, b)``, or ``(a, b, c)`` when the run fitted depth."""
+        return tuple(self.theta[-1].tolist())
 
     def to_frame(self):
         """A pandas DataFrame with one row per step: ``step, level, lr, loss, a, b`` (theta after the step)."""
@@ -106,7 +119,7 @@ def train(
     camera: Camera | None = None,
     progress: bool = True,
     method: str = "fast",
-    theta0: tuple[float, float] = (0.0, 0.0),
+    theta0: tuple[float, ...] = (0.0, 0.0),
     device: torch.device | str | None = None,
 ) -> History:
     """Recover the shift from a training set.
@@ -130,7 +143,8 @@ def train(
         train_set = train_set.to(device)
     device = train_set.device
     # Built first: the layer checks that the screen is divisible by 2^s before anything is zoomed out.
-    layers = {level: SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method)
+    layers = {level: SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method, flow=settings.flow,
+                                        fit_depth=settings.fit_depth)
               for level in range(settings.s, settings.zoom - 1, -1)}
     n_configs = len(train_set)
     if n_configs < settings.batch_size:
@@ -138,8 +152,15 @@ def train(
             f"the training set has {n_configs} configurations, fewer than one batch of {settings.batch_size}"
         )
     start = torch.as_tensor(theta0, dtype=torch.float64, device=device)
-    if start.shape != (2,) or not bool(torch.isfinite(start).all()):
-        raise SDMInputError(f"theta0 must be two finite numbers (a, b), got {theta0!r}")
+    if settings.fit_depth and start.shape == (2,):  # (a, b) -> (a, b, 0)
+        start = torch.nn.functional.pad(start, (0, 1))
+    n_params = 3 if settings.fit_depth else 2
+    if start.shape != (n_params,) or not bool(torch.isfinite(start).all()):
+        raise SDMInputError(f"theta0 must be {n_params} finite numbers, got {theta0!r}")
+    # Per-parameter learning-rate factors: c may learn at its own rate (depth_lr_scale).
+    rate_scale = torch.ones(n_params, dtype=torch.float64, device=device)
+    if settings.fit_depth:
+        rate_scale[2] = settings.depth_lr_scale
 
     # Packed data was checked when the set was built; only theta changes, and it is checked every step.
     theta = start.clone().requires_grad_(True)
@@ -150,7 +171,7 @@ def train(
     batches_per_epoch = n_configs // batch_size
     total = len(levels) * settings.n_epoch * batches_per_epoch
 
-    thetas = torch.empty(total + 1, 2, dtype=torch.float64, device=device)
+    thetas = torch.empty(total + 1, n_params, dtype=torch.float64, device=device)
     thetas[0] = theta.detach()
     losses = torch.zeros(total, dtype=torch.float64, device=device)
     step_levels = torch.empty(total, dtype=torch.int64)
@@ -171,7 +192,7 @@ def train(
                         )
                         out.loss.backward()
                         with torch.no_grad():  # plain SGD: theta <- theta - lr * grad
-                            theta -= rate * theta.grad
+                            theta -= rate * theta.grad if not settings.fit_depth else rate * rate_scale * theta.grad
                         theta.grad = None
                         losses[step] = out.loss.detach()
                         if not bool(torch.isfinite(theta).all()):
@@ -245,11 +266,13 @@ def train_runs(
     if len(shared) != 1:
         raise SDMInputError(f"the runs' settings may differ only in seed, got {sorted(map(str, shared))}")
     common = settings[0]
+    if common.fit_depth:
+        raise SDMInputError("train_runs trains (a, b) only; fit_depth runs train one at a time with train()")
     camera = camera or train_set.camera
     if device is not None:
         train_set = train_set.to(device)
     device = train_set.device
-    layers = {level: SpatialDomainMapping(camera, s=common.s, zoom=level)
+    layers = {level: SpatialDomainMapping(camera, s=common.s, zoom=level, flow=common.flow)
               for level in range(common.s, common.zoom - 1, -1)}
     n_configs, batch_size = len(train_set), common.batch_size
     if n_configs < batch_size:

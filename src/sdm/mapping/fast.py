@@ -62,6 +62,7 @@ def fast_mapping(
     steps: int,
     zoom: int,
     camera: Camera,
+    flow_rule=dynamic_flow,
 ) -> MappingResult:
     """Run SDM levels ``steps, steps-1, ..., zoom`` on points; loss and flow at level ``zoom``.
 
@@ -75,6 +76,8 @@ def fast_mapping(
         steps: the coarsest level ``s``.
         zoom: the loss level, ``0 <= zoom <= steps``.
         camera: camera and screen ``(H, W)``.
+        flow_rule: the gradient rule (default the paper's :func:`~sdm.mapping.flow.dynamic_flow`;
+            alternatives in :data:`sdm.mapping.rules.FLOW_RULES`), called with the same arguments.
 
     Returns:
         :class:`MappingResult`.
@@ -103,7 +106,7 @@ def fast_mapping(
         alive = candidate & _SCRATCH.winners(cell, rank, n_cells)
 
     out_pixels = torch.where(alive[:, None], current, -1)
-    flow, loss, matched = dynamic_flow(screen, points[:, 2], config, landed, entered_block, entered_landing, target,
+    flow, loss, matched = flow_rule(screen, points[:, 2], config, landed, entered_block, entered_landing, target,
                                        zoom, camera)
     return MappingResult(out_pixels, flow, loss, entered, matched, zoom, landed)
 

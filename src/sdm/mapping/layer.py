@@ -25,6 +25,7 @@ from ..zoom import check_divisible, zoom_out
 from .dense import dense_mapping
 from .fast import fast_mapping
 from .result import MappingResult
+from .rules import FLOW_RULES, flow_rule
 
 METHODS = {"fast": fast_mapping, "dense": dense_mapping}
 
@@ -111,9 +112,15 @@ class SpatialDomainMapping(nn.Module):
         method: ``"fast"`` (point rows) or ``"dense"`` (the paper's grids, for reference).
         c: kernel shape constant of the dense path, 1/metres (ignored by ``"fast"``,
             which is the ``c -> infinity`` limit).
+        flow: the gradient rule, a name of :data:`sdm.FLOW_RULES` (default ``"paper"``, eq. 19)
+            or a function with :func:`~sdm.mapping.flow.dynamic_flow`'s signature; only
+            ``"paper"`` with ``method="dense"``.
+        fit_depth: also give ``z`` a gradient, the depth flow of :mod:`sdm.depth`
+            (beyond the paper; default off: ``z`` gets none, as in the paper).
     """
 
-    def __init__(self, camera: Camera = APOLLO_CAMERA_5, s: int = 4, zoom: int = 0, method: str = "fast", c: float = 1e9):
+    def __init__(self, camera: Camera = APOLLO_CAMERA_5, s: int = 4, zoom: int = 0, method: str = "fast", c: float = 1e9,
+                 flow="paper", fit_depth: bool = False):
         super().__init__()
         check_divisible(camera.screen_shape, s)
         if int(zoom) != zoom or not 0 <= zoom <= s:
@@ -123,6 +130,10 @@ class SpatialDomainMapping(nn.Module):
         if not c > 0:
             raise SDMInputError(f"the kernel shape constant c must be positive, got {c!r}")
         self.camera, self.s, self.zoom, self.method, self.c = camera, int(s), int(zoom), method, float(c)
+        self.flow_rule = flow_rule(flow)
+        self.fit_depth = bool(fit_depth)
+        if method == "dense" and self.flow_rule is not FLOW_RULES["paper"]:
+            raise SDMInputError(f"flow: the dense reference implements only the paper's rule, got {flow!r}")
 
     def forward(
         self,
@@ -171,10 +182,14 @@ class SpatialDomainMapping(nn.Module):
         if rank is None:
             rank = priority_rank(points.detach()[:, 2])
         zoomed = target if target_is_zoomed else zoom_out(target, self.zoom)
-        options = {"c": self.c} if self.method == "dense" else {}
+        options = {"c": self.c} if self.method == "dense" else {"flow_rule": self.flow_rule}
         loss, flow, out_pixels, entered, matched, landed = SDMFunction.apply(
             points, pixels, config, rank, zoomed, self.s, self.zoom, self.camera, self.method, options
         )
+        if self.fit_depth:  # a zero term whose gradient on z is the depth flow (sdm.depth)
+            from ..depth import DepthPull
+
+            loss = loss + DepthPull.apply(points, flow)
         result = MappingResult(out_pixels, flow, loss.detach(), entered, matched, self.zoom, landed)
         return SDMOutput(loss, result, int(target.shape[0]), self.camera, config, points.detach()[:, 2])
 

@@ -1,0 +1,68 @@
+"""Depth (issue 12): the depth flow on single points (as Fig. 3 for x and y), targets and training of (a, b, c)."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from scenes import configurations
+from sdm import TrainSettings, train
+from sdm.batch import ConfigurationSet
+from sdm.camera import APOLLO_CAMERA_5
+from sdm.depth import depth_flow, depth_targets
+from sdm.mapping import SpatialDomainMapping
+from sdm.sky import build_configuration
+
+CAM = APOLLO_CAMERA_5
+
+
+def _z_gradient(pixel, target_step, depth=20.0):
+    """dJ/dz of one point at the centre of ``pixel`` whose only target pixel is ``pixel + target_step``."""
+    screen = torch.tensor([[pixel[0] + 0.5, pixel[1] + 0.5]], dtype=torch.float64)
+    points = CAM.backproject(screen, torch.tensor([depth], dtype=torch.float64)).requires_grad_(True)
+    target = torch.zeros(CAM.screen_shape, dtype=torch.bool)
+    target[pixel[0] + target_step[0], pixel[1] + target_step[1]] = True
+    out = SpatialDomainMapping(CAM, s=0, zoom=0, fit_depth=True)(points, torch.tensor([list(pixel)]), target)
+    out.loss.backward()
+    assert float(out.loss.detach()) > 0  # the point is pulled
+    return float(points.grad[0, 2])
+
+
+def _principal_point():
+    return CAM.project(torch.tensor([[0.0, 0.0, 1.0]], dtype=torch.float64))[0].tolist()  # (row, col)
+
+
+@pytest.mark.parametrize("side", [-1, 1])
+def test_a_target_radially_outside_pulls_the_point_nearer(side):
+    """Right of the principal point a target one column further right needs a larger |u - c_x|: z must shrink."""
+    row0, col0 = (int(v) for v in _principal_point())
+    pixel = (min(max(row0, 1), CAM.screen_shape[0] - 2), col0 + side * 40)
+    assert _z_gradient(pixel, (0, side)) > 0  # SGD lowers z
+    assert _z_gradient(pixel, (0, -side)) < 0  # inside: SGD raises z
+
+
+def test_depth_flow_vanishes_on_the_optical_axis_and_has_the_derived_form():
+    points = torch.tensor([[0.0, 0.0, 10.0], [2.0, -1.0, 10.0]], dtype=torch.float64)
+    flow = torch.tensor([[1.0, -1.0], [1.0, 2.0]], dtype=torch.float64)
+    assert depth_flow(points, flow).tolist() == [0.0, -(2.0 * 1.0 + (-1.0) * 2.0) / 10.0]
+
+
+def test_build_configuration_with_depth_matches_depth_targets():
+    data = ConfigurationSet.from_configurations(configurations(3, 2))
+    generator = torch.Generator().manual_seed(2)
+    from scenes import road_centres
+
+    centres = road_centres(generator, 8)
+    flat = build_configuration(centres, (0.517, 0.303))
+    deep = build_configuration(centres, (0.517, 0.303, 1.0))
+    assert torch.equal(flat.pixels, deep.pixels) and not torch.equal(flat.target, deep.target)
+    targets = depth_targets(data, (0.517, 0.303, 0.0))
+    assert torch.equal(targets, data.targets)
+
+
+def test_training_recovers_a_depth_shift():
+    data = ConfigurationSet.from_configurations(configurations(128, 4))
+    truth = (0.517, 0.303, 1.0)
+    data = data.with_targets(depth_targets(data, truth))
+    history = train(data, TrainSettings(lr=1e-4, n_epoch=4, s=4, fit_depth=True), progress=False)
+    a, b, c = history.final_theta
+    assert abs(a - truth[0]) < 5e-3 and abs(b - truth[1]) < 5e-3 and abs(c - truth[2]) < 5e-2
