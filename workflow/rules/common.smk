@@ -1,13 +1,12 @@
-# Shared helpers: paths derived from the config, the annotation manifest, and the notebook-stage template.
+# Shared helpers: paths derived from the config, the annotation manifest, the tuning grid, the noise
+# chunks and Table 3's methods (the notebook-stage template is in stage.smk).
 # Nothing here imports torch or sdm: parsing the workflow stays fast and works without them.
 import hashlib
 import json
 import os
-import sys
 from pathlib import Path
 
 NOTEBOOKS = Path(workflow.basedir) / "notebooks"
-SRC = Path(workflow.basedir) / "src"
 
 # Every output lives under the results root (config key results_dir, "results" by default), so that
 # runs on different data never overwrite each other. Logs and benchmarks of the default run stay in
