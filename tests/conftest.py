@@ -21,3 +21,14 @@ def apollo_sample() -> Path:
     if not (APOLLO_SAMPLE / "car_poses").is_dir():
         pytest.skip(f"real ApolloCar3D sample not found at {APOLLO_SAMPLE}")
     return APOLLO_SAMPLE
+
+
+@pytest.fixture(scope="session")
+def saved_set(tmp_path_factory) -> Path:
+    """A 24-configuration set saved with torch.save, for the device probe's subprocesses (tests/device_probe.py)."""
+    from scenes import configuration_set
+
+    data = configuration_set(24, seed=31)
+    path = tmp_path_factory.mktemp("probe") / "set.pt"
+    torch.save({"points": data.points, "pixels": data.pixels, "offsets": data.offsets, "targets": data.targets}, path)
+    return path

@@ -18,14 +18,6 @@ pytestmark = pytest.mark.skipif(not torch.cuda.is_available(), reason="needs a C
 REDUCED = ("_loss", "explain_kernel")
 
 
-@pytest.fixture(scope="module")
-def saved_set(tmp_path_factory):
-    data = configuration_set(24, seed=31)
-    path = tmp_path_factory.mktemp("cuda") / "set.pt"
-    torch.save({"points": data.points, "pixels": data.pixels, "offsets": data.offsets, "targets": data.targets}, path)
-    return path
-
-
 def test_cpu_and_cuda_agree(saved_set):
     on_cpu = probe(str(saved_set), "cpu")
     on_cuda = probe(str(saved_set), "cuda")

@@ -13,20 +13,11 @@ import subprocess
 import sys
 from pathlib import Path
 
-import pytest
 import torch
 
 from scenes import configuration_set
 
 PROBE = Path(__file__).with_name("device_probe.py")
-
-
-@pytest.fixture(scope="module")
-def saved_set(tmp_path_factory):
-    data = configuration_set(24, seed=31)
-    path = tmp_path_factory.mktemp("devices") / "set.pt"
-    torch.save({"points": data.points, "pixels": data.pixels, "offsets": data.offsets, "targets": data.targets}, path)
-    return path
 
 
 def run_probe(data_path, out_path, device, default_device=None):

@@ -304,14 +304,21 @@ def test_only_the_loss_carries_a_gradient():
     assert bool(result.flow.any())  # something is pulled, so the check above is not vacuous
 
 
-def test_torch_func_grad_sees_the_layer():
-    """forward + setup_context: a functional transform gives the same gradient as backward()."""
+def zoom1_loss_of_theta():
+    """The layer's loss at zoom 1 on a small batch, as a function of the shift theta (2,)."""
     batch = small_batch()
     layer = SpatialDomainMapping(s=4, zoom=1)
 
     def loss_of(theta):
         return layer(batch.points + shift_vector(theta, batch.points), batch.pixels, batch.targets,
                      batch.config, batch.rank).loss
+
+    return loss_of
+
+
+def test_torch_func_grad_sees_the_layer():
+    """forward + setup_context: a functional transform gives the same gradient as backward()."""
+    loss_of = zoom1_loss_of_theta()
 
     theta = torch.tensor([0.2, 0.1], dtype=torch.float64)
     functional = torch.func.grad(loss_of)(theta)
@@ -341,12 +348,7 @@ def test_dynamic_flow_is_the_gradient_of_the_layer():
 
 def test_torch_compile_runs_the_layer():
     """docs/method.md: Dynamo breaks the graph at the input checks and at the pulled points' nonzero, and runs."""
-    batch = small_batch()
-    layer = SpatialDomainMapping(s=4, zoom=1)
-
-    def loss_of(theta):
-        return layer(batch.points + shift_vector(theta, batch.points), batch.pixels, batch.targets,
-                     batch.config, batch.rank).loss
+    loss_of = zoom1_loss_of_theta()
 
     compiled = torch.compile(loss_of, backend="eager")
     eager, traced = (torch.tensor([0.2, 0.1], dtype=torch.float64, requires_grad=True) for _ in range(2))
