@@ -29,23 +29,30 @@
 # pixels per dev configuration, noise-free); SDM keeps Table 1's pick. Then, per noise level and run,
 # every method sees the *same* noisy targets (the run seed of Table 2), so the comparison is paired.
 #
-# One notebook, three parts, chosen by `part`, so the workflow can fan the work out:
-# `tune` (the grids of `methods`), `runs` (`methods` x `levels` x `run_indices`), `table` (Table 3,
-# the tuning table and the figure from the run files); `fit` is `tune` then `runs` (one job per method
-# saves a notebook start per level), `all` does the three in a row.
+# **SDM is not trained again here.** Its rows are Table 2's runs themselves (`table2_distances`, the noise
+# stage's per-run results): run r at level n is the same seed, hence the same noisy targets and shuffling,
+# as each baseline's run (n, r). Its time per run is what the noise stage measured while producing them
+# (`sdm_timings`: per chunk, the wall seconds of `sdm.experiments.noise_runs` over the chunk's runs, trained
+# together as one program on one thread; neither the notebook's start nor reading the data counted),
+# summed per level and divided by the level's runs. The baselines' seconds are measured the same way, by
+# `sdm.baselines.noise_runs` around their fits.
+#
+# One notebook, three parts, chosen by `part`, so the workflow can fan the work out: `tune` (the grids of
+# `methods`, one job per method), `runs` (`methods` x `levels` x `run_indices`, one job per method and
+# level), `table` (Table 3, the tuning table and the figure from the run files); `all` does the three in
+# a row.
 
 # %% tags=["parameters"]
-sky = "results/sky/sky.bin"  # input
-split = "results/split/split.json"  # input
-best = "results/tuning/best.json"  # input: SDM's tuned settings (Table 1)
-part = "all"  # tune | runs | fit (tune then runs) | table | all
-methods = ["sdm", "silhouette", "chamfer", "sinkhorn", "cmaes"]
+sky = "results/sky/sky.bin"  # input of tune and runs
+split = "results/split/split.json"  # input of tune and runs
+part = "all"  # tune | runs | table | all
+methods = ["silhouette", "chamfer", "sinkhorn", "cmaes"]  # the baselines (SDM's rows are Table 2's)
 settings = {}  # per method (config baselines.<method>): setting -> value, or a list of values to tune over
-tuning_files = []  # one CSV per method (ignored for sdm): output of `tune`, input of `runs` and `table`
+tuning_files = []  # one CSV per method: output of `tune`, input of `runs` and `table` (default: beside runs_file)
 runs_file = "results/baselines/runs.csv"  # output of `runs`: one row per (method, level, run)
 run_files = []  # input of `table` (default: [runs_file])
-table2_distances = ""  # optional input: Table 2's per-run distances: checks SDM's runs (`runs`), or stands in
-# for them when `sdm` is not among the run files (`table`: SDM's rows are then Table 2's, without seconds)
+table2_distances = "results/noise/distances.csv"  # input of `table`: Table 2's per-run results, SDM's rows
+sdm_timings = []  # input of `table`: the noise jobs' timing files (SDM's seconds per run; none: no seconds)
 levels = [0, 1, 2, 3, 4]
 run_indices = [0, 1]
 table3_csv = "results/tables/table3.csv"  # output of `table`
@@ -55,9 +62,7 @@ tuning_csv = "results/tables/table3_tuning.csv"  # output of `table`
 tuning_md = "results/tables/table3_tuning.md"  # output of `table`: written beside tuning_csv, same stem
 figure = "results/figures/baselines.png"  # output of `table`
 summary = "results/tables/table3_summary.md"  # output of `table`: the answer in plain words, for the report
-s = 4
-batch_size = 16
-lr_decay = 0.5
+s = 4  # SDM's zoom chain for the dev loss (Table 1's criterion)
 train_seed = 0  # seed of the tuning fits (as train.seed for Table 1)
 seed = 0  # noise seed (as noise.seed for Table 2): run seeds come from (seed, level, run)
 shift = [0.517, 0.303]
@@ -71,21 +76,23 @@ from IPython.display import Markdown, display
 
 from sdm.baselines import best_settings, method, noise_runs, settings_grid, tune
 from sdm.errors import SDMInputError
-from sdm.experiments import load_split, settings_for, single_thread
+from sdm.experiments import load_split, single_thread
 from sdm.report.io import read_json, write_csv, write_text
 
 single_thread(threads)
-if part not in ("tune", "runs", "fit", "table", "all"):
-    raise SDMInputError(f"parameter 'part': must be tune, runs, fit, table or all, got {part!r}")
+if part not in ("tune", "runs", "table", "all"):
+    raise SDMInputError(f"parameter 'part': must be tune, runs, table or all, got {part!r}")
 for name in methods:
     method(name, "baselines.methods")
+    if name == "sdm":
+        raise SDMInputError("config key 'baselines.methods': 'sdm' is not a baseline (its rows are Table 2's runs)")
 for name in settings:
     method(name, f"baselines.{name}")
+tuning_files = tuning_files or [str(Path(runs_file).with_name(f"tuning_{name}.csv")) for name in methods]
 if len(tuning_files) != len(methods):
     raise SDMInputError(f"parameter 'tuning_files': need one per method ({len(methods)}), got {len(tuning_files)}")
 tuning_of = dict(zip(methods, tuning_files))
-needs_data = part in ("tune", "runs", "fit", "all")
-if needs_data:
+if part in ("tune", "runs", "all"):
     train_set, dev_set, camera = load_split(sky, read_json(split))
     print(f"{len(train_set)} training and {len(dev_set)} dev configurations")
 
@@ -96,10 +103,8 @@ if needs_data:
 # lowest dev loss is chosen. The distance to theta* is reported but plays no part in the choice.
 
 # %%
-if part in ("tune", "fit", "all"):
+if part in ("tune", "all"):
     for name in methods:
-        if name == "sdm":
-            continue  # SDM's cell is Table 1's (best.json)
         cells = settings_grid(name, settings.get(name, {}))
         tuning = tune(name, train_set, dev_set, cells, seed=train_seed, s=s, shift=shift, camera=camera)
         write_csv(tuning_of[name], tuning)
@@ -112,20 +117,14 @@ if part in ("tune", "fit", "all"):
 # ## Paired noise runs
 #
 # Run `r` at level `n` draws its noisy targets from `run_seed(seed, n, r)`, exactly as Table 2's run;
-# the same seed drives the method's own randomness (mini-batches, subsampling, CMA-ES).
+# the same seed drives the method's own randomness (mini-batches, subsampling, CMA-ES). Each method runs
+# with the cell its tuning chose.
 
 # %%
-def settings_of(name):
-    if name == "sdm":
-        tuned = read_json(best)
-        return settings_for(tuned["n_epoch"], tuned["lr"], s, batch_size, lr_decay, train_seed)
-    return best_settings(name, pd.read_csv(tuning_of[name]))
-
-
-if part in ("runs", "fit", "all"):
+if part in ("runs", "all"):
     frames = []
     for name in methods:
-        chosen = settings_of(name)
+        chosen = best_settings(name, pd.read_csv(tuning_of[name]))
         print(f"{name}: {chosen}")
         for level in levels:
             frame = noise_runs(name, train_set, level, run_indices, chosen, seed, shift=shift, camera=camera)
@@ -136,45 +135,35 @@ if part in ("runs", "fit", "all"):
     write_csv(runs_file, runs)
 
 # %% [markdown]
-# SDM's runs here must be Table 2's runs (same seed, same noise, same shuffling): checked when
-# Table 2's distances are given.
-
-# %%
-if part in ("runs", "fit", "all") and "sdm" in methods and table2_distances:
-    table2 = pd.read_csv(table2_distances).set_index(["level", "run"])
-    ours = runs[runs["method"] == "sdm"].set_index(["level", "run"])
-    common = ours.index.intersection(table2.index)
-    gap = (ours.loc[common, ["a", "b"]] - table2.loc[common, ["a", "b"]]).abs().to_numpy().max() if len(common) else 0.0
-    print(f"SDM runs matched with Table 2: {len(common)} of {len(ours)}, largest theta difference {gap:.3g} m")
-    assert gap < 1e-9, "SDM's runs differ from Table 2's runs with the same seeds"
-
-# %% [markdown]
 # ## Table 3 and the figure
 
 # %%
 if part in ("table", "all"):
     from sdm.report.baselines import (
-        TABLE3_FORMAT, TUNING_FORMAT, baselines_figure, table3_display, table3_frame, table3_summary, tuning_frame,
-        write_table3,
+        TABLE3_FORMAT, TUNING_FORMAT, baselines_figure, table2_runs, table3_display, table3_frame, table3_summary,
+        tuning_frame, write_table3,
     )
     from sdm.report.figures import show_figure
     from sdm.report.tables import to_markdown
 
-    all_runs = pd.concat([pd.read_csv(path) for path in (run_files or [runs_file])], ignore_index=True)
-    if "sdm" not in set(all_runs["method"]) and table2_distances:
-        # SDM not re-run here: its rows are Table 2's runs with the same (level, run), i.e. the same noisy
-        # targets; Table 2 records no time per run, so SDM's seconds stay empty.
-        table2 = pd.read_csv(table2_distances)
-        pairs = set(zip(all_runs["level"], all_runs["run"]))
-        table2 = table2[[pair in pairs for pair in zip(table2["level"], table2["run"])]]
-        all_runs = pd.concat([table2.assign(method="sdm", seconds=float("nan")), all_runs], ignore_index=True)
-        print(f"SDM rows from Table 2: {len(table2)} runs")
+    baseline_runs = pd.concat([pd.read_csv(path) for path in (run_files or [runs_file])], ignore_index=True)
+    # SDM's rows: Table 2's runs with the same (level, run), i.e. the same noisy targets, and the noise
+    # stage's own time per run (see the top of this notebook).
+    sdm_runs = table2_runs(pd.read_csv(table2_distances), [read_json(path) for path in sdm_timings], levels,
+                           run_indices)
+    unpaired = set(zip(baseline_runs["level"], baseline_runs["run"])) - set(zip(sdm_runs["level"], sdm_runs["run"]))
+    if unpaired:
+        raise SDMInputError(f"baseline runs without an SDM run to pair with: {sorted(unpaired)[:5]} (parameters "
+                            f"'levels' and 'run_indices' must cover every run file)")
+    print(f"SDM rows from Table 2: {len(sdm_runs)} runs; seconds per run by level: "
+          + ", ".join(f"{level}: {value:.3f}" for level, value in sdm_runs.groupby("level")["seconds"].first().items()))
+    all_runs = pd.concat([sdm_runs, baseline_runs], ignore_index=True)
     table3 = table3_frame(all_runs, shift=shift)
     written = write_table3(table3, Path(table3_csv).with_suffix(""))
     assert {str(path) for path in written} == {table3_csv, table3_md, table3_tex}, written
     display(Markdown(to_markdown(table3_display(table3), TABLE3_FORMAT)))
 
-    tunings = [pd.read_csv(tuning_of[name]) for name in methods if name != "sdm" and Path(tuning_of[name]).is_file()]
+    tunings = [pd.read_csv(tuning_of[name]) for name in methods if Path(tuning_of[name]).is_file()]
     if tunings:
         tuning_table = tuning_frame(tunings)
         write_csv(tuning_csv, tuning_table)
@@ -187,12 +176,12 @@ if part in ("table", "all"):
 
 # %%
 if part in ("table", "all"):
-    answer = table3_summary(table3) if "sdm" in set(table3["method"]) else "SDM was not run: nothing to compare with.\n"
+    answer = table3_summary(table3)
     write_text(summary, answer)
     display(Markdown(answer))
 
 # %% [markdown]
-# Time per run (seconds, this machine, one thread) per method, over all levels:
+# Time per run (seconds, this machine, one thread) per method, over all levels (SDM's: the noise stage's timing):
 
 # %%
 if part in ("table", "all"):

@@ -18,12 +18,17 @@
 # its distance to theta* measured. The seed flows one way: `seed` goes into the settings, and run r at level n
 # trains with the seed derived from (seed, n, r), which fixes both its noise and its shuffling, so any chunk of
 # runs can run anywhere and give the same numbers.
+#
+# The chunk also records the wall seconds of its runs (the training alone: not the notebook's start,
+# nor reading the data) in `timing_file`; Table 3 reports them as SDM's time per run. Nothing of
+# Table 2 reads it, so the tables stay the same byte for byte whatever the machine's speed.
 
 # %% tags=["parameters"]
 sky = "results/sky/sky.bin"  # input
 split = "results/split/split.json"  # input
 best = "results/tuning/best.json"  # input: the tuned settings
 chunk_file = "results/noise/level0_chunk0.csv"  # output: one row per run
+timing_file = "results/noise/level0_chunk0_seconds.json"  # output: wall seconds of the chunk's runs
 level = 0
 run_indices = [0, 1]
 s = 4
@@ -34,16 +39,25 @@ shift = [0.517, 0.303]
 threads = 1
 
 # %%
+import time
+
 from sdm.experiments import load_split, noise_runs, settings_for, single_thread
-from sdm.report.io import read_json, write_csv
+from sdm.report.io import read_json, write_csv, write_json
 
 single_thread(threads)
 tuned = read_json(best)
 train_set, _, camera = load_split(sky, read_json(split))
 settings = settings_for(tuned["n_epoch"], tuned["lr"], s, batch_size, lr_decay, seed)
 print(f"level {level}, runs {run_indices[0]}..{run_indices[-1]}, n_epoch {settings.n_epoch}, lr {settings.lr:g}")
+started = time.perf_counter()
 runs = noise_runs(train_set, level, run_indices, settings, shift=shift, camera=camera)
+seconds = time.perf_counter() - started
 write_csv(chunk_file, runs)
+# The runs are trained together as one program (sdm.experiments.noise_runs), so a run's share is
+# the chunk's wall time over its runs.
+write_json(timing_file, {"level": level, "runs": len(run_indices), "seconds": seconds,
+                         "seconds_per_run": seconds / len(run_indices), "threads": threads})
+print(f"{len(run_indices)} runs in {seconds:.2f} s ({seconds / len(run_indices):.3f} s per run, {threads} thread(s))")
 
 # %%
 runs.assign(distance_mm=1000 * runs["distance"]).describe()

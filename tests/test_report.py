@@ -269,3 +269,22 @@ def test_flow_at_the_true_shift_vanishes_without_noise_and_is_reported():
     assert "## Why the noisy runs are biased: the flow at theta*" in text
     assert "Without noise the flow at theta* is zero at zoom 0" in text
     assert f"{100 * noisy_finest['unmatched']:.1f}%" in text
+
+
+def test_table3_sdm_rows_are_table2_runs_with_the_noise_jobs_seconds():
+    """Table 3's SDM rows: the wanted (level, run) of Table 2 as they are, seconds = level's chunk seconds / runs."""
+    from sdm.report.baselines import RUN_COLUMNS, table2_runs
+
+    table2 = pd.DataFrame({"level": [0, 0, 0, 1, 1, 1], "run": [0, 1, 2, 0, 1, 2], "seed": [10, 11, 12, 13, 14, 15],
+                           "a": [0.5, 0.51, 0.52, 0.6, 0.61, 0.62], "b": [0.3] * 6,
+                           "distance": [0.01, 0.02, 0.03, 0.04, 0.05, 0.06]})
+    timings = [{"level": 0, "runs": 2, "seconds": 3.0}, {"level": 0, "runs": 1, "seconds": 3.0},
+               {"level": 1, "runs": 3, "seconds": 1.5}]
+    rows = table2_runs(table2, timings, levels=[0, 1], runs=[0, 1])
+    assert set(RUN_COLUMNS) <= set(rows.columns) and set(rows["method"]) == {"sdm"}
+    assert list(zip(rows["level"], rows["run"])) == [(0, 0), (0, 1), (1, 0), (1, 1)]
+    assert list(rows["distance"]) == [0.01, 0.02, 0.04, 0.05] and list(rows["a"]) == [0.5, 0.51, 0.6, 0.61]
+    assert list(rows["seconds"]) == [2.0, 2.0, 0.5, 0.5]  # (3 + 3) s / 3 runs; 1.5 s / 3 runs
+    assert table2_runs(table2, [], [1], [2])["seconds"].isna().all()  # no timing: no seconds, not zero
+    with pytest.raises(SDMInputError, match="baselines.runs"):
+        table2_runs(table2, timings, levels=[0], runs=[0, 3])

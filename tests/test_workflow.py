@@ -27,8 +27,8 @@ from config_check import ConfigError, check_config, load_config, validate_schema
 
 SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
 APOLLO_SAMPLE = ROOT / "data" / "apollocar3d-sample"
-STAGES = ["synthetic", "data", "sample", "sky", "split", "tune", "best", "noise", "tables", "baseline_fit",
-          "baseline_sdm", "table3", "figures", "report"]
+STAGES = ["synthetic", "data", "sample", "sky", "split", "tune", "best", "noise", "tables", "baseline_tune",
+          "baseline_runs", "table3", "figures", "report"]
 
 pytestmark = pytest.mark.workflow
 
@@ -112,9 +112,11 @@ def test_dry_run_default_config_plans_every_stage(tmp_path):
     jobs = planned(snakemake("-n", "--quiet", "rules", cwd=workdir(tmp_path, config)))
     cells = len(config["tuning"]["n_epoch"]) * len(config["tuning"]["lr"])
     chunks = len(config["noise"]["levels"]) * -(-config["noise"]["runs"] // config["noise"]["chunk_size"])
+    methods = config["baselines"]["methods"]
     assert jobs == {"synthetic": 1, "data": 1, "sample": 1, "sky": 1, "split": 1, "tune": cells, "best": 1,
                     "noise": chunks, "tables": 1, "figures": 1, "report": 1,
-                    "baseline_fit": len(config["baselines"]["methods"]), "baseline_sdm": 1, "table3": 1}
+                    "baseline_tune": len(methods), "baseline_runs": len(methods) * len(config["noise"]["levels"]),
+                    "table3": 1}
 
 
 @pytest.mark.parametrize("flag", ["--workflow-profile", "--profile"])
@@ -316,6 +318,34 @@ def test_notebooks_that_plot_show_their_plots(completed_run, stage, page):
         assert "TqdmWarning" not in page.read_text(), page
 
 
+def test_table3_takes_sdm_from_table2_and_its_time_from_the_noise_jobs(completed_run):
+    """SDM is not retrained for Table 3: its rows are Table 2's runs 0..baselines.runs-1, its seconds the
+    noise jobs' own timing; every baseline has one runs file per noise level (one job each)."""
+    import pandas as pd
+
+    config = dot_test_config()
+    results = completed_run / "results"
+    paired = config["baselines"]["runs"]
+    table3 = pd.read_csv(results / "tables" / "table3.csv")
+    sdm_rows = table3[table3["method"] == "sdm"].set_index("level")
+    distances = pd.read_csv(results / "noise" / "distances.csv")
+    timings = [json.loads(path.read_text()) for path in sorted((results / "noise").glob("level*_chunk*_seconds.json"))]
+    assert len(timings) == len(config["noise"]["levels"]) * -(-config["noise"]["runs"] // config["noise"]["chunk_size"])
+    assert sorted(sdm_rows.index) == sorted(config["noise"]["levels"])
+    for level in config["noise"]["levels"]:
+        runs = distances[(distances["level"] == level) & (distances["run"] < paired)]
+        assert sdm_rows.loc[level, "runs"] == paired == len(runs)
+        assert sdm_rows.loc[level, "mean_m"] == pytest.approx(runs["distance"].mean(), rel=1e-12)
+        recorded = [timing for timing in timings if timing["level"] == level]
+        seconds = sum(timing["seconds"] for timing in recorded) / sum(timing["runs"] for timing in recorded)
+        assert sdm_rows.loc[level, "seconds_per_run"] == pytest.approx(seconds, rel=1e-12)
+    for method in config["baselines"]["methods"]:
+        for level in config["noise"]["levels"]:
+            runs = pd.read_csv(results / "baselines" / f"runs_{method}_level{level}.csv")
+            assert sorted(runs["run"]) == list(range(paired)) and set(runs["level"]) == {level}, (method, level)
+    assert not list((results / "baselines").glob("runs_sdm*"))
+
+
 def _key_cases() -> dict[str, tuple[dict, str | None]]:
     """Every schema key of the .test config: (config change, first stage expected to rerun)."""
     return {
@@ -346,11 +376,11 @@ def _key_cases() -> dict[str, tuple[dict, str | None]]:
         "figures.seed": ({"figures": {"seed": 1}}, "figures"),
         "baselines.enabled": ({"baselines": {"enabled": False}}, "report"),
         "baselines.methods": ({"baselines": {"methods": ["silhouette", "chamfer", "sinkhorn"]}}, "table3"),
-        "baselines.runs": ({"baselines": {"runs": 1}}, "baseline_fit"),
-        "baselines.silhouette": ({"baselines": {"silhouette": {"lr": 0.2, "steps": 12}}}, "baseline_fit"),
-        "baselines.chamfer": ({"baselines": {"chamfer": {"lr": 0.2, "steps": 12}}}, "baseline_fit"),
-        "baselines.sinkhorn": ({"baselines": {"sinkhorn": {"lr": 0.2, "steps": 8}}}, "baseline_fit"),
-        "baselines.cmaes": ({"baselines": {"cmaes": {"sigma0": 0.2, "budget": 120}}}, "baseline_fit"),
+        "baselines.runs": ({"baselines": {"runs": 1}}, "baseline_runs"),
+        "baselines.silhouette": ({"baselines": {"silhouette": {"lr": 0.2, "steps": 12}}}, "baseline_tune"),
+        "baselines.chamfer": ({"baselines": {"chamfer": {"lr": 0.2, "steps": 12}}}, "baseline_tune"),
+        "baselines.sinkhorn": ({"baselines": {"sinkhorn": {"lr": 0.2, "steps": 8}}}, "baseline_tune"),
+        "baselines.cmaes": ({"baselines": {"cmaes": {"sigma0": 0.2, "budget": 120}}}, "baseline_tune"),
     }
 
 

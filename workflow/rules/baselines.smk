@@ -1,79 +1,69 @@
 # Table 3: SDM against the losses a researcher would use instead, on Table 2's noisy targets
-# (the same run seeds: a paired comparison). One job per baseline (tune, then the runs), one for
-# SDM's own runs (timed like the others, and checked equal to Table 2's), then the table.
+# (the same run seeds: a paired comparison). Per baseline, one tuning job (its grid on the dev set,
+# like Table 1), then one job per noise level (that level's paired runs), like the noise stage;
+# then the table. SDM is not rerun: its rows are Table 2's runs (noise/distances.csv), its time
+# per run the one the noise jobs record.
 
 
-use rule notebook_stage as baseline_fit with:
-    """Tune one baseline on the dev set (like Table 1), then its paired noise runs."""
+use rule notebook_stage as baseline_tune with:
+    """Tune one baseline on the dev set, noise-free, by Table 1's criterion (the dev loss)."""
     input:
         source=notebook("baselines"),
         sky=SKY_FILE,
         split=SPLIT_FILE,
-        best=BEST_FILE,
     output:
         tuning_files=[result("baselines/tuning_{method}.csv")],
-        runs_file=result("baselines/runs_{method}.csv"),
-        html=html("baselines_{method}"),
+        html=html("baselines_tune_{method}"),
     log:
-        **notebook_log("baselines_{method}"),
+        **notebook_log("baselines_tune_{method}"),
     benchmark:
-        benchmark_file("baselines_{method}")
+        benchmark_file("baselines_tune_{method}")
     wildcard_constraints:
         method=BASELINE_PATTERN,
-    resources:
-        runtime=30,
     params:
-        part="fit",
+        part="tune",
         methods=lambda wildcards: [wildcards.method],
         settings=lambda wildcards: {wildcards.method: BASELINES[wildcards.method]},
-        levels=config["noise"]["levels"],
-        run_indices=BASELINE_RUNS,
         s=config["train"]["s"],
-        batch_size=config["train"]["batch_size"],
-        lr_decay=config["train"]["lr_decay"],
         train_seed=config["train"]["seed"],
-        seed=config["noise"]["seed"],
         shift=config["sky"]["shift"],
 
 
-use rule notebook_stage as baseline_sdm with:
-    """SDM's paired runs, timed one by one like the baselines'; each must equal Table 2's run."""
+use rule notebook_stage as baseline_runs with:
+    """One baseline's paired runs at one noise level, with its tuned settings."""
     input:
         source=notebook("baselines"),
         sky=SKY_FILE,
         split=SPLIT_FILE,
-        best=BEST_FILE,
-        tuning_files=[BEST_FILE],
-        table2_distances=result("noise/distances.csv"),
+        tuning_files=[result("baselines/tuning_{method}.csv")],
     output:
-        runs_file=result("baselines/runs_sdm.csv"),
-        html=html("baselines_sdm"),
+        runs_file=result("baselines/runs_{method}_level{level}.csv"),
+        html=html("baselines_{method}_level{level}"),
     log:
-        **notebook_log("baselines_sdm"),
+        **notebook_log("baselines_{method}_level{level}"),
     benchmark:
-        benchmark_file("baselines_sdm")
+        benchmark_file("baselines_{method}_level{level}")
+    wildcard_constraints:
+        method=BASELINE_PATTERN,
+    resources:
+        runtime=15,
     params:
         part="runs",
-        methods=["sdm"],
-        levels=config["noise"]["levels"],
+        methods=lambda wildcards: [wildcards.method],
+        levels=lambda wildcards: [int(wildcards.level)],
         run_indices=BASELINE_RUNS,
-        s=config["train"]["s"],
-        batch_size=config["train"]["batch_size"],
-        lr_decay=config["train"]["lr_decay"],
-        train_seed=config["train"]["seed"],
         seed=config["noise"]["seed"],
         shift=config["sky"]["shift"],
 
 
 use rule notebook_stage as table3 with:
-    """Table 3, the baselines' tuning table, the figure and the answer in plain words."""
+    """Table 3 (SDM's rows from Table 2's runs), the tuning table, the figure, the answer in words."""
     input:
         source=notebook("baselines"),
-        tuning_files=[BEST_FILE, *baseline_files("tuning_{method}.csv")],
-        run_files=[
-            result("baselines/runs_sdm.csv"),
-            *baseline_files("runs_{method}.csv"),
-        ],
+        tuning_files=baseline_tuning_files(),
+        run_files=baseline_run_files(),
+        table2_distances=result("noise/distances.csv"),
+        sdm_timings=noise_timing_files(),
     output:
         table3_csv=table("table3", "table3"),
         table3_md=result("tables/table3.md"),
@@ -89,5 +79,7 @@ use rule notebook_stage as table3 with:
         benchmark_file("table3")
     params:
         part="table",
-        methods=["sdm", *BASELINES],
+        methods=[*BASELINES],
+        levels=config["noise"]["levels"],
+        run_indices=BASELINE_RUNS,
         shift=config["sky"]["shift"],

@@ -194,7 +194,17 @@ def noise_files():
     ]
 
 
-# Table 3: the baselines beside SDM (config section baselines), each with its settings grid.
+def noise_timing_files():
+    """The noise jobs' timings (wall seconds of their runs; SDM's time per run in Table 3)."""
+    return [
+        result(f"noise/level{level}_chunk{chunk}_seconds.json")
+        for level, chunk in NOISE_CHUNKS
+    ]
+
+
+# Table 3: the baselines beside SDM (config section baselines), each with its settings grid. Per
+# baseline one tuning job, then one job per noise level (its paired runs 0..baselines.runs-1). SDM is
+# not rerun: its rows are Table 2's runs, its time per run the noise stage's own (noise_timing_files).
 BASELINES = (
     {name: config["baselines"].get(name, {}) for name in config["baselines"]["methods"]}
     if config["baselines"]["enabled"]
@@ -202,6 +212,7 @@ BASELINES = (
 )
 BASELINE_RUNS = list(range(int(config["baselines"]["runs"])))
 BASELINE_PATTERN = "|".join(BASELINES) or "(?!)"  # "(?!)" matches nothing
+BASELINE_LEVELS = [int(level) for level in config["noise"]["levels"]]
 
 
 def table3_report_inputs():
@@ -214,9 +225,31 @@ def table3_report_inputs():
     }
 
 
-def baseline_files(pattern):
-    """One file per baseline under results/baselines/, e.g. baseline_files("runs_{method}.csv")."""
-    return [result(f"baselines/{pattern.format(method=name)}") for name in BASELINES]
+def baseline_tuning_files():
+    """One tuning CSV per baseline (its grid on the dev set)."""
+    return [result(f"baselines/tuning_{name}.csv") for name in BASELINES]
+
+
+def baseline_run_files():
+    """One runs CSV per (baseline, noise level)."""
+    return [
+        result(f"baselines/runs_{name}_level{level}.csv")
+        for name in BASELINES
+        for level in BASELINE_LEVELS
+    ]
+
+
+def baseline_html():
+    """The rendered notebooks of the baseline jobs and of Table 3."""
+    return [
+        *(f"baselines_tune_{name}" for name in BASELINES),
+        *(
+            f"baselines_{name}_level{level}"
+            for name in BASELINES
+            for level in BASELINE_LEVELS
+        ),
+        "table3",
+    ]
 
 
 def table3_outputs():
@@ -232,11 +265,7 @@ def notebook_html():
     names += [f"tune_{n}_{lr}" for n, lr in TUNING_CELLS]
     names += [f"noise_level{level}_chunk{chunk}" for level, chunk in NOISE_CHUNKS]
     if config["baselines"]["enabled"]:
-        names += [
-            "baselines_sdm",
-            *(f"baselines_{name}" for name in BASELINES),
-            "table3",
-        ]
+        names += baseline_html()
     return [html(name) for name in names]
 
 

@@ -1,5 +1,6 @@
 # Table 2: at each noise level, noise.runs independent runs with the tuned settings,
-# split into chunks of noise.chunk_size runs so that jobs fan out over cores or nodes.
+# split into chunks of noise.chunk_size runs so that jobs fan out over cores or nodes. Each chunk
+# also records how long its runs took (SDM's time per run in Table 3; Table 2 does not read it).
 
 
 use rule notebook_stage as noise with:
@@ -11,6 +12,7 @@ use rule notebook_stage as noise with:
         best=BEST_FILE,
     output:
         chunk_file=result("noise/level{level}_chunk{chunk}.csv"),
+        timing_file=result("noise/level{level}_chunk{chunk}_seconds.json"),
         html=html("noise_level{level}_chunk{chunk}"),
     log:
         **notebook_log("noise_level{level}_chunk{chunk}"),

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import numpy as np
 import pandas as pd
@@ -99,6 +99,52 @@ def table3_frame(runs: pd.DataFrame, shift: Sequence[float] = SKY_SHIFT, referen
                 row["mean_ratio_to_sdm"] = row["wins_vs_sdm"] = math.nan
             rows.append(row)
     return pd.DataFrame.from_records(rows)
+
+
+def table2_runs(distances: pd.DataFrame, timings: Sequence[Mapping], levels: Sequence[int],
+                runs: Sequence[int], name: str = "sdm") -> pd.DataFrame:
+    """SDM's rows of Table 3: Table 2's runs themselves, with the time per run the noise stage measured.
+
+    Table 2's run ``r`` at level ``n`` trains SDM on the noisy targets of ``run_seed(seed, n, r)``, the
+    draw every baseline's run ``(n, r)`` sees too, so these rows pair with the baselines' by
+    construction (``tests/test_baselines.py`` holds ``fit("sdm")`` on a run's targets to
+    :func:`sdm.experiments.noise_run`); nothing is trained again.
+
+    Args:
+        distances: Table 2's per-run rows (``level, run, a, b, distance``; metres), e.g.
+            ``results/noise/distances.csv``.
+        timings: the noise jobs' records, one per chunk: ``{"level", "runs", "seconds"}`` (wall seconds
+            of the chunk's runs, trained together as one program). May be empty.
+        levels, runs: the noise levels and run indices wanted (Table 3's).
+        name: the method name the rows get.
+
+    Returns:
+        One row per wanted ``(level, run)`` with :data:`RUN_COLUMNS`; ``seconds`` is the level's
+        chunk seconds over its runs (NaN for a level with no timing record).
+
+    Raises:
+        SDMInputError: a wanted ``(level, run)`` that Table 2 does not have.
+    """
+    missing = [c for c in RUN_COLUMNS if c not in ("method", "seconds") and c not in distances]
+    if missing:
+        raise SDMInputError(f"Table 2's runs: missing column(s) {missing}; has {list(distances.columns)}")
+    wanted = pd.MultiIndex.from_product([[int(v) for v in levels], [int(v) for v in runs]], names=["level", "run"])
+    table2 = distances.set_index(["level", "run"])
+    absent = wanted.difference(table2.index)
+    if len(absent):
+        level, run = absent[0]
+        raise SDMInputError(f"Table 2 has no run {run} at noise level {level} ({len(absent)} of Table 3's runs "
+                            f"missing): config key 'baselines.runs' must not exceed noise.runs")
+    rows = table2.loc[wanted].reset_index()
+    seconds, counted = {}, {}
+    for record in timings:
+        level = int(record["level"])
+        seconds[level] = seconds.get(level, 0.0) + float(record["seconds"])
+        counted[level] = counted.get(level, 0) + int(record["runs"])
+    per_run = {level: seconds[level] / counted[level] for level in seconds if counted[level] > 0}
+    rows["seconds"] = [per_run.get(int(level), math.nan) for level in rows["level"]]
+    rows.insert(0, "method", name)
+    return rows
 
 
 #: Distance columns shown in 1e-3 m in the Markdown and LaTeX tables.
@@ -298,6 +344,6 @@ def table3_summary(table: pd.DataFrame, reference: str = "sdm") -> str:
         for name, value in seconds.items() if not math.isnan(value)
     )
     if math.isnan(ref_seconds):
-        timing += " (SDM's rows come from Table 2, which records no time per run)"
+        timing += " (SDM's rows come from Table 2, and no timing of its runs was given)"
     lines.append(f"- time per run (mean over levels, one thread; in brackets: relative to SDM): {timing}.")
     return "\n".join(lines) + "\n"
