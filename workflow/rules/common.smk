@@ -205,8 +205,13 @@ def noise_timing_files():
 # Table 3: the baselines beside SDM (config section baselines), each with its settings grid. Per
 # baseline one tuning job, then one job per noise level (its paired runs 0..baselines.runs-1). SDM is
 # not rerun: its rows are Table 2's runs, its time per run the noise stage's own (noise_timing_files).
+# A method's settings are passed in name order: the order of keys in a YAML mapping means nothing, and
+# Snakemake compares params as written, so a reordered (or re-dumped) config must not rerun the tuning.
 BASELINES = (
-    {name: config["baselines"].get(name, {}) for name in config["baselines"]["methods"]}
+    {
+        name: dict(sorted(config["baselines"].get(name, {}).items()))
+        for name in config["baselines"]["methods"]
+    }
     if config["baselines"]["enabled"]
     else {}
 )
