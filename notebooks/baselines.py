@@ -34,8 +34,9 @@
 # as each baseline's run (n, r). Its time per run is what the noise stage measured while producing them
 # (`sdm_timings`: per chunk, the wall seconds of `sdm.experiments.noise_runs` over the chunk's runs, trained
 # together as one program on one thread; neither the notebook's start nor reading the data counted),
-# summed per level and divided by the level's runs. The baselines' seconds are measured the same way, by
-# `sdm.baselines.noise_runs` around their fits.
+# summed per level and divided by the level's runs (drawing the noisy targets included). The baselines'
+# seconds are the `seconds` column of `sdm.baselines.noise_runs`: their fits' wall time per run, on one
+# thread as well.
 #
 # One notebook, three parts, chosen by `part`, so the workflow can fan the work out: `tune` (the grids of
 # `methods`, one job per method), `runs` (`methods` x `levels` x `run_indices`, one job per method and
