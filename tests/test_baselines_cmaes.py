@@ -64,7 +64,7 @@ def test_groups_move_several_points_and_overlaps_are_counted_once(small):
     overlapped = 0
     for theta in random_thetas(8, seed=3, spread=0.3):
         ids = layout.rendered_ids(theta)
-        on_screen = (PixelMismatch(small, layout=layout).table.gather(0, ids) & 255) != 1
+        on_screen = (PixelMismatch(small, layout=layout).table.gather(0, ids) & 255) != 1  # low half: weight + 1
         overlapped += int(on_screen.sum()) - int(torch.unique(ids[on_screen]).numel())
     assert overlapped > 0
 

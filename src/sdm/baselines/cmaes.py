@@ -179,6 +179,8 @@ class ShiftLayout:
         # Clamp range of a group's shift: the group stays inside the padded screen; a shift that
         # is clamped had put the whole group off screen, and the clamped one still does (span < TILE).
         screen = torch.tensor([height, width], dtype=torch.int64, device=device)
+        # floor(frac_low - margin + shift) == floor(frac_high + margin + shift): one add, one floor, one compare
+        self.frac_bounds = torch.stack((self.frac_low - EXACT_MARGIN, self.frac_high + EXACT_MARGIN))  # (2, G, 2)
         self.shift_low = (-TILE - whole_low).to(torch.float64)
         self.shift_high = (screen + TILE - 1 - whole_high).to(torch.float64)
         self.padded_shape = (height + 2 * TILE, width + 2 * TILE)
@@ -189,7 +191,8 @@ class ShiftLayout:
         # at a group's first point the step also carries the change of shift from the previous group.
         self.first = first
         self.steps = torch.diff(cell, prepend=cell.new_zeros(1))
-        self.first_steps = self.steps[first].clone()
+        self.first_steps = self.steps[first].to(torch.float64)  # exact: ids are far below 2^53
+        self.flat_stride = torch.tensor([float(self.padded_shape[1]), 1.0], dtype=torch.float64, device=device)
         config_of_group = config[first]
         first_group = torch.searchsorted(config_of_group, torch.arange(n_configs, device=device))
         local = torch.arange(n_groups, device=device) - first_group[config_of_group]
@@ -203,26 +206,37 @@ class ShiftLayout:
         self.half_dtype, self.table_dtype, self.half_bits = (
             (torch.int8, torch.int16, 8) if most <= 127 else (torch.int16, torch.int32, 16))
         self.codes = local[group].to(self.half_dtype)  # (P,) group number within its configuration
-        self.codes_wide = self.codes.to(self.table_dtype)
+        self.codes_high = self.codes.to(self.table_dtype) << self.half_bits  # (P,) the code as a table entry's high half
         self.ids = torch.empty(order.numel(), dtype=torch.int64, device=device)
 
-    def table(self, targets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The per-run table of :meth:`PixelMismatch.__call__` and the view of its high halves.
+    def table(self, targets: torch.Tensor, recycled: tuple[torch.Tensor, torch.Tensor] | None = None):
+        """The per-run table of :meth:`PixelMismatch.__call__`.
+
+        Args:
+            targets: ``(N, H, W)`` bool.
+            recycled: ``(table, on_target)`` of a finished run of this layout, to rewrite in place
+                instead of allocating and filling ``N * Hp * Wp`` entries again.
 
         Returns:
-            ``(table, codes)``: ``(N * Hp * Wp,)`` int16 (int32 beyond 127 groups per configuration)
-            whose low half is the pixel's weight + 1 (2 on screen off target, 0 on target, 1 in the
-            margin) and high half 0; ``(N * Hp * Wp,)`` strided view of the high halves.
+            ``(table, high, on_target)``: ``(N * Hp * Wp,)`` int16 (int32 beyond 127 groups per
+            configuration) whose low half is the pixel's weight + 1 (2 on screen off target, 0 on
+            target, 1 in the margin); the ``(N * Hp * Wp,)`` strided view of its high halves; ``(K,)``
+            int64 the entries of the target pixels.
         """
         n_configs, height, width = targets.shape
-        low = torch.ones((n_configs, *self.padded_shape), dtype=self.table_dtype, device=targets.device)
-        low[:, TILE:TILE + height, TILE:TILE + width] = 2
         active = targets.nonzero()  # (K, 3) config, row, col: faster than converting all N H W cells
         padded_height, padded_width = self.padded_shape
         on_target = (active[:, 0] * padded_height + active[:, 1] + TILE) * padded_width + active[:, 2] + TILE
-        table = low.view(-1).index_fill_(0, on_target, 0)
+        if recycled is None:
+            entries = torch.ones((n_configs, *self.padded_shape), dtype=self.table_dtype, device=targets.device)
+            entries[:, TILE:TILE + height, TILE:TILE + width] = 2
+            table = entries.view(-1)
+        else:
+            table, previous = recycled
+            table.index_fill_(0, previous, 2)  # back to "on screen, off target"
+        table.index_fill_(0, on_target, 0)
         high = table.view(self.half_dtype)[1 if sys.byteorder == "little" else 0::2]
-        return table, high
+        return table, high, on_target
 
     def rendered_ids(self, theta) -> torch.Tensor | None:
         """``(P,)`` int64 padded pixel ids of the points at ``theta`` (scratch, overwritten by the next call);
@@ -232,13 +246,13 @@ class ShiftLayout:
                 or abs(a) * self.max_gain[1] > EXACT_RANGE:
             return None
         shift = self.gain * torch.tensor([b, a], dtype=self.gain.dtype, device=self.gain.device)  # (G, 2) pixels
-        low = torch.floor(self.frac_low + shift - EXACT_MARGIN)
-        if not torch.equal(low, torch.floor(self.frac_high + shift + EXACT_MARGIN)):
+        bounds = torch.floor(self.frac_bounds + shift)  # (2, G, 2): the lowest and highest point's whole shift
+        if not torch.equal(bounds[0], bounds[1]):
             return None
-        whole = torch.clamp(low, self.shift_low, self.shift_high).to(torch.int64)  # (G, 2) rows, cols
-        offset = whole[:, 0] * self.padded_shape[1] + whole[:, 1]  # (G,) flat shift of each group
-        steps = self.steps.index_copy_(0, self.first, self.first_steps + torch.diff(offset, prepend=offset.new_zeros(1)))
-        return torch.cumsum(steps, 0, out=self.ids)
+        whole = torch.clamp(bounds[0], self.shift_low, self.shift_high)  # (G, 2) rows, cols (whole numbers)
+        offset = whole @ self.flat_stride  # (G,) flat shift of each group; float64 but exact integers
+        first_steps = torch.diff(offset, prepend=offset.new_zeros(1)).add_(self.first_steps).to(torch.int64)
+        return torch.cumsum(self.steps.index_copy_(0, self.first, first_steps), 0, out=self.ids)
 
 
 class PixelMismatch:
@@ -249,16 +263,23 @@ class PixelMismatch:
         camera: camera and screen; default the set's own.
         layout: a :class:`ShiftLayout` of the same points and camera to share (:func:`fit_runs`);
             built here when None.
+        recycle: a finished objective of the same layout whose table this one takes over (it is
+            rewritten for these targets; ``recycle`` then counts by reference only).
     """
 
     def __init__(self, train_set: ConfigurationSet, camera: Camera | None = None,
-                 layout: ShiftLayout | None = None) -> None:
+                 layout: ShiftLayout | None = None, recycle: "PixelMismatch | None" = None) -> None:
         self.camera = camera or train_set.camera
         self.train_set = train_set
         height, width = self.camera.screen_shape
         self.layout = layout if layout is not None else ShiftLayout(train_set, self.camera)
         self.n_target = int(train_set.targets.count_nonzero())
-        self.table, self.high = self.layout.table(train_set.targets) if self.layout.usable else (None, None)
+        self.table = self.high = self.on_target = None
+        if self.layout.usable:
+            recycled = None
+            if recycle is not None and recycle.layout is self.layout and recycle.table is not None:
+                recycled, recycle.table = (recycle.table, recycle.on_target), None
+            self.table, self.high, self.on_target = self.layout.table(train_set.targets, recycled)
         self.evaluations = 0
         self.fallbacks = 0
         self._reference = None
@@ -272,11 +293,10 @@ class PixelMismatch:
             return self.reference(theta)
         layout = self.layout
         self.high.scatter_(0, ids, layout.codes)  # the codes of stale writes need no clearing: all are overwritten
-        entries = self.table.gather(0, ids)  # (P,)
-        counted = (entries >> layout.half_bits) == layout.codes_wide  # (P,) bool: the surviving writer of its pixel
-        mask = (1 << layout.half_bits) - 1
-        # sum over counted points of (weight + 1) - 1; a multiply, not masked_fill_/where (10x slower here)
-        return self.n_target + int(((entries & mask) * counted).sum()) - int(counted.count_nonzero())
+        # entry - own code in the high half: the weight + 1 (0, 1 or 2) for the point whose write survived,
+        # at least 254 away for every other point; so sum of weights = #(2: off target) - #(0: on target)
+        surplus = self.table.gather(0, ids) - layout.codes_high  # (P,)
+        return self.n_target + int((surplus == 2).count_nonzero()) - int((surplus == 0).count_nonzero())
 
     def reference(self, theta) -> int:
         """The same count, straightforwardly: every point's pixel, a bitmap of ``N x H x W`` cells.
@@ -383,13 +403,14 @@ def fit_runs(train_sets: Sequence[ConfigurationSet], settings: CMAESSettings = C
         raise SDMInputError(f"fit_runs: {len(train_sets)} train_sets but {len(seeds)} seeds")
     start = time.perf_counter()
     layouts: list[tuple[ConfigurationSet, ShiftLayout]] = []
-    results = []
+    results, objective = [], None
     for train_set, seed in zip(train_sets, seeds):
         layout = next((shared for owner, shared in layouts if _same_points(owner, train_set)), None)
         if layout is None:
             layout = ShiftLayout(train_set, camera)
             layouts.append((train_set, layout))
-        results.append(_search(PixelMismatch(train_set, camera, layout), settings, seed, theta0))
+        objective = PixelMismatch(train_set, camera, layout, recycle=objective)
+        results.append(_search(objective, settings, seed, theta0))
     per_run = (time.perf_counter() - start) / max(len(results), 1)
     for result in results:
         result.seconds = per_run
