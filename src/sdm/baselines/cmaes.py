@@ -268,21 +268,29 @@ class PixelMismatch:
             built here when None.
         recycle: a finished objective of the same layout whose table this one takes over (it is
             rewritten for these targets; ``recycle`` then counts by reference only).
+
+    Attributes:
+        evaluations: calls so far.
+        fallbacks: calls counted by :meth:`reference` (a group's shift too close to a pixel border).
+        table: ``(N * Hp * Wp,)`` int16 per padded pixel (:meth:`ShiftLayout.table`), 47 MB on the
+            default data (512 configurations); None when the layout is not usable (points more than
+            ``EXACT_RANGE`` pixels off screen): then every call is counted by :meth:`reference`.
     """
 
     def __init__(self, train_set: ConfigurationSet, camera: Camera | None = None,
                  layout: ShiftLayout | None = None, recycle: "PixelMismatch | None" = None) -> None:
         self.camera = camera or train_set.camera
         self.train_set = train_set
-        height, width = self.camera.screen_shape
         self.layout = layout if layout is not None else ShiftLayout(train_set, self.camera)
-        self.n_target = int(train_set.targets.count_nonzero())
         self.table = self.high = self.on_target = None
         if self.layout.usable:
             recycled = None
             if recycle is not None and recycle.layout is self.layout and recycle.table is not None:
                 recycled, recycle.table = (recycle.table, recycle.on_target), None
             self.table, self.high, self.on_target = self.layout.table(train_set.targets, recycled)
+            self.n_target = int(self.on_target.numel())
+        else:
+            self.n_target = int(train_set.targets.count_nonzero())
         self.evaluations = 0
         self.fallbacks = 0
         self._reference = None
