@@ -9,7 +9,7 @@ Protocol: the training set of the split; the tuned settings (the row of the tuni
 * ``reference``: every evaluation by :meth:`PixelMismatch.reference` (the count as committed before
   the fast one: a fresh ``N x H x W`` bitmap per call), each run building its own objective;
 * ``fit``: :func:`sdm.baselines.cmaes.fit` per run (fast count, own set-up per run);
-* ``fit_runs``: :func:`sdm.baselines.cmaes.fit_runs` over all R runs (set-up shared).
+* ``fit_runs``: :func:`sdm.baselines.cmaes.fit_runs` over chunks of ``--chunk`` runs (set-up shared).
 
 Asserts that the three give the same theta and evaluation count for every run, then prints the
 seconds per run and the ratios. The machine's load inflates the seconds; the ratios, taken in one
@@ -59,6 +59,7 @@ def main(argv=None) -> int:
     parser.add_argument("--tuning", help="tuning_cmaes.csv of the baseline stage (row with best=True)")
     parser.add_argument("--level", type=int, default=2, help="noise level of the runs")
     parser.add_argument("--runs", type=int, default=20)
+    parser.add_argument("--chunk", type=int, default=10, help="runs per fit_runs call (the ways alternate per chunk)")
     parser.add_argument("--reference-runs", type=int, default=None,
                         help="runs timed with the reference count (default: all; it is the slow one)")
     args = parser.parse_args(argv)
@@ -78,25 +79,37 @@ def main(argv=None) -> int:
 
     import cma  # noqa: F401  (imported once per process in the workflow too; its import, ~1-3 s, is timed by nobody)
 
-    cpu = {}
-    start = time.process_time()
-    batched = cmaes.fit_runs(sets, settings, seeds)
-    cpu["fit_runs (after)"] = (time.process_time() - start) / args.runs
-    start = time.process_time()
-    single = [cmaes.fit(train, settings, seed=seed) for train, seed in zip(sets, seeds)]
-    cpu["fit (after)"] = (time.process_time() - start) / args.runs
-    start = time.process_time()
-    reference = [reference_fit(train, settings, seed) for train, seed in zip(sets[:n_reference], seeds[:n_reference])]
-    cpu["reference (before)"] = (time.process_time() - start) / n_reference
+    # Interleaved in chunks of runs (fit_runs over the chunk, then fit and the reference count run by run),
+    # so that a change of the machine's load during the benchmark hits the three ways alike.
+    cpu = {"reference (before)": 0.0, "fit (after)": 0.0, "fit_runs (after)": 0.0}
+    wall_batched = 0.0
+    batched, single, reference = [], [], []
+    stride = max(args.runs // max(n_reference, 1), 1)
+    for first in range(0, args.runs, args.chunk):
+        chunk = range(first, min(first + args.chunk, args.runs))
+        start, start_wall = time.process_time(), time.perf_counter()
+        batched += cmaes.fit_runs([sets[run] for run in chunk], settings, [seeds[run] for run in chunk])
+        cpu["fit_runs (after)"] += time.process_time() - start
+        wall_batched += time.perf_counter() - start_wall
+        for run in chunk:
+            start = time.process_time()
+            single.append(cmaes.fit(sets[run], settings, seed=seeds[run]))
+            cpu["fit (after)"] += time.process_time() - start
+            if run % stride == 0 and len(reference) < n_reference:  # spread over the chunks
+                start = time.process_time()
+                reference.append(reference_fit(sets[run], settings, seeds[run]))
+                cpu["reference (before)"] += time.process_time() - start
+    cpu = {name: seconds / (len(reference) if name.startswith("reference") else args.runs) for name, seconds in cpu.items()}
     for run, (one, many) in enumerate(zip(single, batched)):
         assert one.theta == many.theta and one.evaluations == many.evaluations, f"run {run}: fit_runs != fit"
-    for run, (one, ref) in enumerate(zip(single, reference)):
-        assert one.theta == ref.theta and one.evaluations == ref.evaluations, f"run {run}: fast != reference"
+    for index, ref in enumerate(reference):
+        one = single[index * stride]
+        assert one.theta == ref.theta and one.evaluations == ref.evaluations, f"run {index * stride}: fast != reference"
 
     wall = {
-        "reference (before)": sum(r.seconds for r in reference) / n_reference,
+        "reference (before)": sum(r.seconds for r in reference) / len(reference),
         "fit (after)": sum(r.seconds for r in single) / args.runs,
-        "fit_runs (after)": batched[0].seconds,
+        "fit_runs (after)": wall_batched / args.runs,
     }
     evaluations = sum(r.evaluations for r in single) / args.runs
     print(f"same theta and evaluations in all three ways; {evaluations:.1f} evaluations per run")

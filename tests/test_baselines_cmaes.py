@@ -56,6 +56,16 @@ def test_fast_count_is_the_straightforward_count(small, level):
         assert objective(SKY_SHIFT) == 0
 
 
+def test_one_pixel_tiles_take_the_wide_table(small, monkeypatch):
+    """Tiles of one pixel: a group per point, hundreds per configuration, so int32 entries with int16 codes."""
+    monkeypatch.setattr(cmaes, "TILE", 1)
+    objective = PixelMismatch(small)
+    assert objective.table.dtype == torch.int32 and objective.layout.gain.shape[0] == small.points.shape[0]
+    for theta in random_thetas(4, seed=21, spread=0.3) + [(6.0, -3.0)]:
+        assert objective(theta) == straightforward_count(small, theta), theta
+    assert objective.fallbacks == 0
+
+
 def test_groups_move_several_points_and_overlaps_are_counted_once(small):
     """The grouping is what makes it fast, and groups do overlap after a shift (the de-duplication is exercised)."""
     layout = ShiftLayout(small)
@@ -125,6 +135,15 @@ def test_fit_runs_is_fit_run_by_run(small):
         thetas.add(result.theta)
     assert len(thetas) == 3  # the runs really differ (targets and seeds reach the search)
     assert together[0].seconds > 0 and len({result.seconds for result in together}) == 1  # wall time / R
+
+
+def test_fit_runs_with_other_points_builds_their_own_layout(small):
+    """Sets with different points in one call (not the intended use) still give each run its own fit."""
+    pytest.importorskip("cma")
+    sets = [small, small.subset(range(24)), small.with_targets(noisy_targets(small.targets, 1, 2))]
+    settings, seeds = CMAESSettings(budget=24), [1, 2, 3]
+    for train_set, seed, result in zip(sets, seeds, fit_runs(sets, settings, seeds)):
+        assert result.theta == fit(train_set, settings, seed=seed).theta
 
 
 def test_fit_runs_checks_its_arguments(small):
