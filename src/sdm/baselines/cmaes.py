@@ -31,7 +31,7 @@ CPU time (benchmarks/bench_cmaes.py).
 Exactness: the shared shift equals each point's own ``floor`` (as computed by
 :meth:`PixelMismatch.reference`, the straightforward count) unless ``frac(row_0) + b g_r`` lies
 within ``1e-7`` pixel of an integer for some group (the float rounding of both computations is
-below ``4e-10`` pixel for coordinates and shifts under ``1e6`` pixels). Such a candidate (and any
+below ``1e-9`` pixel for coordinates and shifts under ``1e6`` pixels). Such a candidate (and any
 beyond ``1e6`` pixels) is counted by :meth:`PixelMismatch.reference`: the fast count is the
 reference count for every ``theta``, not an approximation. On the default data the fallback is
 taken about once in 450 evaluations (9 of 4000 random thetas).
@@ -86,7 +86,7 @@ class CMAESSettings:
 #: group clamped to lie just off screen still fits in the margin.
 TILE = 16
 #: A group's shared shift is trusted when every point's ``frac + shift`` is at least this far
-#: (screen pixels) from an integer; the float rounding involved is below 4e-10 pixel.
+#: (screen pixels) from an integer; the float rounding involved is below 1e-9 pixel.
 EXACT_MARGIN = 1e-7
 #: Coordinates and shifts (screen pixels) up to which that rounding bound holds.
 EXACT_RANGE = 1e6
@@ -136,7 +136,7 @@ class ShiftLayout:
             return
         config = torch.repeat_interleave(torch.arange(n_configs, device=device), train_set.counts)
         whole = torch.floor(origin)
-        frac = origin - whole  # exact for |origin| < 2^52
+        frac = origin - whole  # exact for origin >= 0, within 1e-16 below 0: far inside EXACT_MARGIN
         whole = whole.to(torch.int64)
         # Group key: configuration, sub-pixel offset (to 1/1024 pixel; the exactness check uses the
         # real spread), tile, depth (bit pattern: equal depth, equal gains). Sorted by stable argsorts,
