@@ -1,0 +1,152 @@
+"""The fast pixel-mismatch count of the CMA-ES baseline and its batched runs (sdm.baselines.cmaes).
+
+The fast count moves groups of points rigidly (same configuration, depth and sub-pixel offset)
+and must give exactly the straightforward count: every point projected, floored, the rendered
+image compared with the target, pixel by pixel. These tests hold it to that on random, far and
+border thetas, with noise-free and noisy targets, and hold :func:`fit_runs` to :func:`fit`.
+"""
+import math
+
+import numpy as np
+import pytest
+import torch
+
+from scenes import configuration_set
+from sdm import SKY_SHIFT
+from sdm.baselines import cmaes
+from sdm.baselines.cmaes import CMAESSettings, PixelMismatch, ShiftLayout, fit, fit_runs
+from sdm.errors import SDMInputError
+from sdm.experiments import noisy_targets
+from sdm.sky import shifted_target
+
+
+@pytest.fixture(scope="module")
+def small():
+    """48 noise-free configurations (about 11 cars each)."""
+    return configuration_set(48, seed=5)
+
+
+def straightforward_count(train_set, theta) -> int:
+    """False positives + false negatives: each configuration rendered at ``theta`` and compared with its target."""
+    total = 0
+    for index in range(len(train_set)):
+        rows = slice(int(train_set.offsets[index]), int(train_set.offsets[index + 1]))
+        rendered = shifted_target(train_set.points[rows], theta, train_set.camera)
+        total += int((rendered ^ train_set.targets[index]).sum())
+    return total
+
+
+def random_thetas(count: int, seed: int, spread: float):
+    rng = np.random.default_rng(seed)
+    return [(float(a), float(b)) for a, b in rng.normal((0.5, 0.3), spread, size=(count, 2))]
+
+
+@pytest.mark.parametrize("level", [0, 3])
+def test_fast_count_is_the_straightforward_count(small, level):
+    """Random thetas around and far from theta* (whole cars off screen: clamped groups), clean and noisy targets."""
+    train_set = small.with_targets(noisy_targets(small.targets, level, seed=17)) if level else small
+    objective = PixelMismatch(train_set)
+    thetas = random_thetas(12, seed=level, spread=0.3) + random_thetas(6, seed=10 + level, spread=3.0)
+    thetas += [(0.0, 0.0), SKY_SHIFT, (40.0, -25.0)]
+    for theta in thetas:
+        assert objective(theta) == straightforward_count(train_set, theta), theta
+    assert objective.fallbacks == 0  # the fast path was taken every time, not the reference
+    assert objective.evaluations == len(thetas)
+    if level == 0:
+        assert objective(SKY_SHIFT) == 0
+
+
+def test_one_pixel_tiles_take_the_wide_table(small, monkeypatch):
+    """Tiles of one pixel: a group per point, hundreds per configuration, so int32 entries with int16 codes."""
+    monkeypatch.setattr(cmaes, "TILE", 1)
+    objective = PixelMismatch(small)
+    assert objective.table.dtype == torch.int32 and objective.layout.gain.shape[0] == small.points.shape[0]
+    for theta in random_thetas(4, seed=21, spread=0.3) + [(6.0, -3.0)]:
+        assert objective(theta) == straightforward_count(small, theta), theta
+    assert objective.fallbacks == 0
+
+
+def test_groups_move_several_points_and_overlaps_are_counted_once(small):
+    """The grouping is what makes it fast, and groups do overlap after a shift (the de-duplication is exercised)."""
+    layout = ShiftLayout(small)
+    assert layout.usable
+    assert layout.gain.shape[0] * 10 < small.points.shape[0]  # on average more than 10 points per group
+    overlapped = 0
+    for theta in random_thetas(8, seed=3, spread=0.3):
+        ids = layout.rendered_ids(theta)
+        on_screen = (PixelMismatch(small, layout=layout).table.gather(0, ids) & 255) != 1  # low half: weight + 1
+        overlapped += int(on_screen.sum()) - int(torch.unique(ids[on_screen]).numel())
+    assert overlapped > 0
+
+
+def test_border_theta_falls_back_to_the_reference(small):
+    """A theta that puts a group's points exactly on a pixel border is counted by reference, and still right."""
+    objective = PixelMismatch(small)
+    layout = objective.layout
+    # b such that frac(row_0) + b g_r of group 0 is the next integer: its points sit on a row border.
+    b = (1.0 - float(layout.frac_low[0, 0])) / float(layout.gain[0, 0])
+    theta = (0.3, b)
+    assert layout.rendered_ids(theta) is None
+    assert objective(theta) == objective.reference(theta)
+    assert objective.fallbacks == 1
+
+
+def test_reference_is_the_straightforward_count(small):
+    noisy = small.with_targets(noisy_targets(small.targets, 2, seed=4))
+    objective = PixelMismatch(noisy)
+    for theta in random_thetas(5, seed=9, spread=0.5):
+        assert objective.reference(theta) == straightforward_count(noisy, theta), theta
+
+
+class ReferenceOnly(PixelMismatch):
+    """Every evaluation by the reference count (the objective as it was before the fast count)."""
+
+    def __call__(self, theta) -> int:
+        self.evaluations += 1
+        return self.reference(theta)
+
+
+def test_fit_is_the_search_on_the_reference_count(small):
+    """Same candidates, same counts, same ranking: the fast count changes no CMA-ES decision."""
+    pytest.importorskip("cma")
+    noisy = small.with_targets(noisy_targets(small.targets, 1, seed=8))
+    settings = CMAESSettings(budget=60)
+    fast = fit(noisy, settings, seed=3)
+    slow = cmaes._search(ReferenceOnly(noisy), settings, 3, (0.0, 0.0))
+    assert fast.theta == slow.theta
+    assert fast.history == slow.history
+    assert fast.evaluations == slow.evaluations > 60
+
+
+def test_fit_runs_is_fit_run_by_run(small):
+    """Three runs with their own noisy targets and seeds: each equals its own fit (theta, history, evaluations)."""
+    pytest.importorskip("cma")
+    seeds = [11, 12, 13]
+    sets = [small.with_targets(noisy_targets(small.targets, 3, seed)) for seed in seeds]
+    settings = CMAESSettings(sigma0=0.3, budget=48)
+    together = fit_runs(sets, settings, seeds)
+    assert len(together) == 3
+    thetas = set()
+    for train_set, seed, result in zip(sets, seeds, together):
+        alone = fit(train_set, settings, seed=seed)
+        assert result.theta == alone.theta
+        assert result.history == alone.history
+        assert result.evaluations == alone.evaluations
+        thetas.add(result.theta)
+    assert len(thetas) == 3  # the runs really differ (targets and seeds reach the search)
+    assert together[0].seconds > 0 and len({result.seconds for result in together}) == 1  # wall time / R
+
+
+def test_fit_runs_with_other_points_builds_their_own_layout(small):
+    """Sets with different points in one call (not the intended use) still give each run its own fit."""
+    pytest.importorskip("cma")
+    sets = [small, small.subset(range(24)), small.with_targets(noisy_targets(small.targets, 1, 2))]
+    settings, seeds = CMAESSettings(budget=24), [1, 2, 3]
+    for train_set, seed, result in zip(sets, seeds, fit_runs(sets, settings, seeds)):
+        assert result.theta == fit(train_set, settings, seed=seed).theta
+
+
+def test_fit_runs_checks_its_arguments(small):
+    with pytest.raises(SDMInputError, match="seeds"):
+        fit_runs([small, small], CMAESSettings(), [1])
+    assert fit_runs([], CMAESSettings(), []) == []
