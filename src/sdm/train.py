@@ -211,7 +211,8 @@ class RunsHistory:
     """What :func:`train_runs` did: the theta of every run, step by step (CPU tensors).
 
     Attributes:
-        theta: ``(steps + 1, R, 2)`` float64 ``(a, b)`` in metres of each run, before the first step and after each.
+        theta: ``(steps + 1, R, 2)`` float64 ``(a, b)`` in metres of each run, before the first step and after
+            each; ``(steps + 1, R, 3)`` ``(a, b, c)`` when the runs fitted depth.
         loss: ``(steps,)`` float64 loss ``J`` of each step, summed over the runs (metres).
         level: ``(steps,)`` int64 zoom level of each step.
         lr: ``(steps,)`` float64 learning rate of each step (the same for every run).
@@ -225,8 +226,8 @@ class RunsHistory:
     settings: list[TrainSettings]
 
     @property
-    def final_theta(self) -> list[tuple[float, float]]:
-        """``(a, b)`` of each run after its last step."""
+    def final_theta(self) -> list[tuple[float, ...]]:
+        """``(a, b)`` (or ``(a, b, c)`` with depth) of each run after its last step."""
         return [tuple(pair) for pair in self.theta[-1].tolist()]
 
 
@@ -246,12 +247,17 @@ def train_runs(
     points of run ``r`` are moved by its own theta, and the flow reaching theta
     ``(R, 2)`` is summed per run by autograd. Flows are sums of signs, exact in
     float64 in any order, so every run's theta history equals :func:`train`'s to
-    the bit (``test_train.py`` holds it).
+    the bit (``test_train.py`` holds it). With ``fit_depth`` theta is ``(R, 3)`` and
+    each run's ``c`` is moved by its own depth flow (:mod:`sdm.depth`), as
+    :func:`train` moves it for one run; the depth flow is not a sum of integers, so
+    the sums over a run's points may round differently than alone: every run's
+    history equals :func:`train`'s to 1e-12 m (``test_depth.py`` holds it).
 
     Args:
         train_set: packed configurations; their own targets are not used.
         targets: ``R`` tensors ``(N, H, W)`` bool, run ``r``'s training targets.
-        settings: ``R`` settings; all fields but ``seed`` must agree (one learning-rate schedule).
+        settings: ``R`` settings; all fields but ``seed`` must agree (one learning-rate schedule,
+            one ``flow``, one ``fit_depth`` and ``depth_lr_scale``).
         camera: camera and screen; default the set's own.
         device: where to train; default the set's device.
 
@@ -266,13 +272,11 @@ def train_runs(
     if len(shared) != 1:
         raise SDMInputError(f"the runs' settings may differ only in seed, got {sorted(map(str, shared))}")
     common = settings[0]
-    if common.fit_depth:
-        raise SDMInputError("train_runs trains (a, b) only; fit_depth runs train one at a time with train()")
     camera = camera or train_set.camera
     if device is not None:
         train_set = train_set.to(device)
     device = train_set.device
-    layers = {level: SpatialDomainMapping(camera, s=common.s, zoom=level, flow=common.flow)
+    layers = {level: SpatialDomainMapping(camera, s=common.s, zoom=level, flow=common.flow, fit_depth=common.fit_depth)
               for level in range(common.s, common.zoom - 1, -1)}
     n_configs, batch_size = len(train_set), common.batch_size
     if n_configs < batch_size:
@@ -284,12 +288,17 @@ def train_runs(
     # Run r's target of configuration c is row r * N + c of each level.
     pyramid = [torch.cat(level) for level in zip(*(target_pyramid(t.to(device), common.s) for t in targets))]
 
-    theta = torch.zeros(n_runs, 2, dtype=torch.float64, device=device, requires_grad=True)
+    n_params = 3 if common.fit_depth else 2
+    theta = torch.zeros(n_runs, n_params, dtype=torch.float64, device=device, requires_grad=True)
+    # Per-parameter learning-rate factors, as in train(): c may learn at its own rate (depth_lr_scale).
+    rate_scale = torch.ones(n_params, dtype=torch.float64, device=device)
+    if common.fit_depth:
+        rate_scale[2] = common.depth_lr_scale
     generators = [torch.Generator(device="cpu").manual_seed(one.seed) for one in settings]
     levels = range(common.s, common.zoom - 1, -1)
     batches_per_epoch = n_configs // batch_size
     total = len(levels) * common.n_epoch * batches_per_epoch
-    thetas = torch.empty(total + 1, n_runs, 2, dtype=torch.float64, device=device)
+    thetas = torch.empty(total + 1, n_runs, n_params, dtype=torch.float64, device=device)
     thetas[0] = theta.detach()
     losses = torch.zeros(total, dtype=torch.float64, device=device)
     step_levels = torch.empty(total, dtype=torch.int64)
@@ -310,7 +319,7 @@ def train_runs(
                     )
                     out.loss.backward()
                     with torch.no_grad():  # plain SGD, per run: theta_r <- theta_r - lr * grad_r
-                        theta -= rate * theta.grad
+                        theta -= rate * theta.grad if not common.fit_depth else rate * rate_scale * theta.grad
                     theta.grad = None
                     losses[step] = out.loss.detach()
                     finite = torch.isfinite(theta).all(1)
