@@ -41,6 +41,11 @@ class TrainSettings:
             (beyond the paper); theta, its history and ``final_theta`` then have three entries.
         depth_lr_scale: the learning rate of ``c`` relative to ``lr`` (with ``fit_depth``); 20 by a
             measured sweep (1: c lags, 10-30: within 1e-2 m, 100: diverges; docs/method.md).
+        depth_zoom: the finest zoom level at which ``c`` moves (with ``fit_depth``; at least the coarsest
+            level ``s``): the finer levels train ``(a, b)`` with ``c`` held. Default 1: at full resolution
+            the pull on ``c`` with ``depth_lr_scale`` 20 walks along the near-degenerate direction of
+            ``(b, c)`` (every point lies below the principal point) and leaves ``b`` off by about 2e-3 m
+            at c = -1 m (measured; docs/method.md, "Beyond the paper").
     """
 
     lr: float = 3e-4
@@ -53,6 +58,7 @@ class TrainSettings:
     flow: str = "paper"
     fit_depth: bool = False
     depth_lr_scale: float = 20.0
+    depth_zoom: int = 1
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.lr) and self.lr > 0):
@@ -71,6 +77,16 @@ class TrainSettings:
             raise SDMInputError(f"flow must be one of {sorted(FLOW_RULES)}, got {self.flow!r}")
         if not (math.isfinite(self.depth_lr_scale) and self.depth_lr_scale > 0):
             raise SDMInputError(f"depth_lr_scale must be a positive finite number, got {self.depth_lr_scale!r}")
+        if isinstance(self.depth_zoom, bool) or int(self.depth_zoom) != self.depth_zoom or self.depth_zoom < 0:
+            raise SDMInputError(f"depth_zoom must be a non-negative integer, got {self.depth_zoom!r}")
+
+    def rate_scale(self, level: int, like: torch.Tensor) -> torch.Tensor:
+        """``(3,)`` per-parameter learning-rate factors of ``(a, b, c)`` at zoom ``level`` (with ``fit_depth``).
+
+        ``(1, 1, depth_lr_scale)``, and ``(1, 1, 0)`` below ``min(depth_zoom, s)``; dtype and device of ``like``.
+        """
+        depth = self.depth_lr_scale if level >= min(self.depth_zoom, self.s) else 0.0
+        return torch.tensor([1.0, 1.0, depth], dtype=like.dtype, device=like.device)
 
 
 @dataclass
@@ -157,10 +173,6 @@ def train(
     n_params = 3 if settings.fit_depth else 2
     if start.shape != (n_params,) or not bool(torch.isfinite(start).all()):
         raise SDMInputError(f"theta0 must be {n_params} finite numbers, got {theta0!r}")
-    # Per-parameter learning-rate factors: c may learn at its own rate (depth_lr_scale).
-    rate_scale = torch.ones(n_params, dtype=torch.float64, device=device)
-    if settings.fit_depth:
-        rate_scale[2] = settings.depth_lr_scale
 
     # Packed data was checked when the set was built; only theta changes, and it is checked every step.
     theta = start.clone().requires_grad_(True)
@@ -180,6 +192,8 @@ def train(
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
         for level in levels:
             layer = layers[level]
+            # Per-parameter learning-rate factors: c learns at its own rate (depth_lr_scale) down to depth_zoom.
+            rate_scale = settings.rate_scale(level, start) if settings.fit_depth else None
             for _ in range(settings.n_epoch):
                 order = torch.randperm(n_configs, generator=generator, device="cpu").to(device)
                 epoch = _EpochLayout(train_set, order, batch_size)
@@ -257,7 +271,7 @@ def train_runs(
         train_set: packed configurations; their own targets are not used.
         targets: ``R`` tensors ``(N, H, W)`` bool, run ``r``'s training targets.
         settings: ``R`` settings; all fields but ``seed`` must agree (one learning-rate schedule,
-            one ``flow``, one ``fit_depth`` and ``depth_lr_scale``).
+            one ``flow``, one ``fit_depth``, ``depth_lr_scale`` and ``depth_zoom``).
         camera: camera and screen; default the set's own.
         device: where to train; default the set's device.
 
@@ -290,10 +304,6 @@ def train_runs(
 
     n_params = 3 if common.fit_depth else 2
     theta = torch.zeros(n_runs, n_params, dtype=torch.float64, device=device, requires_grad=True)
-    # Per-parameter learning-rate factors, as in train(): c may learn at its own rate (depth_lr_scale).
-    rate_scale = torch.ones(n_params, dtype=torch.float64, device=device)
-    if common.fit_depth:
-        rate_scale[2] = common.depth_lr_scale
     generators = [torch.Generator(device="cpu").manual_seed(one.seed) for one in settings]
     levels = range(common.s, common.zoom - 1, -1)
     batches_per_epoch = n_configs // batch_size
@@ -305,6 +315,8 @@ def train_runs(
     rates = torch.empty(total, dtype=torch.float64)
     step, rate = 0, common.lr
     for level in levels:
+        # Per-parameter learning-rate factors, as in train().
+        rate_scale = common.rate_scale(level, theta) if common.fit_depth else None
         for _ in range(common.n_epoch):
             # The same draws, in the same order, as each run's own train().
             orders = torch.stack([torch.randperm(n_configs, generator=g, device="cpu") for g in generators]).to(device)
