@@ -1,7 +1,7 @@
 """Depth table (issue 12): train (a, b, c) on a Sky split's training set retargeted to theta* = (a, b, c).
 
     PYTHONPATH=src python benchmarks/depth.py SKY.bin SPLIT.json [--depths -1,0.5,1] [--levels 0] [--runs 20] [--flow paper]
-        [--depth-lr-scale 20] [--epochs 2] [--group 20] [--csv runs.csv]
+        [--depth-lr-scale 20] [--depth-zoom 1] [--epochs 2] [--group 20] [--csv runs.csv]
 
 Run r at noise level n: targets of the shift (0.517, 0.303, c) (``sdm.depth.depth_targets``), moved by
 noise n drawn from ``run_seed(0, n, r)``, which also shuffles; the tuned settings with ``fit_depth``.
@@ -37,6 +37,7 @@ def main(argv=None) -> int:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--group", type=int, default=20, help="runs trained together (sdm.train.train_runs)")
     parser.add_argument("--epochs", type=int, default=None, help="n_epoch (default the tuned 2)")
+    parser.add_argument("--depth-zoom", type=int, default=None, help="finest level moving c (default TrainSettings')")
     parser.add_argument("--csv", help="write the per-run rows here")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
@@ -44,6 +45,8 @@ def main(argv=None) -> int:
     settings = replace(settings_for(**TUNED), fit_depth=True, flow=args.flow)
     if args.depth_lr_scale is not None:
         settings = replace(settings, depth_lr_scale=args.depth_lr_scale)
+    if args.depth_zoom is not None:
+        settings = replace(settings, depth_zoom=args.depth_zoom)
     if args.epochs is not None:
         settings = replace(settings, n_epoch=args.epochs)
     rows = []
