@@ -1,6 +1,6 @@
 """Table 2 per gradient rule, and each rule's flow at theta* (issue 12; docs/method.md, "Beyond the paper").
 
-    PYTHONPATH=src python benchmarks/flow_rules.py SKY.bin SPLIT.json [--rules paper,nearest] [--runs 20] [--levels 0,1,2,3,4]
+    PYTHONPATH=src python benchmarks/flow_rules.py SKY.bin SPLIT.json [--rules paper,closed_centred_r1] [--runs 20] [--levels 0,1,2,3,4]
 
 For every rule: Table 2's protocol (noise levels, runs r = 0..R-1 with the noisy
 targets and shuffling of ``run_seed(0, level, r)``, the tuned settings: 2 epochs,
@@ -33,7 +33,7 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("sky")
     parser.add_argument("split")
-    parser.add_argument("--rules", default="paper,closed", help=f"comma-separated, of {','.join(FLOW_RULES)}")
+    parser.add_argument("--rules", default="paper,closed_centred_r1", help=f"comma-separated, of {','.join(FLOW_RULES)}")
     parser.add_argument("--runs", type=int, default=20)
     parser.add_argument("--levels", default="0,1,2,3,4")
     parser.add_argument("--threads", type=int, default=1)

@@ -66,3 +66,43 @@ def test_training_recovers_a_depth_shift():
     history = train(data, TrainSettings(lr=1e-4, n_epoch=4, s=4, fit_depth=True), progress=False)
     a, b, c = history.final_theta
     assert abs(a - truth[0]) < 5e-3 and abs(b - truth[1]) < 5e-3 and abs(c - truth[2]) < 5e-2
+
+
+def test_depth_runs_trained_together_follow_their_own_histories():
+    """train_runs(fit_depth=True): each run's (a, b, c) history equals train() alone for its seed and targets.
+
+    The depth flow is a float sum (not a sum of integer signs), so the packed runs may round it differently:
+    held to 1e-12 m at every step. Two runs with different depths, noise and shuffling, so a run that took
+    another run's flow would be caught.
+    """
+    from sdm import train_runs
+    from sdm.sky import add_target_noise
+
+    data = ConfigurationSet.from_configurations(configurations(48, 6))
+    targets = [add_target_noise(depth_targets(data, (0.517, 0.303, depth)), level, torch.Generator().manual_seed(seed))
+               for depth, level, seed in ((1.0, 0, 1), (-0.5, 2, 2))]
+    settings = [TrainSettings(lr=1e-4, n_epoch=1, s=3, seed=seed, fit_depth=True, flow="closed") for seed in (5, 6)]
+    packed = train_runs(data, targets, settings)
+    assert packed.theta.shape[1:] == (2, 3)
+    for run, (run_targets, run_settings) in enumerate(zip(targets, settings)):
+        alone = train(data.with_targets(run_targets), run_settings, progress=False)
+        assert alone.theta.shape == packed.theta[:, run].shape
+        assert float((alone.theta - packed.theta[:, run]).abs().max()) <= 1e-12, run
+        assert abs(alone.final_theta[2]) > 0.1  # c moved: the depth flow reached it
+    assert abs(packed.final_theta[0][2] - packed.final_theta[1][2]) > 0.1  # each run its own c
+
+
+def test_depth_zoom_holds_c_at_the_finer_levels():
+    """c moves down to depth_zoom and is held below it, while (a, b) go on; depth_zoom beyond s means s."""
+    data = ConfigurationSet.from_configurations(configurations(48, 6))
+    data = data.with_targets(depth_targets(data, (0.517, 0.303, 1.0)))
+    for depth_zoom, held_levels in ((1, [0]), (2, [1, 0]), (9, [2, 1, 0])):
+        history = train(data, TrainSettings(lr=1e-4, n_epoch=1, s=3, fit_depth=True, depth_zoom=depth_zoom),
+                        progress=False)
+        moved = (history.theta[1:] != history.theta[:-1])  # (steps, 3) this step changed the parameter
+        for level in range(3, -1, -1):
+            at_level = history.level == level
+            assert bool(moved[at_level, 0].any() or moved[at_level, 1].any()), (depth_zoom, level)
+            assert bool(moved[at_level, 2].any()) == (level not in held_levels), (depth_zoom, level)
+    with pytest.raises(Exception, match="depth_zoom"):
+        TrainSettings(fit_depth=True, depth_zoom=-1)

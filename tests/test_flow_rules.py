@@ -80,7 +80,7 @@ def _mean_flow_at_true_shift(batch, level, rule, draws):
     return torch.stack(flows)
 
 
-@pytest.mark.parametrize("name", ["closed", "closed5"])
+@pytest.mark.parametrize("name", ["closed", "closed5", "closed_r1", "closed_centred_r1"])
 @pytest.mark.parametrize("level", [2, 4])
 def test_closing_the_target_removes_most_of_the_bias_at_the_true_shift(batch, name, level):
     """No rule here is exactly unbiased (measured: docs/method.md, "Beyond the paper"); the closed ones cut the
@@ -110,3 +110,58 @@ def test_a_named_rule_reaches_training_alone_and_in_packed_runs():
     assert torch.equal(alone.theta, packed.theta[:, 0])
     paper = train(data.with_targets(noisy), TrainSettings(lr=1e-4, n_epoch=1, s=2, seed=4), progress=False)
     assert not torch.equal(alone.theta, paper.theta)
+
+
+@pytest.mark.parametrize("name,fine", [("closed_r1", "closed"), ("closed_centred_r1", "closed_centred")])
+def test_zoom_scheduled_rules_are_the_paper_coarse_and_closed_at_full_resolution(batch, name, fine):
+    """closed_r1 and closed_centred_r1 pull exactly as eq. 19 at zoom >= 1 and as their closed rule at zoom 0.
+
+    Checked on noisy targets off theta*, where every rule pulls (so the equalities are not vacuous), and
+    the closed rule differs from the paper's at zoom 0 (so the switch is not a no-op).
+    """
+    noisy = add_target_noise(batch.targets, 3, torch.Generator().manual_seed(7))
+    theta = (SKY_SHIFT[0] - 0.05, SKY_SHIFT[1] + 0.03)
+    for zoom in (3, 2, 1):
+        paper = _map(batch, theta, noisy, zoom, dynamic_flow)
+        scheduled = _map(batch, theta, noisy, zoom, FLOW_RULES[name])
+        assert bool(paper.flow.any()) and torch.equal(paper.flow, scheduled.flow), zoom
+    closed = _map(batch, theta, noisy, 0, FLOW_RULES[fine])
+    scheduled = _map(batch, theta, noisy, 0, FLOW_RULES[name])
+    assert torch.equal(closed.flow, scheduled.flow) and float(closed.loss) == float(scheduled.loss)
+    assert not torch.equal(closed.flow, _map(batch, theta, noisy, 0, dynamic_flow).flow)
+
+
+def test_a_centred_window_is_centred_on_the_landing_block():
+    """One point whose kernel stepped it one column right: the paper's window (around its input block) sees a
+    target block two columns left of where it landed; the centred window (around the landing block) does not,
+    and sees one a column right of it that the paper's window cannot."""
+    from sdm.mapping.rules import _rule
+
+    screen = torch.tensor([[5.5, 11.5]], dtype=torch.float64)  # landed in pixel (5, 11)
+    depth = torch.tensor([20.0], dtype=torch.float64)
+    config = torch.zeros(1, dtype=torch.int64)
+    landed = torch.ones(1, dtype=torch.bool)
+    block, landing = torch.tensor([[5, 10]]), torch.tensor([[5, 11]])
+    for target_column, paper_pulls, centred_pulls in ((9, True, False), (12, False, True)):
+        target = torch.zeros(1, *CAM.screen_shape, dtype=torch.bool)
+        target[0, 5, target_column] = True
+        paper = dynamic_flow(screen, depth, config, landed, block, landing, target, 0, CAM)[0]
+        centred = _rule(centred=True)(screen, depth, config, landed, block, landing, target, 0, CAM)[0]
+        assert bool(paper.any()) == paper_pulls and bool(centred.any()) == centred_pulls, target_column
+        if centred_pulls:  # towards the target on the right: dJ/dx < 0
+            assert float(centred[0, 0]) == -1.0
+
+
+def test_the_two_sided_rule_pulls_a_matched_point_towards_an_uncovered_target_block():
+    """The reverse side: a target block next to a matched point that no projection covers pulls the point;
+    the one-sided rules leave a matched point alone."""
+    screen = torch.tensor([[5.5, 11.5]], dtype=torch.float64)
+    depth = torch.tensor([20.0], dtype=torch.float64)
+    config = torch.zeros(1, dtype=torch.int64)
+    landed = torch.ones(1, dtype=torch.bool)
+    block = landing = torch.tensor([[5, 11]])
+    target = torch.zeros(1, *CAM.screen_shape, dtype=torch.bool)
+    target[0, 5, 11] = target[0, 6, 11] = True  # its own pixel (matched) and one below it, uncovered
+    flow, loss, matched = FLOW_RULES["two_sided"](screen, depth, config, landed, block, landing, target, 0, CAM)
+    assert bool(matched[0]) and flow[0].tolist() == [0.0, -1.0] and float(loss) > 0
+    assert not bool(FLOW_RULES["paper"](screen, depth, config, landed, block, landing, target, 0, CAM)[0].any())

@@ -41,6 +41,11 @@ class TrainSettings:
             (beyond the paper); theta, its history and ``final_theta`` then have three entries.
         depth_lr_scale: the learning rate of ``c`` relative to ``lr`` (with ``fit_depth``); 20 by a
             measured sweep (1: c lags, 10-30: within 1e-2 m, 100: diverges; docs/method.md).
+        depth_zoom: the finest zoom level at which ``c`` moves (with ``fit_depth``; at least the coarsest
+            level ``s``): the finer levels train ``(a, b)`` with ``c`` held. Default 1: at full resolution
+            the pull on ``c`` with ``depth_lr_scale`` 20 walks along the near-degenerate direction of
+            ``(b, c)`` (every point lies below the principal point) and leaves ``b`` off by about 2e-3 m
+            at c = -1 m (measured; docs/method.md, "Beyond the paper").
     """
 
     lr: float = 3e-4
@@ -53,6 +58,7 @@ class TrainSettings:
     flow: str = "paper"
     fit_depth: bool = False
     depth_lr_scale: float = 20.0
+    depth_zoom: int = 1
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.lr) and self.lr > 0):
@@ -71,6 +77,16 @@ class TrainSettings:
             raise SDMInputError(f"flow must be one of {sorted(FLOW_RULES)}, got {self.flow!r}")
         if not (math.isfinite(self.depth_lr_scale) and self.depth_lr_scale > 0):
             raise SDMInputError(f"depth_lr_scale must be a positive finite number, got {self.depth_lr_scale!r}")
+        if isinstance(self.depth_zoom, bool) or int(self.depth_zoom) != self.depth_zoom or self.depth_zoom < 0:
+            raise SDMInputError(f"depth_zoom must be a non-negative integer, got {self.depth_zoom!r}")
+
+    def rate_scale(self, level: int, like: torch.Tensor) -> torch.Tensor:
+        """``(3,)`` per-parameter learning-rate factors of ``(a, b, c)`` at zoom ``level`` (with ``fit_depth``).
+
+        ``(1, 1, depth_lr_scale)``, and ``(1, 1, 0)`` below ``min(depth_zoom, s)``; dtype and device of ``like``.
+        """
+        depth = self.depth_lr_scale if level >= min(self.depth_zoom, self.s) else 0.0
+        return torch.tensor([1.0, 1.0, depth], dtype=like.dtype, device=like.device)
 
 
 @dataclass
@@ -157,10 +173,6 @@ def train(
     n_params = 3 if settings.fit_depth else 2
     if start.shape != (n_params,) or not bool(torch.isfinite(start).all()):
         raise SDMInputError(f"theta0 must be {n_params} finite numbers, got {theta0!r}")
-    # Per-parameter learning-rate factors: c may learn at its own rate (depth_lr_scale).
-    rate_scale = torch.ones(n_params, dtype=torch.float64, device=device)
-    if settings.fit_depth:
-        rate_scale[2] = settings.depth_lr_scale
 
     # Packed data was checked when the set was built; only theta changes, and it is checked every step.
     theta = start.clone().requires_grad_(True)
@@ -180,6 +192,8 @@ def train(
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
         for level in levels:
             layer = layers[level]
+            # Per-parameter learning-rate factors: c learns at its own rate (depth_lr_scale) down to depth_zoom.
+            rate_scale = settings.rate_scale(level, start) if settings.fit_depth else None
             for _ in range(settings.n_epoch):
                 order = torch.randperm(n_configs, generator=generator, device="cpu").to(device)
                 epoch = _EpochLayout(train_set, order, batch_size)
@@ -211,7 +225,8 @@ class RunsHistory:
     """What :func:`train_runs` did: the theta of every run, step by step (CPU tensors).
 
     Attributes:
-        theta: ``(steps + 1, R, 2)`` float64 ``(a, b)`` in metres of each run, before the first step and after each.
+        theta: ``(steps + 1, R, 2)`` float64 ``(a, b)`` in metres of each run, before the first step and after
+            each; ``(steps + 1, R, 3)`` ``(a, b, c)`` when the runs fitted depth.
         loss: ``(steps,)`` float64 loss ``J`` of each step, summed over the runs (metres).
         level: ``(steps,)`` int64 zoom level of each step.
         lr: ``(steps,)`` float64 learning rate of each step (the same for every run).
@@ -225,8 +240,8 @@ class RunsHistory:
     settings: list[TrainSettings]
 
     @property
-    def final_theta(self) -> list[tuple[float, float]]:
-        """``(a, b)`` of each run after its last step."""
+    def final_theta(self) -> list[tuple[float, ...]]:
+        """``(a, b)`` (or ``(a, b, c)`` with depth) of each run after its last step."""
         return [tuple(pair) for pair in self.theta[-1].tolist()]
 
 
@@ -246,12 +261,17 @@ def train_runs(
     points of run ``r`` are moved by its own theta, and the flow reaching theta
     ``(R, 2)`` is summed per run by autograd. Flows are sums of signs, exact in
     float64 in any order, so every run's theta history equals :func:`train`'s to
-    the bit (``test_train.py`` holds it).
+    the bit (``test_train.py`` holds it). With ``fit_depth`` theta is ``(R, 3)`` and
+    each run's ``c`` is moved by its own depth flow (:mod:`sdm.depth`), as
+    :func:`train` moves it for one run; the depth flow is not a sum of integers, so
+    the sums over a run's points may round differently than alone: every run's
+    history equals :func:`train`'s to 1e-12 m (``test_depth.py`` holds it).
 
     Args:
         train_set: packed configurations; their own targets are not used.
         targets: ``R`` tensors ``(N, H, W)`` bool, run ``r``'s training targets.
-        settings: ``R`` settings; all fields but ``seed`` must agree (one learning-rate schedule).
+        settings: ``R`` settings; all fields but ``seed`` must agree (one learning-rate schedule,
+            one ``flow``, one ``fit_depth``, ``depth_lr_scale`` and ``depth_zoom``).
         camera: camera and screen; default the set's own.
         device: where to train; default the set's device.
 
@@ -266,13 +286,11 @@ def train_runs(
     if len(shared) != 1:
         raise SDMInputError(f"the runs' settings may differ only in seed, got {sorted(map(str, shared))}")
     common = settings[0]
-    if common.fit_depth:
-        raise SDMInputError("train_runs trains (a, b) only; fit_depth runs train one at a time with train()")
     camera = camera or train_set.camera
     if device is not None:
         train_set = train_set.to(device)
     device = train_set.device
-    layers = {level: SpatialDomainMapping(camera, s=common.s, zoom=level, flow=common.flow)
+    layers = {level: SpatialDomainMapping(camera, s=common.s, zoom=level, flow=common.flow, fit_depth=common.fit_depth)
               for level in range(common.s, common.zoom - 1, -1)}
     n_configs, batch_size = len(train_set), common.batch_size
     if n_configs < batch_size:
@@ -284,18 +302,21 @@ def train_runs(
     # Run r's target of configuration c is row r * N + c of each level.
     pyramid = [torch.cat(level) for level in zip(*(target_pyramid(t.to(device), common.s) for t in targets))]
 
-    theta = torch.zeros(n_runs, 2, dtype=torch.float64, device=device, requires_grad=True)
+    n_params = 3 if common.fit_depth else 2
+    theta = torch.zeros(n_runs, n_params, dtype=torch.float64, device=device, requires_grad=True)
     generators = [torch.Generator(device="cpu").manual_seed(one.seed) for one in settings]
     levels = range(common.s, common.zoom - 1, -1)
     batches_per_epoch = n_configs // batch_size
     total = len(levels) * common.n_epoch * batches_per_epoch
-    thetas = torch.empty(total + 1, n_runs, 2, dtype=torch.float64, device=device)
+    thetas = torch.empty(total + 1, n_runs, n_params, dtype=torch.float64, device=device)
     thetas[0] = theta.detach()
     losses = torch.zeros(total, dtype=torch.float64, device=device)
     step_levels = torch.empty(total, dtype=torch.int64)
     rates = torch.empty(total, dtype=torch.float64)
     step, rate = 0, common.lr
     for level in levels:
+        # Per-parameter learning-rate factors, as in train().
+        rate_scale = common.rate_scale(level, theta) if common.fit_depth else None
         for _ in range(common.n_epoch):
             # The same draws, in the same order, as each run's own train().
             orders = torch.stack([torch.randperm(n_configs, generator=g, device="cpu") for g in generators]).to(device)
@@ -310,7 +331,7 @@ def train_runs(
                     )
                     out.loss.backward()
                     with torch.no_grad():  # plain SGD, per run: theta_r <- theta_r - lr * grad_r
-                        theta -= rate * theta.grad
+                        theta -= rate * theta.grad if not common.fit_depth else rate * rate_scale * theta.grad
                     theta.grad = None
                     losses[step] = out.loss.detach()
                     finite = torch.isfinite(theta).all(1)
