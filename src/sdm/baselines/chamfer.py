@@ -22,12 +22,16 @@ there is not zero but its gradient averages out over the many sub-pixel offsets.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Sequence
 
 import torch
 
 from ..batch import ConfigurationSet
 from ..camera import Camera
-from .common import FitResult, check_positive, check_positive_int, pad_set, sampled_pair, staged_adam, timed
+from .common import (
+    FitResult, check_positive, check_positive_int, check_runs, mean_of_usable, pack_run_targets, pad_points,
+    sampled_pairs, staged_adam_runs, timed_runs,
+)
 
 
 @dataclass(frozen=True)
@@ -89,26 +93,50 @@ def chamfer_2d(points: torch.Tensor, point_mask: torch.Tensor, centres: torch.Te
 
 def fit(train_set: ConfigurationSet, settings: ChamferSettings = ChamferSettings(), seed: int = 0,
         camera: Camera | None = None, theta0=(0.0, 0.0)) -> FitResult:
-    """Estimate ``theta`` by Adam on the 2D Chamfer distance.
+    """Estimate ``theta`` by Adam on the 2D Chamfer distance: one run of :func:`fit_runs`.
 
     Returns:
         :class:`~sdm.baselines.common.FitResult`; history stages are the rounds ``rounds-1..0``.
     """
-    camera = camera or train_set.camera
+    return fit_runs([train_set], settings, [seed], camera, theta0)[0]
 
-    def run() -> FitResult:
-        padded = pad_set(train_set)
 
-        def loss(configs, theta, stage, generator):
-            screen, kept, centres, target_kept = sampled_pair(padded, configs, theta, camera, settings.max_points,
-                                                              generator)
-            value = chamfer_2d(screen, kept, centres, target_kept)
-            usable = torch.isfinite(value)
-            if not bool(usable.any()):  # nothing to match in this batch: a zero loss with a zero gradient
-                return theta.sum() * 0.0
-            return value[usable].mean()
+def fit_runs(train_sets: Sequence[ConfigurationSet], settings: ChamferSettings = ChamferSettings(),
+             seeds: Sequence[int] = (0,), camera: Camera | None = None, theta0=(0.0, 0.0)) -> list[FitResult]:
+    """``R`` independent Chamfer fits as one program: run ``r`` is ``fit(train_sets[r], settings, seeds[r])``.
 
-        return staged_adam(loss, len(train_set), range(settings.rounds - 1, -1, -1), settings.steps, settings.lr,
-                           settings.lr_decay, settings.batch_size, seed, theta0, device=train_set.points.device)
+    Each step stacks the runs' mini-batches into one ``(R x batch_size)``-configuration batch (one
+    ``cdist``, one backward), which shares the per-operation overhead that dominates a single run's
+    tiny steps; each run keeps its own theta, Adam state and generator (:func:`staged_adam_runs`).
 
-    return timed(run)
+    Args:
+        train_sets: ``R`` sets with the same points, offsets and camera (tensors on one device),
+            differing only in their targets (e.g. each run's noisy targets).
+        settings: shared by every run.
+        seeds: ``R`` seeds; ``seeds[r]`` draws run ``r``'s mini-batches and subsamples as ``fit`` does.
+        camera: default the sets' camera.
+        theta0: every run's start ``(a, b)``, metres.
+
+    Returns:
+        One :class:`~sdm.baselines.common.FitResult` per run; ``seconds`` is the batched fit's wall
+        time divided by ``R`` (its cost per run).
+    """
+    check_runs(train_sets, seeds)
+    camera = camera or train_sets[0].camera
+
+    def run() -> list[FitResult]:
+        points, point_mask = pad_points(train_sets[0])
+        targets = pack_run_targets([train_set.targets for train_set in train_sets])
+
+        def loss(configs, theta, stage, generators):
+            screen, kept, centres, target_kept = sampled_pairs(points, point_mask, targets, configs, theta, camera,
+                                                               settings.max_points, generators)
+            value = chamfer_2d(screen.flatten(0, 1), kept.flatten(0, 1), centres.flatten(0, 1),
+                               target_kept.flatten(0, 1)).view(configs.shape)
+            return mean_of_usable(value, theta)
+
+        return staged_adam_runs(loss, len(train_sets[0]), range(settings.rounds - 1, -1, -1), settings.steps,
+                                settings.lr, settings.lr_decay, settings.batch_size, seeds, theta0,
+                                device=train_sets[0].points.device)
+
+    return timed_runs(run)
