@@ -60,6 +60,11 @@ class ChamferSettings:
         check_positive_int(self, ("max_points",), allow_zero=("max_points",))
 
 
+#: Where padding is parked for the nearest-neighbour search, screen pixels: far beyond any screen
+#: (distances stay far below float32's range).
+FAR = 1.0e5
+
+
 def chamfer_2d(points: torch.Tensor, point_mask: torch.Tensor, centres: torch.Tensor,
                centre_mask: torch.Tensor) -> torch.Tensor:
     """Per-configuration two-way Chamfer distance of padded 2D point sets.
@@ -79,9 +84,14 @@ def chamfer_2d(points: torch.Tensor, point_mask: torch.Tensor, centres: torch.Te
         ``(B,)`` squared screen pixels; NaN for a configuration with no point or no target pixel.
     """
     with torch.no_grad():
-        squared = torch.cdist(points.detach().float(), centres.float())  # (B, P, T); monotone in the distance
-        blocked = ~(point_mask.unsqueeze(2) & centre_mask.unsqueeze(1))
-        squared.masked_fill_(blocked, float("inf"))
+        # Padding is parked far off screen (points at -FAR, centres at +FAR) instead of masking the
+        # (B, P, T) matrix with inf: the same arg-mins for every real point and real centre (a real
+        # pair is never farther than the screen's diagonal; each distance is computed from its own
+        # pair only), the same index 0 where a row has no real partner (all equal, first wins), and
+        # the two (B, P, T) mask passes saved. Padding rows' arg-mins differ but are masked below.
+        search_points = torch.where(point_mask.unsqueeze(-1), points.detach(), -FAR).float()
+        search_centres = torch.where(centre_mask.unsqueeze(-1), centres, FAR).float()
+        squared = torch.cdist(search_points, search_centres)  # (B, P, T); monotone in the distance
         nearest_centre = squared.argmin(dim=2)  # (B, P)
         nearest_point = squared.argmin(dim=1)  # (B, T)
     to_target = ((points - centres.gather(1, nearest_centre.unsqueeze(-1).expand(-1, -1, 2))) ** 2).sum(-1)
