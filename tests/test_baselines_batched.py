@@ -145,15 +145,18 @@ def test_noise_runs_batched_equal_the_loop(runs):
         noise_runs("chamfer", data, 2, [0], settings, seed=4, group_size=0)
 
 
-def test_sdm_batched_equals_its_single_runs():
+def test_sdm_batched_equals_its_single_runs(monkeypatch):
     from sdm.baselines import sdm_layer
     from sdm.train import TrainSettings
 
     data = configuration_set(48, seed=23)
-    sets = [data.with_targets(noisy_targets(data.targets, 2, seed)) for seed in (5, 6)]
+    seeds = (5, 6, 7)
+    sets = [data.with_targets(noisy_targets(data.targets, 2, seed)) for seed in seeds]
     settings = TrainSettings(lr=1e-3, n_epoch=1, s=2)
-    batched = sdm_layer.fit_runs(sets, settings, [5, 6])
-    for data_run, seed, result in zip(sets, (5, 6), batched):
+    monkeypatch.setattr(sdm_layer, "NOISE_GROUP_SIZE", 2)  # two train_runs groups: 2 runs, then 1
+    batched = sdm_layer.fit_runs(sets, settings, list(seeds))
+    assert len({result.theta for result in batched}) == 3
+    for data_run, seed, result in zip(sets, seeds, batched):
         assert result.theta == sdm_layer.fit(data_run, settings, seed).theta
 
 

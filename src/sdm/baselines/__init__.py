@@ -17,8 +17,14 @@ name           what it minimises                                          optimi
 =============  =========================================================  ==========================
 
 Budgets (the settings' defaults: 36 / 48 / 24 Adam steps per stage on mini-batches of 16
-configurations, 240 objective calls) make one run of each baseline cost about one SDM run on the
-default 512 training configurations (1.4 to 3 s on one thread): an equal-time comparison.
+configurations, 240 objective calls) make one run of each baseline, fitted alone, cost about one
+SDM run fitted alone on the default 512 training configurations (1.4 to 3 s on one thread): an
+equal-time comparison run for run. The noise runs are fitted many at a time (``fit_runs``,
+:func:`noise_runs`), each run bit-identical to its single fit; on one CPU core that shares little,
+for SDM (about 1.2x, docs/method.md) as for the gradient baselines, whose steps are dominated by
+arithmetic on their dense per-step tensors (nearest-neighbour matrices, splatted cells, Sinkhorn
+kernels) rather than by per-operation overhead (``benchmarks/bench_baselines.py`` measures both
+ways; the ``seconds_per_run`` of Table 3 is the batched cost).
 
 :func:`tune` scores a grid of settings by the dev loss of Table 1 (:func:`sdm.metrics.dev_loss`:
 mean false-positive pixels per dev configuration at ``theta``), so every method is picked by the

@@ -1,5 +1,5 @@
 """What the baselines share: padded per-configuration tensors, projection of the shifted points,
-mini-batches, settings checks and a staged Adam loop.
+mini-batches, settings checks and a staged Adam loop, for one run or for many runs as one program.
 
 Every baseline sees exactly what SDM sees: the points ``Q`` of each configuration and its binary
 target ``L`` (possibly noisy), and estimates ``theta = (a, b)`` in metres. The points of a
@@ -8,7 +8,15 @@ configuration at ``theta`` are ``P(Q + (a, b, 0))`` in screen pixels ``(row, col
 counterpart in the target (the target was built by dropping such points), so the point-set losses
 ignore it at the current ``theta``.
 
-Tensors live on the device of the training set's tensors; nothing is created on a fixed device.
+Many runs (``fit_runs`` of each method): ``R`` independent fits on the same points with different
+targets (e.g. the noisy targets of Table 3's runs) share each step's operations: ``theta`` is
+``(R, 2)``, each run has its own Adam (:class:`RowAdam`) and its own generator drawing what its
+single run draws in the same order (:func:`subsample_runs`, :func:`staged_adam_runs`), and the loss
+is the sum of the runs' losses, so each run's gradient is its own. A run's result equals its single
+run's to the bit (``tests/test_baselines_batched.py``).
+
+Tensors live on the device of the training set's tensors; nothing is created on a fixed device
+(random draws come from CPU generators, as in a single run, and are moved).
 """
 from __future__ import annotations
 
@@ -158,7 +166,8 @@ def project_shifted(points: torch.Tensor, theta: torch.Tensor, camera: Camera) -
 
     Args:
         points: ``(..., 3)`` float64 metres, ``z > 0`` (checked when the set was built).
-        theta: ``(2,)`` shift ``(a, b)`` in metres, same dtype; may require grad.
+        theta: ``(2,)`` shift ``(a, b)`` in metres, same dtype, or ``(..., 2)`` broadcastable against
+            ``points``' leading dimensions (one shift per run); may require grad.
 
     Returns:
         ``(..., 2)`` ``(row, col)`` in screen pixels, differentiable in ``theta``.
@@ -249,7 +258,8 @@ class FitResult:
 
     Attributes:
         theta: the estimate ``(a, b)`` in metres.
-        seconds: wall time of the fit (setup included), seconds.
+        seconds: wall time of the fit (setup included), seconds; for a run of ``fit_runs``, the
+            whole batched fit's wall time divided by its number of runs (:func:`timed_runs`).
         evaluations: loss evaluations (gradient steps, or objective calls for CMA-ES).
         history: per step (or per CMA-ES generation) ``stage, loss, a, b``, as a dict of lists.
     """
