@@ -52,6 +52,7 @@ def test_each_batched_run_is_its_single_run(runs, name, monkeypatch):
     if name == "sinkhorn":
         pytest.importorskip("geomloss")
         monkeypatch.setattr(sinkhorn, "OT_PROBLEMS_PER_SOLVE", 20)  # solves that cut runs' batches apart
+    monkeypatch.setattr(chamfer, "CONFIGS_PER_SEARCH", 20)
     module, settings = SHORT[name]
     sets, seeds = runs
     batched = module.fit_runs(sets, settings, seeds)
@@ -167,3 +168,26 @@ def test_runs_must_share_points_and_have_a_seed_each(runs):
         chamfer.fit_runs([sets[0], other], ChamferSettings(steps=1, rounds=1), [1, 2])
     with pytest.raises(SDMInputError, match="seeds"):
         chamfer.fit_runs(sets, ChamferSettings(steps=1, rounds=1), [1, 2])
+
+
+def test_sampled_pairs_are_each_runs_sampled_pair(runs):
+    """The batched draw gives run r what sampled_pair gives it alone (same generator seed), with
+    subsampling on for points and for targets (max_points below every width) and off (0)."""
+    sets, seeds = runs
+    camera = sets[0].camera
+    points, point_mask = common.pad_points(sets[0])
+    targets = common.pack_run_targets([data.targets for data in sets])
+    configs = torch.tensor([[0, 5, 9], [3, 5, 47], [12, 1, 2]])
+    theta = torch.tensor([[0.5, 0.3], [0.1, -0.2], [0.0, 0.0]], dtype=torch.float64)
+    for max_points in (7, 0):
+        batched = common.sampled_pairs(points, point_mask, targets, configs, theta, camera, max_points,
+                                       [torch.Generator().manual_seed(s) for s in seeds])
+        for run, (data, seed) in enumerate(zip(sets, seeds)):
+            alone = common.sampled_pair(common.pad_set(data), configs[run], theta[run], camera, max_points,
+                                        torch.Generator().manual_seed(seed))
+            screen, kept, centres, target_kept = (t[run] for t in batched)
+            n, m = alone[0].shape[1], alone[2].shape[1]
+            assert torch.equal(kept[:, :n], alone[1]) and not kept[:, n:].any()
+            assert torch.equal(screen[:, :n][alone[1]], alone[0][alone[1]])
+            assert torch.equal(target_kept[:, :m], alone[3]) and not target_kept[:, m:].any()
+            assert torch.equal(centres[:, :m][alone[3]], alone[2][alone[3]])
