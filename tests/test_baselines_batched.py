@@ -10,7 +10,6 @@ that a platform whose reductions group a padded row differently does not fail th
 mixing of runs, shared generator or shared Adam state moves theta by 1e-4 m or more (the
 last test shows such a bug is caught).
 """
-from dataclasses import replace
 
 import pandas as pd
 import pytest
