@@ -509,6 +509,7 @@ def _small_real_config(folder: Path, n_images: int) -> dict:
         "tuning": {"n_epoch": [2], "lr": [1.0e-3]},
         "noise": {"levels": [0, 2], "runs": 2, "chunk_size": 2},
         "baselines": {"enabled": False},
+        "research": {"rules": {"enabled": False}},
     })
 
 
