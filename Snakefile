@@ -30,6 +30,7 @@ include: "workflow/rules/data.smk"
 include: "workflow/rules/tuning.smk"
 include: "workflow/rules/noise.smk"
 include: "workflow/rules/baselines.smk"
+include: "workflow/rules/research.smk"
 include: "workflow/rules/report.smk"
 
 
@@ -48,6 +49,8 @@ localrules:
     best,
     tables,
     table3,
+    table4,
+    table5,
 
 
 rule all:
@@ -59,3 +62,4 @@ rule all:
         rules.report.output,
         table3_outputs(),
         notebook_html(),
+        research_outputs(),

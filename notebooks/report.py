@@ -28,6 +28,10 @@ sky = "results/sky/sky.bin"  # for the flow at theta*
 split = "results/split/split.json"
 table3 = ""  # Table 3 (markdown), when the baselines ran
 table3_summary = ""  # Table 3's answer in plain words, when the baselines ran
+table4 = ""  # Table 4 (markdown), Table 2 per gradient rule, when research.rules is enabled
+table4_summary = ""  # Table 4 in plain words
+table5 = ""  # Table 5 (markdown), the shift with depth, when research.depth is enabled
+table5_summary = ""  # Table 5 in plain words
 report = "results/report/reproduction.md"  # output
 config = {}
 threads = 1
@@ -46,6 +50,7 @@ from IPython.display import Markdown, display
 from sdm.experiments import flow_at_true_shift, load_split, single_thread
 from sdm.report.io import read_json, write_text
 from sdm.report.reproduction import build_report
+from sdm.report.research import beyond_the_paper
 
 single_thread(threads)
 train_set, _, camera = load_split(sky, read_json(split))
@@ -67,5 +72,9 @@ if table3_summary:
     # The comparison the paper does not make: the same noisy targets, other losses (Table 3).
     text += ("\n## SDM against the losses a researcher would use instead (Table 3)\n\n"
              + Path(table3).read_text() + "\n" + Path(table3_summary).read_text())
+if table4_summary or table5_summary:
+    # Beyond the paper (issue 12): the measured tables, and what they say in plain words.
+    text += beyond_the_paper(*(Path(path).read_text() if path else "" for path in
+                               (table4, table4_summary, table5, table5_summary)))
 write_text(report, text)
 display(Markdown(text))

@@ -28,7 +28,7 @@ from config_check import ConfigError, check_config, load_config, validate_schema
 SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
 APOLLO_SAMPLE = ROOT / "data" / "apollocar3d-sample"
 STAGES = ["synthetic", "data", "sample", "sky", "split", "tune", "best", "noise", "tables", "baseline_tune",
-          "baseline_runs", "table3", "figures", "report"]
+          "baseline_runs", "table3", "rule_runs", "depth_runs", "table4", "table5", "figures", "report"]
 
 pytestmark = pytest.mark.workflow
 
@@ -116,7 +116,28 @@ def test_dry_run_default_config_plans_every_stage(tmp_path):
     assert jobs == {"synthetic": 1, "data": 1, "sample": 1, "sky": 1, "split": 1, "tune": cells, "best": 1,
                     "noise": chunks, "tables": 1, "figures": 1, "report": 1,
                     "baseline_tune": len(methods), "baseline_runs": len(methods) * len(config["noise"]["levels"]),
-                    "table3": 1}
+                    "table3": 1, **_research_jobs(config)}
+
+
+def _research_jobs(config: dict) -> dict[str, int]:
+    """The research stages' job counts (Tables 4 and 5): per (rule, noise level), per (c*, level), then a table."""
+    rules, depth = config["research"]["rules"], config["research"]["depth"]
+    jobs = {}
+    if rules["enabled"]:
+        jobs |= {"rule_runs": len(rules["names"]) * len(config["noise"]["levels"]), "table4": 1}
+    if depth["enabled"]:
+        jobs |= {"depth_runs": len(depth["shifts_c"]) * len(depth["levels"]), "table5": 1}
+    return jobs
+
+
+def test_dry_run_with_the_depth_table_switched_on_by_an_overlay(tmp_path):
+    """docs/workflow.md's way to switch Table 5 on for one run: an overlay file merged key by key."""
+    config = default_config()
+    overlay = tmp_path / "depth-on.yaml"
+    overlay.write_text("research:\n  depth:\n    enabled: true\n")
+    jobs = planned(snakemake("-n", "--quiet", "rules", "--configfile", str(overlay), cwd=workdir(tmp_path / "run", config)))
+    config["research"]["depth"]["enabled"] = True
+    assert {key: jobs.get(key) for key in ("rule_runs", "depth_runs", "table4", "table5")} == _research_jobs(config)
 
 
 @pytest.mark.parametrize("flag", ["--workflow-profile", "--profile"])
@@ -287,6 +308,37 @@ def test_completed_run_has_every_output_and_nothing_left_to_do(completed_run):
     assert "Nothing to be done" in result.stdout + result.stderr, result.stdout + result.stderr
 
 
+def test_completed_run_has_the_research_tables_and_the_report_section(completed_run):
+    """.test switches both research parts on: Tables 4 and 5, their figures, and "Beyond the paper" in the report."""
+    tables = completed_run / "results" / "tables"
+    for name in ["table4", "table5"]:
+        for suffix in [".csv", ".md", ".tex"]:
+            assert (tables / f"{name}{suffix}").stat().st_size > 0, (name, suffix)
+        assert (tables / f"{name}_summary.md").stat().st_size > 0, name
+    config = dot_test_config()["research"]
+    table4 = pd_read_csv(tables / "table4.csv")
+    assert sorted(set(zip(table4["flow"], table4["level"]))) == sorted(
+        (name, level) for name in config["rules"]["names"] for level in dot_test_config()["noise"]["levels"])
+    assert (table4["runs"] == config["rules"]["runs"]).all() and (table4["paper_rule_runs"] == table4["runs"]).all()
+    table5 = pd_read_csv(tables / "table5.csv")
+    assert sorted(set(zip(table5["c_true"], table5["level"]))) == sorted(
+        (c, level) for c in config["depth"]["shifts_c"] for level in config["depth"]["levels"])
+    report = (completed_run / "results" / "report" / "reproduction.md").read_text()
+    section = report[report.index("## Beyond the paper"):]
+    assert "(Table 4)" in section and "(Table 5)" in section
+    assert (tables / "table4_summary.md").read_text().strip() in section
+    for name in ["table4", "table5"]:
+        assert _rendered_images(completed_run / "results" / "notebooks" / f"{name}.html") >= 1, name
+    for figure in ["research_rules", "research_depth"]:
+        assert (completed_run / "results" / "figures" / f"{figure}.png").stat().st_size > 0, figure
+
+
+def pd_read_csv(path: Path):
+    import pandas as pd
+
+    return pd.read_csv(path)
+
+
 def test_snakemake_report_collects_the_results(completed_run, tmp_path):
     result = snakemake("--report", str(tmp_path / "report.html"), cwd=completed_run)
     assert result.returncode == 0, result.stdout + result.stderr
@@ -381,6 +433,15 @@ def _key_cases() -> dict[str, tuple[dict, str | None]]:
         "baselines.chamfer": ({"baselines": {"chamfer": {"lr": 0.2, "steps": 12}}}, "baseline_tune"),
         "baselines.sinkhorn": ({"baselines": {"sinkhorn": {"lr": 0.2, "steps": 8}}}, "baseline_tune"),
         "baselines.cmaes": ({"baselines": {"cmaes": {"sigma0": 0.2, "budget": 120}}}, "baseline_tune"),
+        "research.rules.enabled": ({"research": {"rules": {"enabled": False}}}, "report"),
+        "research.rules.names": ({"research": {"rules": {"names": ["closed", "closed_r2"]}}}, "rule_runs"),
+        "research.rules.runs": ({"research": {"rules": {"runs": 1}}}, "rule_runs"),
+        "research.depth.enabled": ({"research": {"depth": {"enabled": False}}}, "report"),
+        "research.depth.shifts_c": ({"research": {"depth": {"shifts_c": [-1.0, 0.5, 1.0]}}}, "depth_runs"),
+        "research.depth.levels": ({"research": {"depth": {"levels": [0, 1, 2]}}}, "depth_runs"),
+        "research.depth.runs": ({"research": {"depth": {"runs": 1}}}, "depth_runs"),
+        "research.depth.flow": ({"research": {"depth": {"flow": "paper"}}}, "depth_runs"),
+        "research.depth.lr_scale": ({"research": {"depth": {"lr_scale": 3}}}, "depth_runs"),
     }
 
 
@@ -477,6 +538,7 @@ def _small_real_config(folder: Path, n_images: int) -> dict:
         "tuning": {"n_epoch": [2], "lr": [1.0e-3]},
         "noise": {"levels": [0, 2], "runs": 2, "chunk_size": 2},
         "baselines": {"enabled": False},
+        "research": {"rules": {"enabled": False}},
     })
 
 

@@ -223,3 +223,91 @@ def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed:
 def single_thread(threads: int = 1) -> None:
     """Keep a job on its own cores (``torch.set_num_threads``); the workflow runs jobs side by side."""
     torch.set_num_threads(max(1, int(threads)))
+
+
+# -- beyond the paper (issue 12): Table 2 per gradient rule, and the shift with depth ----------------------
+
+#: Columns of a depth-run table (:func:`depth_noise_runs`); lengths in metres.
+DEPTH_RUN_COLUMNS = ["c_true", "level", "run", "seed", "a", "b", "c", "error_a", "error_b", "error_c",
+                     "distance_ab", "distance"]
+
+
+def rule_noise_runs(train_set, rule: str, level: int, runs: Sequence[int], settings: TrainSettings,
+                    shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
+                    group_size: int = NOISE_GROUP_SIZE, device: torch.device | str | None = None) -> pd.DataFrame:
+    """Table 2's runs at one level trained with another gradient rule, one row each.
+
+    :func:`noise_runs` with ``replace(settings, flow=rule)``: run ``r`` draws the same noisy
+    targets and shuffling as Table 2's run ``r`` (:func:`run_seed` ``(settings.seed, level, r)``
+    does not depend on the rule), so the comparison with the paper's rule is paired.
+
+    Args:
+        rule: a name of :data:`sdm.FLOW_RULES`.
+        the rest: as :func:`noise_runs`.
+
+    Returns:
+        Columns ``flow`` (the rule) then :data:`RUN_COLUMNS`, in the order of ``runs``.
+    """
+    frame = noise_runs(train_set, level, runs, replace(settings, flow=rule), shift=shift, camera=camera,
+                       group_size=group_size, device=device)
+    frame.insert(0, "flow", rule)
+    return frame
+
+
+def depth_noise_runs(train_set, c: float, level: int, runs: Sequence[int], settings: TrainSettings,
+                     shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
+                     device: torch.device | str | None = None) -> pd.DataFrame:
+    """The robustness experiment for the general shift ``theta* = (a*, b*, c)``: one row per run.
+
+    The training set's targets are rebuilt for its points moved by ``(a*, b*, c)``
+    (:func:`sdm.depth.depth_targets`); run ``r`` moves them by noise ``level`` drawn from
+    :func:`run_seed` ``(settings.seed, level, r)`` (the draw of Table 2's run ``r``, applied to
+    these targets), which also shuffles its mini-batches, and trains ``(a, b, c)`` from
+    ``(0, 0, 0)`` with ``fit_depth`` (the rest of ``settings`` as given: flow rule,
+    ``depth_lr_scale``). The runs train one at a time (:func:`sdm.train.train`).
+
+    Args:
+        train_set: the training configurations (their points ``Q``; their own targets are not used).
+        c: the true depth shift ``c*``, metres (positive: farther from the camera).
+        level: noise level ``n`` (screen pixels).
+        runs: run indices.
+        settings: the tuned settings; ``settings.seed`` is the experiment's seed.
+        shift: ``(a*, b*)``, metres.
+        camera: default the set's.
+        device: where to train; default the set's device.
+
+    Raises:
+        SDMInputError: ``shift`` is not two numbers, ``c`` is not finite, or ``c`` moves a point on or
+            behind the camera (message starting ``c = ``).
+
+    Returns:
+        Columns :data:`DEPTH_RUN_COLUMNS`: ``c_true``, ``level``, ``run``, ``seed`` (the run's),
+        the fitted ``a, b, c``, the absolute errors ``error_a, error_b, error_c``, the distance in
+        ``(a, b)`` (``distance_ab``, as Table 2's) and in ``(a, b, c)`` (``distance``), all in metres.
+    """
+    from .depth import depth_targets
+
+    if len(shift) != 2:
+        raise SDMInputError(f"shift must be (a, b), metres (c is its own argument), got {tuple(shift)!r}")
+    truth = (float(shift[0]), float(shift[1]), float(c))
+    if not all(np.isfinite(truth)):
+        raise SDMInputError(f"the shift (a, b, c) must be finite, got {truth!r}")
+    camera = camera or train_set.camera
+    if len(train_set.points) and float(train_set.points[:, 2].min()) + truth[2] <= 0:
+        raise SDMInputError(f"c = {truth[2]!r} m moves the nearest point (depth {float(train_set.points[:, 2].min()):.2f} m) "
+                            f"on or behind the camera")
+    clean = depth_targets(train_set, truth, camera)
+    depth_settings = replace(settings, fit_depth=True)
+    rows = []
+    for run in (int(run) for run in runs):
+        seed_run = run_seed(settings.seed, level, run)
+        noisy = train_set.with_targets(noisy_targets(clean, level, seed_run))
+        history = train(noisy, replace(depth_settings, seed=seed_run), camera=camera, progress=False, device=device)
+        fitted = history.final_theta
+        errors = [abs(value - true) for value, true in zip(fitted, truth)]
+        rows.append({"c_true": truth[2], "level": int(level), "run": run, "seed": seed_run,
+                     "a": fitted[0], "b": fitted[1], "c": fitted[2],
+                     "error_a": errors[0], "error_b": errors[1], "error_c": errors[2],
+                     "distance_ab": float(np.hypot(errors[0], errors[1])),
+                     "distance": float(np.sqrt(sum(error ** 2 for error in errors)))})
+    return pd.DataFrame.from_records(rows, columns=DEPTH_RUN_COLUMNS)

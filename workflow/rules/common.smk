@@ -285,3 +285,89 @@ def config_values(*keys):
         if last in source:
             target[last] = source[last]
     return picked
+
+
+# -- beyond the paper (config section research): Table 4 (rules) and Table 5 (depth) -----------------------
+
+RESEARCH = config.get("research", {})
+RESEARCH_RULES = RESEARCH.get("rules", {"enabled": False})
+RESEARCH_DEPTH = RESEARCH.get("depth", {"enabled": False})
+# Table 4: the rules beside the paper's, each run at every noise level with Table 2's runs 0..runs-1.
+RULE_NAMES = list(RESEARCH_RULES["names"]) if RESEARCH_RULES["enabled"] else []
+RULE_PATTERN = "|".join(RULE_NAMES) or "(?!)"  # "(?!)" matches nothing
+RULE_RUNS = list(range(int(RESEARCH_RULES.get("runs", 1))))
+
+
+def c_label(c):
+    """A depth shift c* as it appears in file names: ``-1.0`` (only a label: the value comes from the config)."""
+    return repr(float(c))
+
+
+# Table 5: c* label -> its value, in config order.
+DEPTH_SHIFTS = (
+    {c_label(c): float(c) for c in RESEARCH_DEPTH["shifts_c"]}
+    if RESEARCH_DEPTH["enabled"]
+    else {}
+)
+DEPTH_PATTERN = "|".join(label.replace(".", r"\.") for label in DEPTH_SHIFTS) or "(?!)"
+DEPTH_LEVELS = [int(level) for level in RESEARCH_DEPTH.get("levels", [])]
+DEPTH_RUNS = list(range(int(RESEARCH_DEPTH.get("runs", 1))))
+
+
+def depth_shift(wildcards):
+    """A params function: the c* of a depth job, looked up from its label (never parsed back)."""
+    return DEPTH_SHIFTS[wildcards.c]
+
+
+def rule_files():
+    """Table 4's run files, one per (rule, noise level) job."""
+    return [
+        result(f"research/rules/{name}_level{level}.csv")
+        for name in RULE_NAMES
+        for level in config["noise"]["levels"]
+    ]
+
+
+def depth_files():
+    """Table 5's run files, one per (c*, noise level) job."""
+    return [
+        result(f"research/depth/c{label}_level{level}.csv")
+        for label in DEPTH_SHIFTS
+        for level in DEPTH_LEVELS
+    ]
+
+
+def research_report_inputs():
+    """What the report reads of Tables 4 and 5 (only the enabled ones)."""
+    inputs = {}
+    if RESEARCH_RULES["enabled"]:
+        inputs |= {
+            "table4": result("tables/table4.md"),
+            "table4_summary": result("tables/table4_summary.md"),
+        }
+    if RESEARCH_DEPTH["enabled"]:
+        inputs |= {
+            "table5": result("tables/table5.md"),
+            "table5_summary": result("tables/table5_summary.md"),
+        }
+    return inputs
+
+
+def research_outputs():
+    """Tables 4 and 5 with their figures and every rendered research notebook (only the enabled parts)."""
+    outputs = []
+    if RESEARCH_RULES["enabled"]:
+        outputs += list(rules.table4.output)
+        outputs += [
+            html(f"research_rules_{name}_level{level}")
+            for name in RULE_NAMES
+            for level in config["noise"]["levels"]
+        ]
+    if RESEARCH_DEPTH["enabled"]:
+        outputs += list(rules.table5.output)
+        outputs += [
+            html(f"research_depth_c{label}_level{level}")
+            for label in DEPTH_SHIFTS
+            for level in DEPTH_LEVELS
+        ]
+    return outputs

@@ -60,6 +60,7 @@ use rule notebook_stage as report with:
     """Compare every number with the paper and explain each gap."""
     input:
         **table3_report_inputs(),
+        **research_report_inputs(),
         source=notebook("report"),
         table1=result("tables/table1.csv"),
         table2=result("tables/table2.csv"),

@@ -84,6 +84,8 @@ def check_config(config: Mapping[str, Any]) -> None:
     - with synthetic data, ``sky.n_images <= data.synthetic.n_images``;
     - ``figures.example < split.n_train`` (the example is a train configuration);
     - ``noise.chunk_size <= noise.runs``; ``baselines.runs <= noise.runs``; the shift is finite (YAML's ``.inf`` is a number);
+    - ``research.rules.runs <= noise.runs``, no ``paper`` among ``research.rules.names``, finite
+      ``research.depth.shifts_c`` (when each part is enabled);
     - the data path for the chosen source is set.
 
     What depends on the data (``sky.n_images`` against the number of real annotated images) is
@@ -145,6 +147,33 @@ def check_config(config: Mapping[str, Any]) -> None:
         if paired > runs:
             raise ConfigError(f"config key 'baselines.runs': the runs are paired with Table 2's, so at most "
                               f"noise.runs = {runs}, got {paired}")
+    _check_research(config, runs)
+
+
+def _check_research(config: Mapping[str, Any], noise_runs: int) -> None:
+    """The research section (issue 12): Table 4's runs are paired with Table 2's; Table 5's c* are finite.
+
+    The rule names are the schema's enum (the library's ``sdm.FLOW_RULES``, which this module does not
+    import); the paper's own rule is refused here with the reason.
+    """
+    research = config.get("research") or {}
+    rules = research.get("rules") or {}
+    if rules.get("enabled"):
+        if "paper" in (rules.get("names") or []):
+            raise ConfigError("config key 'research.rules.names': 'paper' is Table 2 itself, always beside the "
+                              "other rules in Table 4; list only the others")
+        paired = _int(rules, "research.rules", "runs")
+        if paired > noise_runs:
+            raise ConfigError(f"config key 'research.rules.runs': the runs are paired with Table 2's, so at most "
+                              f"noise.runs = {noise_runs}, got {paired}")
+    depth = research.get("depth") or {}
+    if depth.get("enabled"):
+        shifts = depth.get("shifts_c")
+        if not (isinstance(shifts, (list, tuple)) and shifts and all(
+                isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in shifts)):
+            raise ConfigError(f"config key 'research.depth.shifts_c': must be finite numbers (metres), got {shifts!r}")
+        if len({float(v) for v in shifts}) != len(shifts):
+            raise ConfigError(f"config key 'research.depth.shifts_c': each c* once, got {shifts!r}")
 
 
 def check_against_annotations(config: Mapping[str, Any], n_annotated: int, where: str) -> None:

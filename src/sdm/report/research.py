@@ -1,0 +1,330 @@
+"""Beyond the paper (issue 12): Table 4 (Table 2 per gradient rule) and Table 5 (the shift with depth).
+
+Table 4 puts each rule's runs beside the paper's rule's own runs with the same noise draws (Table 2's
+runs ``0 .. runs-1``), the paper's published Table 2 and the issue's bar: at most half the paper's
+published mean at each noisy level, at most the paper's noise-free mean (0.682e-3 m) at level 0.
+Table 5 gives, per true depth shift ``c*`` and noise level, the mean absolute errors of ``a``, ``b``
+and ``c`` and the distance to ``theta* = (a*, b*, c*)``, against the issue's bar for the noise-free
+runs (``a``, ``b`` within 2e-3 m and ``c`` within 2e-2 m, mean over the runs).
+
+Units: the CSVs keep metres (``*_m``); the Markdown and LaTeX tables show 1e-3 m, like Table 2.
+"""
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import pandas as pd
+
+from ..errors import SDMInputError
+from .. import paper
+from .io import write_csv, write_text
+from .tables import TableFormat, to_latex, to_markdown
+
+#: The issue's bar for the noise-free depth runs (metres): mean |a - a*|, |b - b*| and |c - c*|.
+DEPTH_BAR_M = {"a": 2e-3, "b": 2e-3, "c": 2e-2}
+
+#: Per-run columns Table 4 needs (``sdm.experiments.rule_noise_runs``; Table 2's runs have no ``flow``).
+RULE_RUN_COLUMNS = ("flow", "level", "run", "distance")
+#: Per-run columns Table 5 needs (``sdm.experiments.DEPTH_RUN_COLUMNS``).
+DEPTH_RUN_COLUMNS = ("c_true", "level", "run", "error_a", "error_b", "error_c", "distance_ab", "distance")
+
+
+def _require(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
+    missing = [c for c in columns if c not in frame]
+    if missing:
+        raise SDMInputError(f"{what}: missing column(s) {missing}; has {list(frame.columns)}")
+    if frame.empty:
+        raise SDMInputError(f"{what}: no run")
+
+
+def issue_bar_m(level: int) -> float:
+    """The issue's bar on a rule's mean distance at ``level`` (metres): half the paper's published
+    Table 2 mean at a noisy level, the paper's own mean noise-free; NaN where the paper has no level."""
+    published = paper.TABLE2.get(int(level))
+    if published is None:
+        return math.nan
+    return 1e-3 * published["mean"] * (1.0 if int(level) == 0 else 0.5)
+
+
+def _stats(values: np.ndarray) -> dict[str, float]:
+    return {"mean_m": float(values.mean()),
+            "std_m": float(values.std(ddof=1)) if values.size > 1 else math.nan,
+            "median_m": float(np.median(values))}
+
+
+# -- Table 4 ------------------------------------------------------------------------------------------
+
+
+def table4_frame(rule_runs: pd.DataFrame, table2_runs: pd.DataFrame) -> pd.DataFrame:
+    """Table 4: Table 2 again for each gradient rule, with the paper's rule's paired runs beside.
+
+    Args:
+        rule_runs: one row per (flow, level, run) with :data:`RULE_RUN_COLUMNS` (distance in metres).
+        table2_runs: Table 2's runs (``level, run, distance``: the paper's rule on the same noise
+            draws); only the (level, run) pairs that ``rule_runs`` has are used, so the
+            comparison is paired.
+
+    Returns:
+        One row per (flow, level), rules in the order they first appear: ``flow, level, runs``;
+        ``mean_m, std_m, median_m`` of the rule's distances; ``paper_rule_mean_m, paper_rule_std_m,
+        paper_rule_median_m`` (Table 2's runs of the same (level, run)) and ``paper_rule_runs``;
+        ``published_mean_m, published_std_m, published_median_m`` (the paper's Table 2, NaN for a
+        level it lacks); ``bar_m`` (:func:`issue_bar_m`), ``meets_bar`` (``mean_m <= bar_m``) and
+        ``ratio_to_paper_rule`` (``mean_m / paper_rule_mean_m``).
+    """
+    _require(rule_runs, RULE_RUN_COLUMNS, "Table 4 rule runs")
+    _require(table2_runs, ("level", "run", "distance"), "Table 2 runs")
+    reference = table2_runs.set_index(["level", "run"])["distance"]
+    rows = []
+    for flow in pd.unique(rule_runs["flow"]):
+        for level, group in rule_runs[rule_runs["flow"] == flow].groupby("level", sort=True):
+            ours = _stats(group["distance"].to_numpy(dtype=float))
+            pairs = pd.MultiIndex.from_arrays([group["level"], group["run"]])
+            paired = reference.reindex(pairs).dropna().to_numpy(dtype=float)
+            theirs = _stats(paired) if paired.size else dict.fromkeys(("mean_m", "std_m", "median_m"), math.nan)
+            published = paper.TABLE2.get(int(level), {})
+            bar = issue_bar_m(level)
+            row = {"flow": str(flow), "level": int(level), "runs": int(len(group)), **ours}
+            row |= {f"paper_rule_{key}": value for key, value in theirs.items()} | {"paper_rule_runs": int(paired.size)}
+            row |= {f"published_{stat}_m": 1e-3 * published[key] if published else math.nan
+                    for stat, key in (("mean", "mean"), ("std", "std"), ("median", "q2"))}
+            row |= {"bar_m": bar, "meets_bar": bool(ours["mean_m"] <= bar) if not math.isnan(bar) else False,
+                    "ratio_to_paper_rule": ours["mean_m"] / theirs["mean_m"] if theirs["mean_m"] > 0 else math.nan}
+            rows.append(row)
+    return pd.DataFrame.from_records(rows)
+
+
+_TABLE4_DISTANCES = ("mean", "std", "median", "paper_rule_mean", "paper_rule_std", "paper_rule_median",
+                     "published_mean", "published_std", "published_median", "bar")
+
+TABLE4_FORMAT = TableFormat(
+    columns=("flow", "level", "runs", "mean", "std", "median", "paper_rule_mean", "paper_rule_std",
+             "paper_rule_median", "published_mean", "published_median", "bar", "meets_bar", "ratio_to_paper_rule"),
+    headers={
+        "flow": "rule", "level": "noise level", "runs": "runs", "mean": "mean", "std": "std", "median": "median",
+        "paper_rule_mean": "mean (paper's rule)", "paper_rule_std": "std (paper's rule)",
+        "paper_rule_median": "median (paper's rule)", "published_mean": "mean (paper)",
+        "published_median": "median (paper)", "bar": "bar", "meets_bar": "meets bar",
+        "ratio_to_paper_rule": "mean / paper's rule",
+    },
+    formats={c: ".3f" for c in _TABLE4_DISTANCES} | {"ratio_to_paper_rule": ".2f"},
+    caption="Table 4: Table 2 per gradient rule, distance ||theta~ - theta*|| per noise level (1e-3 m)",
+    label="tab:table4",
+    notes=(
+        "Each rule's run r at level n trains on the noisy targets and shuffling of Table 2's run r (the same seed). "
+        "paper's rule: Table 2's runs with the same (level, run); paper: the published Table 2. "
+        "bar (issue 12): half the paper's mean at levels 1-4, the paper's mean noise-free.",
+    ),
+)
+
+
+def table4_display(frame: pd.DataFrame) -> pd.DataFrame:
+    """Table 4 for Markdown / LaTeX: distances in 1e-3 m under the short names of :data:`TABLE4_FORMAT`."""
+    return _in_millimetres(frame, _TABLE4_DISTANCES)
+
+
+def table4_summary(frame: pd.DataFrame) -> str:
+    """Table 4 in plain words (Markdown): per rule, whether it meets the issue's bar at every level,
+    where it misses, and how far it moves the mean from the paper's rule's on the same draws."""
+    lines = []
+    for flow in pd.unique(frame["flow"]):
+        rows = frame[frame["flow"] == flow].sort_values("level")
+        judged = rows[rows["bar_m"].notna()]
+        missed = judged[~judged["meets_bar"]]
+        runs = ", ".join(sorted({str(int(r)) for r in rows["runs"]}))
+        per_level = "; ".join(
+            f"level {int(row.level)}: {1e3 * row.mean_m:.3f} against {1e3 * row.paper_rule_mean_m:.3f} for the "
+            f"paper's rule ({row.ratio_to_paper_rule:.2f}x), bar {1e3 * row.bar_m:.3f}"
+            for row in rows.itertuples())
+        if judged.empty:
+            verdict = "no level of the paper's Table 2 was run, so the bar does not apply"
+        elif missed.empty:
+            verdict = f"meets the issue's bar at every level run ({len(judged)} of {len(judged)})"
+        else:
+            verdict = ("misses the issue's bar at level " + ", ".join(str(int(v)) for v in missed["level"])
+                       + f" and meets it at {len(judged) - len(missed)} of {len(judged)} levels")
+        lines.append(f"- rule `{flow}` ({runs} runs per level) {verdict}. Mean distance (1e-3 m): {per_level}.")
+    return "\n".join(lines) + "\n"
+
+
+# -- Table 5 ------------------------------------------------------------------------------------------
+
+
+def table5_frame(depth_runs: pd.DataFrame) -> pd.DataFrame:
+    """Table 5: the shift with depth, per true ``c*`` and noise level.
+
+    Args:
+        depth_runs: one row per (c_true, level, run) with :data:`DEPTH_RUN_COLUMNS` (metres).
+
+    Returns:
+        One row per (c_true, level), sorted: ``c_true, level, runs``; the means over the runs of
+        ``error_a_m, error_b_m, error_c_m`` (absolute errors), ``distance_ab_m`` and ``distance_m``
+        (to ``(a*, b*)`` and to ``(a*, b*, c*)``), ``distance_std_m``; ``meets_bar`` (noise-free
+        rows only, the issue's :data:`DEPTH_BAR_M`; ``False`` at noisy levels, where none is set).
+    """
+    _require(depth_runs, DEPTH_RUN_COLUMNS, "Table 5 depth runs")
+    rows = []
+    for (c_true, level), group in depth_runs.groupby(["c_true", "level"], sort=True):
+        row = {"c_true": float(c_true), "level": int(level), "runs": int(len(group))}
+        for column in ("error_a", "error_b", "error_c", "distance_ab", "distance"):
+            row[f"{column}_m"] = float(group[column].mean())
+        row["distance_std_m"] = float(group["distance"].std(ddof=1)) if len(group) > 1 else math.nan
+        row["meets_bar"] = bool(int(level) == 0 and all(row[f"error_{axis}_m"] <= bar for axis, bar in DEPTH_BAR_M.items()))
+        rows.append(row)
+    return pd.DataFrame.from_records(rows)
+
+
+_TABLE5_DISTANCES = ("error_a", "error_b", "error_c", "distance_ab", "distance", "distance_std")
+
+TABLE5_FORMAT = TableFormat(
+    columns=("c_true", "level", "runs", "error_a", "error_b", "error_c", "distance_ab", "distance", "distance_std",
+             "meets_bar"),
+    headers={
+        "c_true": "c* (m)", "level": "noise level", "runs": "runs", "error_a": "|a - a*|", "error_b": "|b - b*|",
+        "error_c": "|c - c*|", "distance_ab": "distance in (a, b)", "distance": "distance in (a, b, c)",
+        "distance_std": "std of distance", "meets_bar": "meets bar (noise-free)",
+    },
+    formats={"c_true": "g"} | {c: ".3f" for c in _TABLE5_DISTANCES},
+    caption="Table 5: the shift (a, b, c) with depth, mean absolute errors per true c* and noise level (1e-3 m)",
+    label="tab:table5",
+    notes=(
+        "theta* = (a*, b*, c*); the training set's targets rebuilt for its points moved by theta*; run r at level n "
+        "draws the noise and shuffling of Table 2's run r; (a, b, c) trained from (0, 0, 0) with fit_depth. "
+        "bar (issue 12, noise-free): mean |a - a*| and |b - b*| at most 2 (1e-3 m), |c - c*| at most 20.",
+    ),
+)
+
+
+def table5_display(frame: pd.DataFrame) -> pd.DataFrame:
+    """Table 5 for Markdown / LaTeX: errors in 1e-3 m under the short names of :data:`TABLE5_FORMAT`."""
+    return _in_millimetres(frame, _TABLE5_DISTANCES)
+
+
+def table5_summary(frame: pd.DataFrame) -> str:
+    """Table 5 in plain words (Markdown): the noise-free rows against the issue's bar, then the noisy levels."""
+    lines = []
+    for c_true, rows in frame.groupby("c_true", sort=True):
+        parts = []
+        for row in rows.sort_values("level").itertuples():
+            errors = (f"|a - a*| {1e3 * row.error_a_m:.3f}, |b - b*| {1e3 * row.error_b_m:.3f}, "
+                      f"|c - c*| {1e3 * row.error_c_m:.3f}")
+            if row.level == 0:
+                verdict = "meets" if row.meets_bar else "misses"
+                parts.append(f"noise-free {errors} ({verdict} the bar of 2, 2 and 20)")
+            else:
+                parts.append(f"level {row.level} {errors}")
+        runs = ", ".join(sorted({str(int(r)) for r in rows["runs"]}))
+        lines.append(f"- c* = {c_true:g} m ({runs} runs per level), mean errors in 1e-3 m: " + "; ".join(parts) + ".")
+    if not (frame["level"] == 0).any():
+        lines.append("- No noise-free level was run: the issue's bar was not checked.")
+    return "\n".join(lines) + "\n"
+
+
+def beyond_the_paper(table4: str = "", table4_summary: str = "", table5: str = "", table5_summary: str = "") -> str:
+    """The report's section "Beyond the paper" (Markdown) from the tables' Markdown and plain-word summaries.
+
+    Only the parts given (non-empty) appear; with none, the empty string.
+    """
+    parts = []
+    if table4_summary:
+        parts.append("### Another gradient rule on Table 2's noisy targets (Table 4)\n\n"
+                     "The paper's rule settles beyond theta* under noise (see above). Table 4 repeats Table 2 "
+                     "with the other rules, each run on the same noisy targets and shuffling as Table 2's run; "
+                     "the issue's bar is half the paper's published mean at each noisy level.\n\n"
+                     + table4_summary + "\n" + table4)
+    if table5_summary:
+        parts.append("### The shift with depth, (a, b, c) (Table 5)\n\n"
+                     "The paper poses the shift with depth and solves only (a, b). Table 5 trains (a, b, c) with "
+                     "the depth flow on the training set retargeted to theta* = (a*, b*, c*); the issue's bar, "
+                     "noise-free, is a, b within 2e-3 m and c within 2e-2 m (mean over the runs).\n\n"
+                     + table5_summary + "\n" + table5)
+    if not parts:
+        return ""
+    return "\n## Beyond the paper\n\n" + "\n".join(parts)
+
+
+# -- writing and figures ------------------------------------------------------------------------------
+
+
+def write_research_table(frame: pd.DataFrame, stem: str | Path, which: int) -> list[Path]:
+    """``stem.csv`` (metres, full precision), ``stem.md`` and ``stem.tex`` (1e-3 m) of Table 4 or 5, atomically."""
+    if which not in (4, 5):
+        raise SDMInputError(f"which must be 4 or 5 (the table), got {which!r}")
+    shown, style = (table4_display(frame), TABLE4_FORMAT) if which == 4 else (table5_display(frame), TABLE5_FORMAT)
+    stem = Path(stem)
+    return [
+        write_csv(stem.with_suffix(".csv"), frame),
+        write_text(stem.with_suffix(".md"), to_markdown(shown, style)),
+        write_text(stem.with_suffix(".tex"), to_latex(shown, style)),
+    ]
+
+
+def rules_figure(frame: pd.DataFrame):
+    """Mean distance per noise level for each rule, the paper's rule on the same draws, the paper and the bar.
+
+    Args:
+        frame: :func:`table4_frame`.
+
+    Returns:
+        A matplotlib figure (log scale, 1e-3 m).
+    """
+    from .figures import plt  # the report's matplotlib, already on the Agg backend
+
+    fig, ax = plt.subplots(figsize=(6.4, 4.4), constrained_layout=True)
+    colours = plt.get_cmap("tab10")
+    first = frame[frame["flow"] == frame["flow"].iloc[0]].sort_values("level")
+    ax.plot(first["level"], 1e3 * first["paper_rule_mean_m"], marker="s", color="black",
+            label="paper's rule (Table 2's runs)")
+    ax.plot(first["level"], 1e3 * first["published_mean_m"], ls=":", color="black", label="paper (published)")
+    ax.plot(first["level"], 1e3 * first["bar_m"], ls="--", color="grey", label="issue's bar")
+    for i, flow in enumerate(pd.unique(frame["flow"])):
+        rows = frame[frame["flow"] == flow].sort_values("level")
+        ax.errorbar(rows["level"], 1e3 * rows["mean_m"], yerr=1e3 * rows["std_m"].fillna(0.0), marker="o",
+                    capsize=3, color=colours(i), label=f"rule {flow}")
+    ax.set_yscale("log")
+    ax.set_xticks(sorted(frame["level"].unique()))
+    ax.set_xlabel("noise level n (pixels)")
+    ax.set_ylabel("mean ||theta~ - theta*|| (1e-3 m), +- std")
+    ax.set_title("Table 4: Table 2 per gradient rule (same noise draws)", fontsize=10)
+    ax.legend(fontsize=7)
+    ax.grid(True, which="both", alpha=0.3)
+    return fig
+
+
+def depth_figure(frame: pd.DataFrame):
+    """Mean absolute errors of a, b (1e-3 m) and c (1e-2 m) per noise level, one line per true c*.
+
+    Args:
+        frame: :func:`table5_frame`.
+
+    Returns:
+        A matplotlib figure with three panels, the issue's noise-free bar dashed.
+    """
+    from .figures import plt
+
+    fig, axes = plt.subplots(1, 3, figsize=(13.5, 4.2), constrained_layout=True)
+    colours = plt.get_cmap("tab10")
+    for ax, (axis, scale, unit) in zip(axes, (("a", 1e3, "1e-3 m"), ("b", 1e3, "1e-3 m"), ("c", 1e2, "1e-2 m"))):
+        for i, (c_true, rows) in enumerate(frame.groupby("c_true", sort=True)):
+            rows = rows.sort_values("level")
+            ax.plot(rows["level"], scale * rows[f"error_{axis}_m"], marker="o", color=colours(i), label=f"c* = {c_true:g} m")
+        ax.axhline(scale * DEPTH_BAR_M[axis], ls="--", color="grey", lw=0.8, label="bar (noise-free)")
+        ax.set_yscale("log")
+        ax.set_xticks(sorted(frame["level"].unique()))
+        ax.set_xlabel("noise level n (pixels)")
+        ax.set_ylabel(f"mean |{axis} - {axis}*| ({unit})")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.suptitle("Table 5: the shift (a, b, c) with depth", fontsize=11)
+    return fig
+
+
+def _in_millimetres(frame: pd.DataFrame, names: Sequence[str]) -> pd.DataFrame:
+    shown = frame.copy()
+    for name in names:
+        if f"{name}_m" in frame:
+            shown[name] = 1e3 * frame[f"{name}_m"]
+    return shown

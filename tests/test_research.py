@@ -1,0 +1,237 @@
+"""Beyond the paper (issue 12): the runs of Tables 4 and 5, the tables, their words, and the config section.
+
+Small synthetic sets (tests/scenes.py) and short trainings; the workflow's end-to-end run of the
+research stages is in test_workflow.py (the .test config switches both on).
+"""
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+import torch
+import yaml
+
+from scenes import configuration_set
+from sdm import FLOW_RULES, TrainSettings, train
+from sdm.depth import depth_targets
+from sdm.errors import SDMInputError
+from sdm.experiments import (
+    DEPTH_RUN_COLUMNS, RUN_COLUMNS, depth_noise_runs, noise_runs, noisy_targets, rule_noise_runs, run_seed,
+)
+from sdm import paper
+from sdm.report.research import (
+    DEPTH_BAR_M, beyond_the_paper, depth_figure, issue_bar_m, rules_figure, table4_frame, table4_summary,
+    table5_frame, table5_summary, write_research_table,
+)
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "workflow" / "scripts"))
+from config_check import ConfigError, check_config, validate_schema  # noqa: E402
+
+SHIFT = (0.517, 0.303)
+SETTINGS = TrainSettings(lr=3e-4, n_epoch=1, batch_size=4, s=4, seed=7)
+
+
+@pytest.fixture(scope="module")
+def small_set():
+    return configuration_set(8, seed=3)
+
+
+# -- the runs --------------------------------------------------------------------------------------------
+
+
+def test_rule_noise_runs_are_table2_runs_with_the_rule_and_the_same_draws(small_set):
+    table = rule_noise_runs(small_set, "closed", 2, [0, 3], SETTINGS, shift=SHIFT)
+    reference = noise_runs(small_set, 2, [0, 3], replace(SETTINGS, flow="closed"), shift=SHIFT)
+    assert list(table.columns) == ["flow", *RUN_COLUMNS]
+    assert set(table["flow"]) == {"closed"}
+    pd.testing.assert_frame_equal(table.drop(columns="flow"), reference)
+    # The seeds (noise draw and shuffling) are Table 2's: they do not depend on the rule.
+    paper_rule = noise_runs(small_set, 2, [0, 3], SETTINGS, shift=SHIFT)
+    assert table["seed"].tolist() == paper_rule["seed"].tolist() == [run_seed(7, 2, 0), run_seed(7, 2, 3)]
+    assert table["distance"].tolist() != paper_rule["distance"].tolist()  # another rule, another result
+
+
+def test_depth_noise_runs_equal_a_single_run_built_by_hand(small_set):
+    """Run r: targets of (a*, b*, c*), Table 2's noise draw of (seed, level, r), fit_depth trained with that seed."""
+    c, level = 0.5, 1
+    table = depth_noise_runs(small_set, c, level, [2, 0], SETTINGS, shift=SHIFT)
+    assert list(table.columns) == DEPTH_RUN_COLUMNS and table["run"].tolist() == [2, 0]
+    truth = (*SHIFT, c)
+    clean = depth_targets(small_set, truth)
+    for row in table.itertuples():
+        seed = run_seed(SETTINGS.seed, level, row.run)
+        noisy = small_set.with_targets(noisy_targets(clean, level, seed))
+        fitted = train(noisy, replace(SETTINGS, fit_depth=True, seed=seed), progress=False).final_theta
+        assert row.seed == seed and (row.a, row.b, row.c) == fitted and row.c_true == c and row.level == level
+        errors = [abs(v - t) for v, t in zip(fitted, truth)]
+        assert (row.error_a, row.error_b, row.error_c) == pytest.approx(errors, abs=1e-15)
+        assert row.distance_ab == pytest.approx(math.hypot(*errors[:2]))
+        assert row.distance == pytest.approx(math.sqrt(sum(e * e for e in errors)))
+    again = depth_noise_runs(small_set, c, level, [2, 0], SETTINGS, shift=SHIFT)
+    pd.testing.assert_frame_equal(table, again)  # deterministic from the seed
+
+
+def test_depth_noise_runs_move_c_towards_the_truth(small_set):
+    """Noise-free, the fit leaves (0, 0, 0) for c*: c ends on the side of c* (a short run, not converged)."""
+    for c in (-1.0, 1.0):
+        row = depth_noise_runs(small_set, c, 0, [0], replace(SETTINGS, n_epoch=2), shift=SHIFT).iloc[0]
+        assert np.sign(row["c"]) == np.sign(c) and row["error_c"] < abs(c)
+
+
+def test_depth_noise_runs_refuse_bad_shifts(small_set):
+    with pytest.raises(SDMInputError, match="shift"):
+        depth_noise_runs(small_set, 1.0, 0, [0], SETTINGS, shift=(0.5, 0.3, 0.0))
+    with pytest.raises(SDMInputError, match="finite"):
+        depth_noise_runs(small_set, math.inf, 0, [0], SETTINGS, shift=SHIFT)
+    nearest = float(small_set.points[:, 2].min())
+    with pytest.raises(SDMInputError, match="^c = .* behind the camera"):  # the nearest point moved behind it
+        depth_noise_runs(small_set, -nearest, 0, [0], SETTINGS, shift=SHIFT)
+
+
+# -- Table 4 ----------------------------------------------------------------------------------------------
+
+
+def _runs(levels, runs, scale, flow=None, seed=0):
+    generator = np.random.default_rng(seed)
+    rows = [{"level": level, "run": run, "distance": scale * (level + 1) * generator.uniform(0.5, 1.5)}
+            for level in levels for run in runs]
+    frame = pd.DataFrame(rows)
+    if flow:
+        frame.insert(0, "flow", flow)
+    return frame
+
+
+def test_table4_pairs_each_rule_with_table2_runs_of_the_same_draws():
+    table2 = _runs([0, 1, 2], range(6), 1e-2, seed=1)
+    rules = pd.concat([_runs([0, 1, 2], range(4), 2e-3, "closed", seed=2),
+                       _runs([0, 1, 2], range(4), 5e-2, "nearest", seed=3)])
+    table = table4_frame(rules, table2)
+    assert table[["flow", "level"]].values.tolist() == [[f, lv] for f in ("closed", "nearest") for lv in (0, 1, 2)]
+    for row in table.itertuples():
+        ours = rules[(rules["flow"] == row.flow) & (rules["level"] == row.level)]["distance"]
+        theirs = table2[(table2["level"] == row.level) & (table2["run"] < 4)]["distance"]  # runs 4, 5 unpaired
+        assert row.runs == 4 and row.paper_rule_runs == 4
+        assert row.mean_m == pytest.approx(ours.mean()) and row.std_m == pytest.approx(ours.std())
+        assert row.median_m == pytest.approx(ours.median())
+        assert row.paper_rule_mean_m == pytest.approx(theirs.mean())
+        assert row.ratio_to_paper_rule == pytest.approx(ours.mean() / theirs.mean())
+        published = paper.TABLE2[row.level]["mean"] * 1e-3
+        assert row.published_mean_m == pytest.approx(published)
+        assert row.bar_m == pytest.approx(published if row.level == 0 else published / 2)
+        assert row.meets_bar == (ours.mean() <= row.bar_m)
+    assert issue_bar_m(1) == pytest.approx(8.17e-3) and math.isnan(issue_bar_m(9))
+
+
+def test_table4_summary_names_misses_and_numbers():
+    table2 = _runs([0, 1], range(3), 1e-2)
+    good = _runs([0, 1], range(3), 1e-4, "closed")
+    bad = _runs([0, 1], range(3), 1.0, "nearest")
+    table = table4_frame(pd.concat([good, bad]), table2)
+    words = table4_summary(table)
+    assert "`closed` (3 runs per level) meets the issue's bar at every level run (2 of 2)" in words
+    assert "`nearest` (3 runs per level) misses the issue's bar at level 0, 1" in words
+    row = table[(table["flow"] == "closed") & (table["level"] == 1)].iloc[0]
+    assert f"{1e3 * row.mean_m:.3f}" in words and f"{1e3 * row.paper_rule_mean_m:.3f}" in words
+
+
+def test_table4_refuses_runs_without_the_columns():
+    with pytest.raises(SDMInputError, match="flow"):
+        table4_frame(_runs([0], range(2), 1e-3), _runs([0], range(2), 1e-3))
+
+
+# -- Table 5 ----------------------------------------------------------------------------------------------
+
+
+def _depth_runs(errors_by_cell):
+    rows = []
+    for (c_true, level), (ea, eb, ec) in errors_by_cell.items():
+        for run, factor in enumerate((0.5, 1.5)):
+            a, b, c = ea * factor, eb * factor, ec * factor
+            rows.append({"c_true": c_true, "level": level, "run": run, "error_a": a, "error_b": b, "error_c": c,
+                         "distance_ab": math.hypot(a, b), "distance": math.sqrt(a * a + b * b + c * c)})
+    return pd.DataFrame(rows)
+
+
+def test_table5_means_and_the_noise_free_bar():
+    runs = _depth_runs({(-1.0, 0): (1e-3, 3e-3, 1e-2), (1.0, 0): (1e-3, 1e-3, 1e-2), (1.0, 2): (1e-4, 1e-4, 1e-4)})
+    table = table5_frame(runs)
+    assert table[["c_true", "level"]].values.tolist() == [[-1.0, 0], [1.0, 0], [1.0, 2]]
+    for row in table.itertuples():
+        cell = runs[(runs["c_true"] == row.c_true) & (runs["level"] == row.level)]
+        for axis in "abc":
+            assert getattr(row, f"error_{axis}_m") == pytest.approx(cell[f"error_{axis}"].mean())
+        assert row.distance_m == pytest.approx(cell["distance"].mean()) and row.runs == 2
+        within = all(getattr(row, f"error_{axis}_m") <= DEPTH_BAR_M[axis] for axis in "abc")
+        assert row.meets_bar == (row.level == 0 and within)
+    assert table["meets_bar"].tolist() == [False, True, False]  # b misses at c* = -1; level 2 has no bar
+    words = table5_summary(table)
+    assert "c* = -1 m (2 runs per level)" in words and "misses the bar" in words and "meets the bar" in words
+    assert "level 2" in words
+
+
+def test_tables_are_written_and_drawn(tmp_path):
+    table4 = table4_frame(_runs([0, 1], range(3), 1e-3, "closed"), _runs([0, 1], range(3), 1e-2))
+    table5 = table5_frame(_depth_runs({(0.5, 0): (1e-3, 1e-3, 1e-2), (0.5, 1): (2e-3, 2e-3, 2e-2)}))
+    for frame, which in ((table4, 4), (table5, 5)):
+        written = write_research_table(frame, tmp_path / f"table{which}", which)
+        assert [p.suffix for p in written] == [".csv", ".md", ".tex"] and all(p.stat().st_size for p in written)
+        assert pd.read_csv(written[0]).shape == frame.shape
+    assert "| closed |" in (tmp_path / "table4.md").read_text()
+    with pytest.raises(SDMInputError, match="which"):
+        write_research_table(table4, tmp_path / "x", 3)
+    for fig in (rules_figure(table4), depth_figure(table5)):
+        assert fig.axes
+    assert beyond_the_paper() == ""
+    section = beyond_the_paper("T4", "words 4")
+    assert section.startswith("\n## Beyond the paper") and "words 4" in section and "Table 5" not in section
+
+
+# -- the config section -----------------------------------------------------------------------------------
+
+
+def _config() -> dict:
+    return yaml.safe_load((ROOT / "config.yaml").read_text())
+
+
+def test_the_schema_lists_the_library_rules():
+    """The workflow does not import sdm at parse time: its rule names are the schema's, held to FLOW_RULES here."""
+    schema = yaml.safe_load((ROOT / "workflow" / "schemas" / "config.schema.yaml").read_text())
+    research = schema["properties"]["research"]["properties"]
+    assert sorted(research["rules"]["properties"]["names"]["items"]["enum"]) == sorted(FLOW_RULES)
+    assert sorted(research["depth"]["properties"]["flow"]["enum"]) == sorted(FLOW_RULES)
+
+
+@pytest.mark.parametrize(
+    "change, key",
+    [
+        ({"rules": {"names": ["closedd"]}}, "research.rules.names.0"),
+        ({"rules": {"names": ["paper"]}}, "research.rules.names"),
+        ({"rules": {"runs": 61}}, "research.rules.runs"),
+        ({"rules": {"runs": 0}}, "research.rules.runs"),
+        ({"depth": {"enabled": True, "shifts_c": [1.0, float("inf")]}}, "research.depth.shifts_c"),
+        ({"depth": {"enabled": True, "shifts_c": []}}, "research.depth.shifts_c"),
+        ({"depth": {"enabled": True, "levels": [-1]}}, "research.depth.levels.0"),
+        ({"depth": {"enabled": True, "flow": "smooth"}}, "research.depth.flow"),
+    ],
+)
+def test_bad_research_values_are_refused_naming_the_key(change, key):
+    config = _config()
+    for part, values in change.items():
+        config["research"][part].update(values)
+    with pytest.raises(ConfigError, match=f"config key '{key.replace('.', '[.]')}'"):
+        validate_schema(config)
+        check_config(config)
+
+
+def test_a_config_without_the_research_section_is_valid_with_both_off():
+    config = _config()
+    del config["research"]
+    validate_schema(config)
+    check_config(config)
+    assert not config["research"]["rules"]["enabled"] and not config["research"]["depth"]["enabled"]
