@@ -16,10 +16,13 @@ name           what it minimises                                          optimi
 ``cmaes``      exact count of mismatched pixels at zoom 0 (FP + FN)       CMA-ES (pycma), 240 calls
 =============  =========================================================  ==========================
 
-Budgets (the settings' defaults: 36 / 48 / 24 Adam steps per stage on mini-batches of 16
-configurations, 240 objective calls) make one run of each baseline, fitted alone, cost about one
-SDM run fitted alone on the default 512 training configurations (1.4 to 3 s on one thread): an
-equal-time comparison run for run. The noise runs are fitted many at a time (``fit_runs``,
+Budgets: the settings' defaults are 36 / 48 / 24 Adam steps per stage on mini-batches of 16
+configurations and 240 objective calls. The workflow's default config compares at equal time: on
+the default 512 training configurations one SDM run of Table 2 costs about 0.64 s of one core
+(level 2), and chamfer (0.59 s) and CMA-ES (0.56 s, after its grouped count) match it with these
+defaults, while silhouette and sinkhorn cost 1.6 and 1.9 s, so config.yaml gives them 8
+configurations a step and 27 / 16 steps per stage (0.54 and 0.65 s; their level-2 mean distance
+over 10 runs moves from 11.2 to 15.1 and from 16.9 to 18.1 e-3 m). The noise runs are fitted many at a time (``fit_runs``,
 :func:`noise_runs`), each run bit-identical to its single fit; on one CPU core that shares little,
 for SDM (about 1.2x, docs/method.md) as for the gradient baselines, whose steps are dominated by
 arithmetic on their dense per-step tensors (nearest-neighbour matrices, splatted cells, Sinkhorn
