@@ -47,6 +47,7 @@ seed = 0  # noise seed (noise.seed): run r at level n draws its noise and shuffl
 shift = [0.517, 0.303]  # (a*, b*), metres
 rule_files = []  # input of table4
 table2_distances = "results/noise/distances.csv"  # input of table4: Table 2's runs (the paper's rule)
+baseline_run_files = []  # optional input of table4: Table 3's per-run files (the rules beside the baselines)
 names = ["closed"]  # table4: the rules expected
 depth_files = []  # input of table5
 shifts_c = [1.0]  # table5: the c* expected
@@ -74,8 +75,9 @@ from sdm.experiments import depth_noise_runs, load_split, rule_noise_runs, setti
 from sdm.report.figures import show_figure
 from sdm.report.io import read_json, write_csv, write_text
 from sdm.report.research import (
-    TABLE4_FORMAT, TABLE5_FORMAT, depth_figure, rules_figure, table4_display, table4_frame, table4_summary as
-    summary_of_table4, table5_display, table5_frame, table5_summary as summary_of_table5, write_research_table,
+    TABLE4_FORMAT, TABLE5_FORMAT, depth_figure, rules_against_baselines, rules_figure, table4_display, table4_frame,
+    table4_summary as summary_of_table4, table5_display, table5_frame, table5_summary as summary_of_table5,
+    write_research_table,
 )
 from sdm.report.tables import to_markdown
 
@@ -159,6 +161,8 @@ if part == "table5":
 # %%
 if part == "table4":
     answer = summary_of_table4(table4)
+    if baseline_run_files:  # Table 3 ran: the rules beside its baselines, on the same (level, run)
+        answer += rules_against_baselines(rule_runs, pd.concat([pd.read_csv(path) for path in baseline_run_files]))
     write_text(table4_summary, answer)
     display(Markdown(answer))
 elif part == "table5":

@@ -343,7 +343,7 @@ def test_dynamic_flow_is_the_gradient_of_the_layer():
                                        batch.targets, 0, CAM)
     assert torch.equal(landed, result.landed) and torch.equal(matched, result.matched)
     assert torch.equal(flow, result.flow) and torch.equal(flow.sum(0), theta.grad)
-    assert float(loss) == float(out.loss)
+    assert float(loss.detach()) == float(out.loss.detach())
 
 
 def test_torch_compile_runs_the_layer():

@@ -25,7 +25,8 @@ from sdm.experiments import (
 )
 from sdm import paper
 from sdm.report.research import (
-    DEPTH_BAR_M, beyond_the_paper, depth_figure, issue_bar_m, rules_figure, table4_frame, table4_summary,
+    DEPTH_BAR_M, beyond_the_paper, depth_figure, issue_bar_m, rules_against_baselines, rules_figure, table4_frame,
+    table4_summary,
     table5_frame, table5_summary, write_research_table,
 )
 
@@ -105,6 +106,26 @@ def _runs(levels, runs, scale, flow=None, seed=0):
     if flow:
         frame.insert(0, "flow", flow)
     return frame
+
+
+def test_rules_beside_the_baselines_are_compared_on_the_same_runs_only():
+    """Only the rule's own (level, run) pairs of each baseline count; a baseline missing one of them is left out."""
+    rules = _runs([0, 1], range(3), 2e-3, "closed", seed=2)
+    good = _runs([0, 1], range(6), 1e-3, seed=4)
+    good.insert(0, "method", "cmaes")
+    # runs 3..5 of the slow baseline are far better, but are not the rule's runs: they must not count
+    slow = _runs([0, 1], range(6), 1e-2, seed=5)
+    slow.insert(0, "method", "chamfer")
+    slow.loc[slow["run"] >= 3, "distance"] = 0.0
+    partial = _runs([0, 1], range(2), 1e-6, seed=6)  # lacks run 2: not paired, left out
+    partial.insert(0, "method", "sinkhorn")
+    words = rules_against_baselines(rules, pd.concat([good, slow, partial], ignore_index=True))
+    for level in (0, 1):
+        own = rules.loc[rules["level"] == level, "distance"].mean()
+        best = good.loc[(good["level"] == level) & (good["run"] < 3), "distance"].mean()
+        assert f"level {level}: {1e3 * own:.3f} against {1e3 * best:.3f} for `cmaes`, the best baseline (beats 1 of 2)" in words
+    assert "sinkhorn" not in words and "does not beat every baseline" in words
+    assert rules_against_baselines(rules, good.assign(level=5)) == ""  # no level in common: nothing to say
 
 
 def test_table4_pairs_each_rule_with_table2_runs_of_the_same_draws():

@@ -426,7 +426,7 @@ def _key_cases() -> dict[str, tuple[dict, str | None]]:
         "noise.seed": ({"noise": {"seed": 1}}, "noise"),
         "figures.example": ({"figures": {"example": 1}}, "figures"),
         "figures.seed": ({"figures": {"seed": 1}}, "figures"),
-        "baselines.enabled": ({"baselines": {"enabled": False}}, "report"),
+        "baselines.enabled": ({"baselines": {"enabled": False}}, "table4"),
         "baselines.methods": ({"baselines": {"methods": ["silhouette", "chamfer", "sinkhorn"]}}, "table3"),
         "baselines.runs": ({"baselines": {"runs": 1}}, "baseline_runs"),
         "baselines.silhouette": ({"baselines": {"silhouette": {"lr": 0.2, "steps": 12}}}, "baseline_tune"),

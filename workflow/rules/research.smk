@@ -72,6 +72,7 @@ use rule notebook_stage as table4 with:
         source=notebook("research"),
         rule_files=rule_files(),
         table2_distances=result("noise/distances.csv"),
+        baseline_run_files=baseline_run_files(),
     output:
         table4_csv=table("table4", "table4"),
         table4_md=result("tables/table4.md"),

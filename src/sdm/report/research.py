@@ -150,6 +150,47 @@ def table4_summary(frame: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
+def rules_against_baselines(rule_runs: pd.DataFrame, baseline_runs: pd.DataFrame) -> str:
+    """Each rule of Table 4 beside Table 3's baselines, paired: the same (level, run), hence the same noisy targets.
+
+    Args:
+        rule_runs: per-run rows with ``flow, level, run, distance`` (metres).
+        baseline_runs: Table 3's per-run rows with ``method, level, run, distance`` (metres).
+
+    Returns:
+        Markdown, one bullet per rule: per level its mean distance and the best baseline's over the
+        same runs (1e-3 m), and how many baselines it beats; empty when no (level, run) is shared.
+    """
+    _require(rule_runs, RULE_RUN_COLUMNS, "Table 4's runs")
+    _require(baseline_runs, ("method", "level", "run", "distance"), "Table 3's runs")
+    lines = []
+    for flow in pd.unique(rule_runs["flow"]):
+        mine = rule_runs[rule_runs["flow"] == flow]
+        parts, beaten_everywhere = [], True
+        for level in sorted(pd.unique(mine["level"])):
+            runs = set(mine.loc[mine["level"] == level, "run"])
+            others = baseline_runs[(baseline_runs["level"] == level) & baseline_runs["run"].isin(runs)]
+            if others.empty:
+                continue
+            counts = others.groupby("method")["run"].nunique()
+            others = others[others["method"].isin(counts[counts == len(runs)].index)]  # only fully paired methods
+            if others.empty:
+                continue
+            own = float(mine.loc[mine["level"] == level, "distance"].mean())
+            means = others.groupby("method")["distance"].mean()
+            best = str(means.idxmin())
+            beaten = int((means > own).sum())
+            beaten_everywhere &= beaten == len(means)
+            parts.append(f"level {int(level)}: {1e3 * own:.3f} against {1e3 * float(means[best]):.3f} for `{best}`, the "
+                         f"best baseline (beats {beaten} of {len(means)})")
+        if parts:
+            verdict = ("beats every baseline at every level" if beaten_everywhere
+                       else "does not beat every baseline at every level")
+            lines.append(f"- rule `{flow}` beside Table 3's baselines on the same runs {verdict}. Mean distance "
+                         f"(1e-3 m): " + "; ".join(parts) + ".")
+    return "\n".join(lines) + "\n" if lines else ""
+
+
 # -- Table 5 ------------------------------------------------------------------------------------------
 
 
