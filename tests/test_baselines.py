@@ -14,6 +14,7 @@ import pandas as pd
 import pytest
 import torch
 
+import baseline_reference
 from scenes import configuration_set
 from sdm import SKY_SHIFT, distance
 from sdm.baselines import (
@@ -136,7 +137,7 @@ def test_silhouette_and_chamfer_gradients_point_back_to_the_true_shift(small, di
         assert float(grad @ d) > 0, (level, grad)
 
     theta = torch.tensor(start, dtype=torch.float64, requires_grad=True)
-    padded = common.pad_set(train_set)
+    padded = baseline_reference.pad_set(train_set)
     screen = common.project_shifted(padded.points, theta, camera)
     kept = padded.point_mask & common.on_screen(screen, camera.screen_shape)
     value = chamfer_module.chamfer_2d(screen, kept, padded.centres, padded.centre_mask)

@@ -15,6 +15,7 @@ import pandas as pd
 import pytest
 import torch
 
+import baseline_reference
 from scenes import configuration_set
 from sdm.baselines import METHODS, ChamferSettings, SilhouetteSettings, SinkhornSettings, noise_run, noise_runs
 from sdm.baselines import chamfer, common, silhouette, sinkhorn
@@ -95,7 +96,7 @@ def test_the_tolerance_catches_a_shared_generator(runs, monkeypatch):
 
 def test_row_adam_is_torch_adam_per_row_and_skips_per_row():
     """RowAdam on (3, 2) equals torch.optim.Adam on each row alone, to the bit; a row with a
-    non-finite gradient keeps its theta and its Adam state (as staged_adam's single-run skip)."""
+    non-finite gradient keeps its theta and its Adam state (as one run alone would skip it)."""
     generator = torch.Generator().manual_seed(0)
     grads = torch.randn(7, 3, 2, generator=generator, dtype=torch.float64)
     grads[2, 1, 0] = float("nan")  # row 1 skips step 2
@@ -124,7 +125,8 @@ def test_subsample_runs_draws_what_subsample_draws():
         mask[run, :, : width - run] = True  # some rows shorter than their width
     index, kept = common.subsample_runs(mask, widths, k, [torch.Generator().manual_seed(s) for s in (1, 2, 3)])
     for run, width in enumerate(widths):
-        alone_index, alone_kept = common.subsample(mask[run, :, :width], k, torch.Generator().manual_seed(run + 1))
+        generator = torch.Generator().manual_seed(run + 1)
+        alone_index, alone_kept = baseline_reference.subsample(mask[run, :, :width], k, generator)
         n = alone_index.shape[1]
         assert torch.equal(kept[run, :, :n], alone_kept) and not kept[run, :, n:].any()
         assert torch.equal(index[run, :, :n][alone_kept], alone_index[alone_kept])
@@ -182,8 +184,8 @@ def test_sampled_pairs_are_each_runs_sampled_pair(runs):
         batched = common.sampled_pairs(points, point_mask, targets, configs, theta, camera, max_points,
                                        [torch.Generator().manual_seed(s) for s in seeds])
         for run, (data, seed) in enumerate(zip(sets, seeds)):
-            alone = common.sampled_pair(common.pad_set(data), configs[run], theta[run], camera, max_points,
-                                        torch.Generator().manual_seed(seed))
+            alone = baseline_reference.sampled_pair(baseline_reference.pad_set(data), configs[run], theta[run], camera,
+                                                    max_points, torch.Generator().manual_seed(seed))
             screen, kept, centres, target_kept = (t[run] for t in batched)
             n, m = alone[0].shape[1], alone[2].shape[1]
             assert torch.equal(kept[:, :n], alone[1]) and not kept[:, n:].any()

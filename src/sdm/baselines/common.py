@@ -33,40 +33,9 @@ from ..errors import SDMInputError
 from ..sky import shift_vector
 
 
-@dataclass(frozen=True)
-class PaddedSet:
-    """A :class:`~sdm.ConfigurationSet` as zero-padded per-configuration tensors.
-
-    Attributes:
-        points: ``(N, P, 3)`` float64 points ``Q`` in metres; padding rows are ``(0, 0, 1)`` (a
-            point in front of the camera, so projecting it is finite) and masked out.
-        point_mask: ``(N, P)`` bool, True for real points.
-        centres: ``(N, T, 2)`` float64 centres ``(row + 0.5, col + 0.5)`` of the target's active
-            pixels, screen pixels; padding rows are 0 and masked out.
-        centre_mask: ``(N, T)`` bool, True for real target pixels.
-        screen_shape: ``(H, W)``.
-    """
-
-    points: torch.Tensor
-    point_mask: torch.Tensor
-    centres: torch.Tensor
-    centre_mask: torch.Tensor
-    screen_shape: tuple[int, int]
-
-    def __len__(self) -> int:
-        return int(self.points.shape[0])
-
-
-def pad_set(data: ConfigurationSet) -> PaddedSet:
-    """Pack ``data``'s points and target pixels per configuration (see :class:`PaddedSet`)."""
-    points, point_mask = pad_points(data)
-    active, counts, offsets = active_pixels(data.targets)
-    centres, centre_mask = pad_rows(active[:, 1:].to(data.points.dtype) + 0.5, counts, offsets)
-    return PaddedSet(points, point_mask, centres, centre_mask, tuple(data.camera.screen_shape))
-
-
 def pad_points(data: ConfigurationSet) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(points, point_mask)`` of :class:`PaddedSet`: ``(N, P, 3)`` float64 metres, ``(N, P)`` bool."""
+    """Each configuration's points, zero-padded: ``(N, P, 3)`` float64 metres (padding rows ``(0, 0, 1)``, in front
+    of the camera so that projecting them is finite) and the ``(N, P)`` bool mask of real points."""
     n_configs = len(data)
     device = data.points.device
     counts = data.counts
@@ -117,11 +86,11 @@ class RunTargets:
 
     Attributes:
         pixels: ``(K + 1, 2)`` int16 ``(row, col)`` of every run's active pixels, run by run, then
-            configuration by configuration (row-major within one), as :func:`pad_set` orders them;
+            configuration by configuration (row-major within one, as :func:`active_pixels` lists them);
             the last row is ``(0, 0)``, where padding slots point.
         counts: ``(R, N)`` int64 active pixels of each run's configuration.
         starts: ``(R, N)`` int64 index in ``pixels`` of each run's configuration's first pixel.
-        widths: per run, the width :func:`pad_set` gives its centres alone (``max(counts[r], 1)``).
+        widths: per run, the width of its centres padded alone (``max(counts[r], 1)``).
     """
 
     pixels: torch.Tensor
@@ -182,29 +151,15 @@ def on_screen(screen: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
     return (row >= 0) & (row < height) & (col >= 0) & (col < width)
 
 
-def subsample(mask: torch.Tensor, k: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor]:
-    """Pick up to ``k`` random real entries per row of a ``(B, P)`` mask, without replacement.
-
-    Returns:
-        ``(index, kept)``: ``(B, min(k, P))`` int64 column indices and bool, False where a row
-        has fewer than ``k`` real entries (those indices point at padding).
-    """
-    if k <= 0 or k >= mask.shape[1]:
-        index = torch.arange(mask.shape[1], device=mask.device).expand(mask.shape[0], -1)
-        return index, mask
-    keys = torch.rand(mask.shape, generator=generator, dtype=torch.float64).to(mask.device)
-    keys = torch.where(mask, keys, torch.full_like(keys, -1.0))
-    top, index = torch.topk(keys, k, dim=1)
-    return index, top >= 0
-
-
 def subsample_runs(mask: torch.Tensor, widths: Sequence[int], k: int,
                    generators: Sequence[torch.Generator]) -> tuple[torch.Tensor, torch.Tensor]:
-    """:func:`subsample` for ``R`` runs at once, each drawing from its own generator.
+    """Pick up to ``k`` random real entries per row, without replacement, for ``R`` runs at once.
 
-    Run ``r`` draws exactly what ``subsample(mask[r, :, :widths[r]], k, generators[r])`` draws (the
-    same keys from its generator, or nothing when ``k`` does not cut its width) and picks the same
-    entries in the same order; one ``topk`` then serves every run.
+    Run ``r`` alone would draw one float64 key per entry of its ``(B, widths[r])`` mask from its
+    generator (nothing when ``k`` does not cut its width: it keeps its entries in order), give
+    padding the key -1 and keep the ``k`` largest keys; here each run draws exactly those keys and
+    one ``topk`` serves every run (``tests/baseline_reference.py`` holds the one-run version, and the
+    tests hold the two equal).
 
     Args:
         mask: ``(R, B, W)`` bool, real entries; ``W >= max(widths)``, False beyond ``widths[r]``.
@@ -215,8 +170,7 @@ def subsample_runs(mask: torch.Tensor, widths: Sequence[int], k: int,
     Returns:
         ``(index, kept)``: ``(R, B, n)`` int64 indices into the last axis of ``mask`` and bool, False
         where there is no real entry (their indices point at padding); ``n = min(k, W)``, or ``W``
-        when ``k`` is 0. A run that did not draw lists its real entries first, in order, as
-        :func:`subsample` does.
+        when ``k`` is 0. A run that did not draw lists its real entries first, in order.
     """
     n_runs, n_rows, width = mask.shape
     if k <= 0 or k >= width:  # nobody draws: every run's width is at most W <= k
@@ -273,34 +227,6 @@ class FitResult:
         import pandas as pd
 
         return pd.DataFrame(self.history)
-
-
-def staged_adam(
-    loss: Callable[[torch.Tensor, torch.Tensor, int, torch.Generator], torch.Tensor],
-    n_configs: int,
-    stages: Sequence[int],
-    steps: int,
-    lr: float,
-    lr_decay: float,
-    batch_size: int,
-    seed: int,
-    theta0: Sequence[float] = (0.0, 0.0),
-    dtype: torch.dtype = torch.float64,
-    device: torch.device | str | None = None,
-) -> FitResult:
-    """One run of :func:`staged_adam_runs`.
-
-    Args:
-        loss: ``loss(configs, theta, stage, generator)`` -> scalar tensor: the method's loss on
-            mini-batch ``configs`` ((batch,) int64) at ``theta`` ((2,), requires grad).
-        Others: as :func:`staged_adam_runs`, with the single ``seed``.
-    """
-
-    def loss_runs(configs, theta, stage, generators):
-        return loss(configs[0], theta[0], stage, generators[0]).reshape(1)
-
-    return staged_adam_runs(loss_runs, n_configs, stages, steps, lr, lr_decay, batch_size, [seed], theta0, dtype,
-                            device)[0]
 
 
 class RowAdam:
@@ -469,29 +395,14 @@ def field_error(settings, name: str, problem: str) -> SDMInputError:
     return error
 
 
-def sampled_pair(padded: PaddedSet, configs: torch.Tensor, theta: torch.Tensor, camera: Camera, max_points: int,
-                 generator: torch.Generator):
-    """The two point sets the Chamfer and Sinkhorn losses compare, for a batch of configurations.
-
-    Up to ``max_points`` points per configuration, shifted by ``theta`` and projected, and up to
-    ``max_points`` target pixel centres, each drawn without replacement from ``generator`` (points first).
-
-    Returns:
-        ``(screen, kept, centres, target_kept)``: ``(B, n, 2)`` projected points (screen pixels, float),
-        ``(B, n)`` bool (a real point that lands on screen), ``(B, m, 2)`` target centres, ``(B, m)`` bool.
-    """
-    index, kept = subsample(padded.point_mask[configs], max_points, generator)
-    points = padded.points[configs].gather(1, index.unsqueeze(-1).expand(-1, -1, 3))
-    screen = project_shifted(points, theta, camera)
-    kept = kept & on_screen(screen, camera.screen_shape)
-    target_index, target_kept = subsample(padded.centre_mask[configs], max_points, generator)
-    centres = padded.centres[configs].gather(1, target_index.unsqueeze(-1).expand(-1, -1, 2))
-    return screen, kept, centres, target_kept
-
-
 def sampled_pairs(points: torch.Tensor, point_mask: torch.Tensor, targets: RunTargets, configs: torch.Tensor,
                   theta: torch.Tensor, camera: Camera, max_points: int, generators: Sequence[torch.Generator]):
-    """:func:`sampled_pair` for ``R`` runs at once, each drawing from its own generator in the same order.
+    """The two point sets the Chamfer and Sinkhorn losses compare, for ``R`` runs' mini-batches at once.
+
+    Per configuration, up to ``max_points`` points, shifted by the run's theta and projected, and up
+    to ``max_points`` target pixel centres ``(row + 0.5, col + 0.5)``, each drawn without replacement
+    (:func:`subsample_runs`) from the run's own generator, points first: what the run would draw alone
+    (``tests/baseline_reference.py``, held equal by the tests).
 
     Args:
         points, point_mask: the runs' shared ``(N, P, 3)`` float64 points (metres) and ``(N, P)``
@@ -499,13 +410,13 @@ def sampled_pairs(points: torch.Tensor, point_mask: torch.Tensor, targets: RunTa
         targets: the runs' target pixels (:func:`pack_run_targets`).
         configs: ``(R, B)`` int64, run ``r``'s mini-batch.
         theta: ``(R, 2)`` float64 shifts, metres (may require grad).
-        max_points: as :func:`sampled_pair`.
+        max_points: points (and target pixels) per configuration; 0 keeps all.
         generators: ``R`` CPU generators.
 
     Returns:
         ``(screen, kept, centres, target_kept)``: ``(R, B, n, 2)`` projected points (screen pixels,
         float64), ``(R, B, n)`` bool, ``(R, B, m, 2)`` target centres (float64), ``(R, B, m)`` bool;
-        row ``[r, b]`` holds what :func:`sampled_pair` gives run ``r`` (padding after its entries).
+        row ``[r, b]`` holds run ``r``'s draw for its ``b``-th configuration (padding after its entries).
     """
     n_runs, n_rows = configs.shape
     width = points.shape[1]
