@@ -22,6 +22,7 @@ import torch
 
 from ..camera import Camera
 from ..representation import NO_RANK, inside
+from . import native as native_kernel
 from .flow import dynamic_flow
 from .result import MappingResult
 
@@ -36,14 +37,19 @@ class _CellScratch:
     def __init__(self) -> None:
         self.buffers: dict[torch.device, torch.Tensor] = {}
 
+    def buffer(self, device: torch.device, n_cells: int) -> torch.Tensor:
+        """``(>= n_cells + 1,)`` int64 on ``device``, every entry ``NO_RANK``."""
+        buffer = self.buffers.get(device)
+        if buffer is None or buffer.numel() < n_cells + 1:
+            buffer = self.buffers[device] = torch.full((n_cells + 1,), NO_RANK, dtype=torch.int64, device=device)
+        return buffer
+
     def winners(self, cell: torch.Tensor, rank: torch.Tensor, n_cells: int) -> torch.Tensor:
         """``(p,)`` bool: the point of lowest rank in each cell (cell ``n_cells`` is a sentinel).
 
         ``cell`` and ``rank`` are ``(p,)`` int64 on one device; the buffer used lives there.
         """
-        buffer = self.buffers.get(cell.device)
-        if buffer is None or buffer.numel() < n_cells + 1:
-            buffer = self.buffers[cell.device] = torch.full((n_cells + 1,), NO_RANK, dtype=torch.int64, device=cell.device)
+        buffer = self.buffer(cell.device, n_cells)
         buffer.scatter_reduce_(0, cell, rank, reduce="amin")
         won = buffer.take(cell) == rank
         buffer.index_fill_(0, cell, NO_RANK)
@@ -63,6 +69,7 @@ def fast_mapping(
     zoom: int,
     camera: Camera,
     flow_rule=dynamic_flow,
+    native: bool | None = None,
 ) -> MappingResult:
     """Run SDM levels ``steps, steps-1, ..., zoom`` on points; loss and flow at level ``zoom``.
 
@@ -78,6 +85,9 @@ def fast_mapping(
         camera: camera and screen ``(H, W)``.
         flow_rule: the gradient rule (default the paper's :func:`~sdm.mapping.flow.dynamic_flow`;
             alternatives in :data:`sdm.mapping.rules.FLOW_RULES`), called with the same arguments.
+        native: run the level loop (and the paper's flow) in the compiled CPU kernel of
+            :mod:`~sdm.mapping.native`: ``None`` (default) wherever it can (contiguous CPU
+            tensors, the kernel built), ``False`` never (the torch path; same results, bit for bit).
 
     Returns:
         :class:`MappingResult`.
@@ -87,6 +97,20 @@ def fast_mapping(
     screen = camera.project(points, validate=False)  # (P, 2) continuous (row, col)
     # floor(P(p) / 2^k) == floor(P(p)) >> k for every level k: one floor for the whole chain.
     projected_pixel = torch.floor(screen).long()
+    if native is not False and native_kernel.serves(projected_pixel, pixels, config, rank, target):
+        scratch = _SCRATCH.buffer(points.device, n_cells)
+        out_pixels, entered, landed, block, landing = native_kernel.chain(
+            projected_pixel, pixels, config, rank, scratch, height, width, steps, zoom)
+        if flow_rule is dynamic_flow and screen.dtype == torch.float64:
+            flow, matched, pulled, window_l1 = native_kernel.paper_flow(screen, config, landed, block, landing,
+                                                                        target, zoom)
+            # The loss in metres as dynamic_flow forms it: the same (p, 2) products, summed by torch.
+            metres_per_pixel = torch.stack(camera.metres_per_screen_pixel(points[:, 2].index_select(0, pulled)), -1)
+            loss = (window_l1 * metres_per_pixel).sum()
+        else:
+            flow, loss, matched = flow_rule(screen, points[:, 2], config, landed, block, landing, target, zoom,
+                                            camera)
+        return MappingResult(out_pixels, flow, loss, entered, matched, zoom, landed)
     alive = torch.ones(points.shape[0], dtype=torch.bool, device=points.device)
     current = pixels
     config_offset = config * (height * width)

@@ -1,0 +1,155 @@
+"""The compiled CPU kernel (sdm.mapping.native) against the torch path it replaces: equal to the bit."""
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import textwrap
+from pathlib import Path
+
+import pytest
+import torch
+
+from sdm.camera import APOLLO_CAMERA_5 as CAM
+from sdm.mapping import native
+from sdm.mapping.fast import _SCRATCH, fast_mapping
+from sdm.mapping.rules import FLOW_RULES
+from sdm.representation import NO_RANK
+from sdm.sky import shift_vector
+from sdm.train import TrainSettings, train, train_runs
+from sdm.zoom import zoom_out
+
+from scenes import configuration_set
+
+pytestmark = pytest.mark.skipif(not native.enabled(), reason="no C compiler: the compiled kernel is not built")
+
+FIELDS = ("out_pixels", "flow", "loss", "entered", "matched", "landed")
+
+
+def assert_same(kernel, reference):
+    for field in FIELDS:
+        mine, theirs = getattr(kernel, field), getattr(reference, field)
+        assert mine.dtype == theirs.dtype and mine.shape == theirs.shape, field
+        assert torch.equal(mine, theirs), f"{field} differs"
+
+
+def batch_of(data, theta, dtype=torch.float64):
+    batch = data.batch(torch.arange(len(data)))
+    points = (batch.points + shift_vector(torch.as_tensor(theta, dtype=torch.float64), batch.points)).to(dtype)
+    return points, batch
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("steps,zoom", [(4, 0), (4, 2), (4, 4), (3, 1), (2, 0)])
+def test_kernel_equals_the_torch_path_bit_for_bit(seed, steps, zoom):
+    data = configuration_set(12, seed=seed)
+    generator = torch.Generator().manual_seed(seed)
+    # From far off (points leave the screen, whole blocks collide) to close to the true shift.
+    for theta in (torch.randn(2, generator=generator, dtype=torch.float64) * 3.0, (0.31, 0.22), (0.5, 0.3)):
+        points, batch = batch_of(data, theta)
+        target = zoom_out(data.targets, zoom)
+        kernel = fast_mapping(points, batch.pixels, batch.config, batch.rank, target, steps, zoom, CAM)
+        reference = fast_mapping(points, batch.pixels, batch.config, batch.rank, target, steps, zoom, CAM,
+                                 native=False)
+        assert_same(kernel, reference)
+        assert bool(reference.missed.any()) or float(reference.loss) == 0.0
+
+
+def test_kernel_leaves_the_scratch_buffer_clean():
+    data = configuration_set(6, seed=4)
+    points, batch = batch_of(data, (1.0, -0.5))
+    fast_mapping(points, batch.pixels, batch.config, batch.rank, data.targets, 4, 0, CAM)
+    buffer = _SCRATCH.buffers[torch.device("cpu")]
+    assert bool((buffer == NO_RANK).all())
+
+
+@pytest.mark.parametrize("rule", sorted(set(FLOW_RULES) - {"paper"}))
+def test_kernel_chain_with_every_other_rule_equals_the_torch_path(rule):
+    data = configuration_set(8, seed=5)
+    points, batch = batch_of(data, (0.2, 0.5))
+    target = zoom_out(data.targets, 0)
+    args = (points, batch.pixels, batch.config, batch.rank, target, 4, 0, CAM, FLOW_RULES[rule])
+    assert_same(fast_mapping(*args), fast_mapping(*args, native=False))
+
+
+def test_float32_points_take_the_kernel_chain_and_the_torch_flow():
+    data = configuration_set(8, seed=6)
+    points, batch = batch_of(data, (0.4, 0.1), dtype=torch.float32)
+    args = (points, batch.pixels, batch.config, batch.rank, data.targets, 4, 0, CAM)
+    assert_same(fast_mapping(*args), fast_mapping(*args, native=False))
+
+
+def test_non_contiguous_inputs_give_the_same_result():
+    data = configuration_set(6, seed=7)
+    points, batch = batch_of(data, (0.3, 0.3))
+    pixels = batch.pixels.t().contiguous().t()  # same values, column-major
+    assert not pixels.is_contiguous()
+    kernel = fast_mapping(points, pixels, batch.config, batch.rank, data.targets, 4, 0, CAM)
+    assert_same(kernel, fast_mapping(points, batch.pixels, batch.config, batch.rank, data.targets, 4, 0, CAM,
+                                     native=False))
+
+
+def test_training_with_the_kernel_equals_training_without(monkeypatch):
+    data = configuration_set(64, seed=8)
+    settings = TrainSettings(lr=3e-4, n_epoch=1, batch_size=16, seed=3)
+    with_kernel = train(data, settings, progress=False)
+    runs_with = train_runs(data, [data.targets, data.targets], [settings, TrainSettings(lr=3e-4, n_epoch=1, seed=4)])
+    monkeypatch.setattr(native, "_library", lambda: None)
+    assert not native.enabled()
+    without = train(data, settings, progress=False)
+    runs_without = train_runs(data, [data.targets, data.targets], [settings, TrainSettings(lr=3e-4, n_epoch=1, seed=4)])
+    assert torch.equal(with_kernel.theta, without.theta) and torch.equal(with_kernel.loss, without.loss)
+    assert torch.equal(runs_with.theta, runs_without.theta) and torch.equal(runs_with.loss, runs_without.loss)
+    assert not torch.equal(with_kernel.theta[0], with_kernel.theta[-1])  # it trained
+
+
+def test_without_a_compiler_the_layer_warns_once_and_runs_the_torch_path(tmp_path):
+    script = textwrap.dedent(
+        """
+        import warnings, torch
+        from sdm.camera import APOLLO_CAMERA_5 as CAM
+        from sdm.mapping import native
+        from sdm.mapping.fast import fast_mapping
+        from sdm.sky import shift_vector
+        from scenes import configuration_set
+        data = configuration_set(4, seed=9)
+        batch = data.batch(torch.arange(4))
+        points = batch.points + shift_vector(torch.tensor([0.3, 0.2], dtype=torch.float64), batch.points)
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            first = fast_mapping(points, batch.pixels, batch.config, batch.rank, data.targets, 4, 0, CAM)
+            fast_mapping(points, batch.pixels, batch.config, batch.rank, data.targets, 4, 0, CAM)
+        messages = [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
+        assert len(messages) == 1 and "torch path" in messages[0], messages
+        assert not native.enabled()
+        reference = fast_mapping(points, batch.pixels, batch.config, batch.rank, data.targets, 4, 0, CAM,
+                                 native=False)
+        assert torch.equal(first.flow, reference.flow) and torch.equal(first.loss, reference.loss)
+        print("ok")
+        """
+    )
+    tests = Path(__file__).parent
+    env = os.environ | {"CC": str(tmp_path / "no-such-compiler"), "SDM_CACHE_DIR": str(tmp_path / "cache"),
+                        "PYTHONPATH": os.pathsep.join([str(tests), os.environ.get("PYTHONPATH", "")])}
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "ok"
+    assert not any((tmp_path / "cache").glob("*")), "a failed build left a file behind"
+
+
+def test_the_kernel_is_built_once_into_the_cache_folder(tmp_path):
+    env = os.environ | {"SDM_CACHE_DIR": str(tmp_path)}
+    script = "from sdm.mapping import native; print(native.enabled())"
+    for _ in range(2):
+        done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+        assert done.stdout.strip() == "True", done.stderr
+    built = list(tmp_path.iterdir())
+    assert len(built) == 1 and built[0].name.startswith("sdm_native_") and built[0].suffix == ".so"
+    assert built[0].stat().st_mode & 0o044 == 0o044  # readable by others
+
+
+def test_sdm_native_0_turns_the_kernel_off():
+    env = os.environ | {"SDM_NATIVE": "0"}
+    script = "from sdm.mapping import native; print(native.enabled())"
+    done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
+    assert done.stdout.strip() == "False", done.stderr
