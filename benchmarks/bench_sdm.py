@@ -2,9 +2,11 @@
 
 Prints, in one run on one thread:
   * ms per training step (batch of 16 configurations, forward + backward, the
-    chain from level s = 4 down to the loss level) for the fast and the dense
-    path at each zoom level, and their ratio;
-  * the wall time of one full training run (512 configurations, 5 levels, 1 epoch);
+    chain from level s = 4 down to the loss level) for the fast path with the
+    compiled CPU kernel (:mod:`sdm.mapping.native`), the fast path's torch
+    operations alone, and the dense path at each zoom level, and their ratios;
+  * the wall time of one full training run (512 configurations, 5 levels, 1 epoch),
+    with the kernel and on the torch path;
   * the time to build the default Sky data set (4,248 configurations) on one core;
   * many runs as one program (issue 10): ``--runs`` (30) noise runs at noise level 2
     trained one after another (:func:`sdm.experiments.noise_run`) and together
@@ -35,7 +37,7 @@ from sdm.batch import ConfigurationSet
 from sdm.data import build_sky_dataset
 from sdm.data.synthetic import synthetic_images
 from sdm.experiments import NOISE_GROUP_SIZE, noise_run, noise_runs
-from sdm.mapping import SpatialDomainMapping
+from sdm.mapping import SpatialDomainMapping, native
 from sdm.sky import shift_vector
 from sdm.train import TrainSettings, train
 
@@ -71,18 +73,23 @@ def runs_together_vs_alone(data: ConfigurationSet, n_runs: int, device: str) -> 
     with Clock(device) as alone:
         for run in range(n_runs):
             noise_run(data, 2, run, TABLE2_SETTINGS)
+    with native.disabled(), Clock(device) as alone_torch:  # the same runs without the kernel (as before it)
+        for run in range(n_runs):
+            noise_run(data, 2, run, TABLE2_SETTINGS)
     with Clock(device) as together:
         noise_runs(data, 2, range(n_runs), TABLE2_SETTINGS, group_size=n_runs)
     with Clock(device) as grouped:
         noise_runs(data, 2, range(n_runs), TABLE2_SETTINGS)
     out = {"device": device, "runs": n_runs, "steps_per_run": steps, "group_size_default": NOISE_GROUP_SIZE,
            "configs": len(data)}
-    for name, clock in (("sequential", alone), ("one_group", together), ("default_groups", grouped)):
+    for name, clock in (("sequential", alone), ("sequential_torch_path", alone_torch), ("one_group", together),
+                        ("default_groups", grouped)):
         out[name] = {"wall_s": clock.wall, "cpu_s": clock.cpu,
                      "ms_per_run_step": 1000 * clock.wall / (n_runs * steps)}
     out["ratio_one_group"] = alone.wall / together.wall
     out["ratio_default_groups"] = alone.wall / grouped.wall
     out["ratio_one_group_cpu"] = alone.cpu / together.cpu
+    out["ratio_default_groups_vs_torch_path"] = alone_torch.wall / grouped.wall
     return out
 
 
@@ -99,16 +106,18 @@ def report_runs(runs: dict) -> None:
     n, steps = runs["runs"], runs["steps_per_run"]
     print(f"\n{n} noise runs (level 2, {runs['configs']} configurations, n_epoch 2, lr 1e-4: {steps} steps each) "
           f"on {runs['device']}:")
-    for name in ("sequential", "one_group", "default_groups"):
-        label = {"sequential": "one after another", "one_group": f"as one group of {n}",
+    for name in ("sequential_torch_path", "sequential", "one_group", "default_groups"):
+        label = {"sequential_torch_path": "one after another, torch path", "sequential": "one after another",
+                 "one_group": f"as one group of {n}",
                  "default_groups": f"in groups of {runs['group_size_default']}"}[name]
         row = runs[name]
-        print(f"  {label:>22}: {row['wall_s']:7.1f} s wall, {row['cpu_s']:7.1f} s CPU, "
+        print(f"  {label:>30}: {row['wall_s']:7.1f} s wall, {row['cpu_s']:7.1f} s CPU, "
               f"{row['ms_per_run_step']:6.3f} ms per run-step "
               f"({n * row['ms_per_run_step']:.1f} ms per step of all {n})")
     print(f"  speed-up of one group over one after another: {runs['ratio_one_group']:.2f}x wall "
           f"({runs['ratio_one_group_cpu']:.2f}x CPU); default groups: {runs['ratio_default_groups']:.2f}x "
-          "(target: >= 10x)")
+          f"(target: >= 10x); default groups against one after another on the torch path: "
+          f"{runs['ratio_default_groups_vs_torch_path']:.2f}x")
 
 
 def step_ms(data: ConfigurationSet, method: str, zoom: int, repeats: int, batch_size: int = 16) -> float:
@@ -152,23 +161,35 @@ def main() -> None:
     print(f"{len(data)} synthetic configurations, {data.points.shape[0] / len(data):.0f} points each on average; "
           f"torch {torch.__version__}, 1 thread\n")
 
+    print(f"compiled CPU kernel: {'in use' if native.enabled() else 'NOT available (torch path only)'}\n")
     rows = []
-    print(f"{'zoom':>4} {'fast ms/step':>13} {'dense ms/step':>14} {'dense/fast':>11}")
+    print(f"{'zoom':>4} {'kernel ms/step':>15} {'torch ms/step':>14} {'dense ms/step':>14} {'torch/kernel':>13} "
+          f"{'dense/kernel':>13}")
     for zoom in range(4, -1, -1):
         fast = step_ms(data, "fast", zoom, args.fast_repeats)
+        with native.disabled():
+            torch_path = step_ms(data, "fast", zoom, args.fast_repeats)
         dense = step_ms(data, "dense", zoom, args.dense_repeats)
-        rows.append({"zoom": zoom, "fast_ms": fast, "dense_ms": dense, "ratio": dense / fast})
-        print(f"{zoom:>4} {fast:>13.2f} {dense:>14.1f} {dense / fast:>10.0f}x")
+        rows.append({"zoom": zoom, "fast_ms": fast, "fast_torch_ms": torch_path, "dense_ms": dense,
+                     "ratio": dense / fast, "ratio_torch": torch_path / fast})
+        print(f"{zoom:>4} {fast:>15.2f} {torch_path:>14.2f} {dense:>14.1f} {torch_path / fast:>12.2f}x "
+              f"{dense / fast:>12.0f}x")
 
-    runs = []
-    for _ in range(5):
-        start = time.perf_counter()
-        history = train(data, TrainSettings(lr=3e-4, n_epoch=1), progress=False)
-        runs.append(time.perf_counter() - start)
-    steps = len(history.loss)
+    def training_runs() -> list[float]:
+        seconds = []
+        for _ in range(5):
+            start = time.perf_counter()
+            history = train(data, TrainSettings(lr=3e-4, n_epoch=1), progress=False)
+            seconds.append(time.perf_counter() - start)
+        return seconds, len(history.loss)
+
+    runs, steps = training_runs()
+    with native.disabled():
+        torch_runs, _ = training_runs()
     print(f"\nfull training run ({len(data)} configurations, 5 levels, 1 epoch, {steps} steps): "
           f"median {statistics.median(runs):.3f} s, best {min(runs):.3f} s over {len(runs)} runs "
-          f"({1000 * statistics.median(runs) / steps:.2f} ms/step)")
+          f"({1000 * statistics.median(runs) / steps:.2f} ms/step); torch path alone "
+          f"{statistics.median(torch_runs):.3f} s: {statistics.median(torch_runs) / statistics.median(runs):.2f}x")
 
     devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
     many, tables = [], []

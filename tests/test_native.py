@@ -89,15 +89,17 @@ def test_non_contiguous_inputs_give_the_same_result():
                                      native=False))
 
 
-def test_training_with_the_kernel_equals_training_without(monkeypatch):
+def test_training_with_the_kernel_equals_training_without():
     data = configuration_set(64, seed=8)
     settings = TrainSettings(lr=3e-4, n_epoch=1, batch_size=16, seed=3)
     with_kernel = train(data, settings, progress=False)
     runs_with = train_runs(data, [data.targets, data.targets], [settings, TrainSettings(lr=3e-4, n_epoch=1, seed=4)])
-    monkeypatch.setattr(native, "_library", lambda: None)
-    assert not native.enabled()
-    without = train(data, settings, progress=False)
-    runs_without = train_runs(data, [data.targets, data.targets], [settings, TrainSettings(lr=3e-4, n_epoch=1, seed=4)])
+    with native.disabled():
+        assert not native.enabled()
+        without = train(data, settings, progress=False)
+        runs_without = train_runs(data, [data.targets, data.targets],
+                                  [settings, TrainSettings(lr=3e-4, n_epoch=1, seed=4)])
+    assert native.enabled()
     assert torch.equal(with_kernel.theta, without.theta) and torch.equal(with_kernel.loss, without.loss)
     assert torch.equal(runs_with.theta, runs_without.theta) and torch.equal(runs_with.loss, runs_without.loss)
     assert not torch.equal(with_kernel.theta[0], with_kernel.theta[-1])  # it trained

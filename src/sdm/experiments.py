@@ -32,9 +32,10 @@ from .sky import SKY_SHIFT, add_target_noise, shift_vector
 from .train import TrainSettings, train, train_runs
 
 #: Noise runs trained together by default (see :func:`noise_runs`). On one CPU core larger groups
-#: stop paying: the work is per point, and beyond about 8 runs (70k points a step) the working set
-#: leaves the core's cache (benchmarks/bench_sdm.py measures it).
-NOISE_GROUP_SIZE = 8
+#: stop paying: with the compiled kernel (:mod:`sdm.mapping.native`) the chain costs per point, and
+#: groups of 8 or 16 runs were slower per run than groups of 4 (working set out of the core's cache;
+#: benchmarks/bench_sdm.py measures it).
+NOISE_GROUP_SIZE = 4
 
 
 def run_seed(seed: int, level: int, run: int) -> int:
@@ -109,10 +110,13 @@ def tune_cell(train_set, dev_set, settings, shift: Sequence[float] = SKY_SHIFT, 
     return record, history.to_frame()
 
 
-def noisy_targets(targets: torch.Tensor, level: int, seed: int) -> torch.Tensor:
-    """Every target moved by noise ``level`` (paper, section 5.2), drawn from ``seed``."""
+def noisy_targets(targets: torch.Tensor, level: int, seed: int, active: torch.Tensor | None = None) -> torch.Tensor:
+    """Every target moved by noise ``level`` (paper, section 5.2), drawn from ``seed``.
+
+    ``active`` is ``targets.nonzero()`` where the caller has it (one clean set, many draws).
+    """
     generator = torch.Generator().manual_seed(int(seed))
-    return add_target_noise(targets, level, generator)  # one draw for all targets, in target order
+    return add_target_noise(targets, level, generator, active)  # one draw for all targets, in target order
 
 
 def noise_run(train_set, level: int, run: int, settings: TrainSettings, shift: Sequence[float] = SKY_SHIFT,
@@ -171,10 +175,11 @@ def noise_runs(train_set, level: int, runs: Sequence[int], settings: TrainSettin
         raise SDMInputError(f"group_size must be a positive integer, got {group_size!r}")
     runs = [int(run) for run in runs]
     seeds = [run_seed(settings.seed, level, run) for run in runs]
+    active = train_set.targets.nonzero() if level else None  # every run moves the same clean pixels
     rows = []
     for first in range(0, len(runs), int(group_size)):
         group = range(first, min(first + int(group_size), len(runs)))
-        targets = [noisy_targets(train_set.targets, level, seeds[i]) for i in group]
+        targets = [noisy_targets(train_set.targets, level, seeds[i], active) for i in group]
         history = train_runs(train_set, targets, [replace(settings, seed=seeds[i]) for i in group], camera=camera,
                              device=device)
         rows += [_run_record(level, runs[i], seeds[i], theta, shift) for i, theta in zip(group, history.final_theta)]

@@ -178,7 +178,8 @@ def build_configuration(
     )
 
 
-def add_target_noise(target: torch.Tensor, level: int, generator: torch.Generator | None = None) -> torch.Tensor:
+def add_target_noise(target: torch.Tensor, level: int, generator: torch.Generator | None = None,
+                     active: torch.Tensor | None = None) -> torch.Tensor:
     """Move every active pixel of a target by independent integers uniform on ``[-level, level]``.
 
     Args:
@@ -190,6 +191,8 @@ def add_target_noise(target: torch.Tensor, level: int, generator: torch.Generato
             loop over them.
         level: noise level ``n >= 0`` in screen pixels.
         generator: source of randomness (seed it for reproducible runs).
+        active: ``target.nonzero()`` where the caller has it already (many draws on one
+            target); the search over every pixel is then skipped.
 
     Returns:
         ``(..., H, W)`` bool occupancy of the moved pixels; off-screen ones are dropped.
@@ -198,7 +201,8 @@ def add_target_noise(target: torch.Tensor, level: int, generator: torch.Generato
         raise SDMInputError(f"noise level must be a non-negative integer, got {level!r}")
     if level == 0:
         return target.clone()
-    active = target.nonzero()  # (K, ndim): leading indices, then (row, col)
+    if active is None:
+        active = target.nonzero()  # (K, ndim): leading indices, then (row, col)
     # Drawn on the generator's device (CPU by default): the same seed gives the same moves wherever the target lives.
     draw_device = generator.device if generator is not None else target.device
     moves = torch.randint(-level, level + 1, (active.shape[0], 2), generator=generator, dtype=torch.int64,

@@ -259,10 +259,11 @@ def noise_runs(name: str, train_set: ConfigurationSet, level: int, runs: Sequenc
     if not isinstance(settings, entry.settings):
         raise SDMInputError(f"settings for {name!r} must be {entry.settings.__name__}, got {type(settings).__name__}")
     seeds = [run_seed(seed, level, run) for run in runs]
+    active = train_set.targets.nonzero() if level else None  # every run moves the same clean pixels
     rows = []
     for first in range(0, len(runs), int(group_size)):
         group = range(first, min(first + int(group_size), len(runs)))
-        noisy = [train_set.with_targets(noisy_targets(train_set.targets, level, seeds[i])) for i in group]
+        noisy = [train_set.with_targets(noisy_targets(train_set.targets, level, seeds[i], active)) for i in group]
         results = entry.fit_runs(noisy, settings, [seeds[i] for i in group], camera=camera)
         del noisy
         for i, result in zip(group, results):

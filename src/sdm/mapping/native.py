@@ -19,6 +19,7 @@ float64 projections; everything else (CUDA, float32) takes the torch path.
 """
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import functools
 import hashlib
@@ -42,9 +43,23 @@ _I64 = ctypes.c_int64
 _PTR = ctypes.c_void_p
 
 
+_switched_off = False
+
+
 def enabled() -> bool:
     """Whether the compiled kernel is in use (built or loaded on first call; ``SDM_NATIVE=0`` turns it off)."""
-    return _library() is not None
+    return not _switched_off and _library() is not None
+
+
+@contextlib.contextmanager
+def disabled():
+    """Inside the block the layer runs its torch path (for comparisons and benchmarks; process-wide)."""
+    global _switched_off
+    before, _switched_off = _switched_off, True
+    try:
+        yield
+    finally:
+        _switched_off = before
 
 
 def cache_dir() -> Path:
@@ -128,13 +143,28 @@ def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, r
     entered = torch.empty(n_points, dtype=torch.bool, device=pixels.device)
     landed = torch.empty_like(entered)
     block, landing = torch.empty_like(pixels), torch.empty_like(pixels)
-    current, cell = torch.empty_like(pixels), torch.empty_like(config)
-    alive = torch.empty_like(entered)
+    current, cell, alive = _workspace(n_points, pixels.device)
     _library().sdm_chain(n_points, projected.data_ptr(), pixels.data_ptr(), config.data_ptr(), rank.data_ptr(),
                          height, width, steps, zoom, scratch.data_ptr(), NO_RANK, out_pixels.data_ptr(),
                          entered.data_ptr(), landed.data_ptr(), block.data_ptr(), landing.data_ptr(),
                          current.data_ptr(), cell.data_ptr(), alive.data_ptr())
     return out_pixels, entered, landed, block, landing
+
+
+#: Per device, the chain's working rows (reused: fresh pages for every call would cost more than the
+#: chain on large batches).
+_WORKSPACE: dict[torch.device, tuple[torch.Tensor, torch.Tensor]] = {}
+
+
+def _workspace(n_points: int, device: torch.device) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``(P, 2)`` int64 current pixels, ``(P,)`` int64 cells and ``(P,)`` bool alive: scratch on ``device``."""
+    rows, flags = _WORKSPACE.get(device, (None, None))
+    if rows is None or rows.shape[0] < n_points:
+        rows = torch.empty(n_points, 3, dtype=torch.int64, device=device)
+        flags = torch.empty(n_points, dtype=torch.bool, device=device)
+        _WORKSPACE[device] = rows, flags
+    flat = rows.view(-1)
+    return flat[: 2 * n_points].view(n_points, 2), flat[2 * n_points : 3 * n_points], flags[:n_points]
 
 
 @torch.compiler.disable  # a ctypes call: Dynamo runs it as is (one graph break)
