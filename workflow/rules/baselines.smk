@@ -61,9 +61,7 @@ use rule notebook_stage as table3 with:
         table2_distances=result("noise/distances.csv"),
         sdm_timings=each("noise", "timing_file"),
     output:
-        table3_csv=table("table3", "table3"),
-        table3_md=result("tables/table3.md"),
-        table3_tex=result("tables/table3.tex"),
+        **table_files("table3"),
         tuning_csv=result("tables/table3_tuning.csv"),
         tuning_md=result("tables/table3_tuning.md"),
         summary=result("tables/table3_summary.md"),

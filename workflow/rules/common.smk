@@ -50,9 +50,14 @@ def figure(name, caption):
     return report(result(f"figures/{name}.png"), caption=f"../report/{caption}.rst", category="Figures")
 
 
-def table(name, caption):
-    """A table's CSV under results/tables/, flagged for `snakemake --report` with its caption."""
-    return report(result(f"tables/{name}.csv"), caption=f"../report/{caption}.rst", category="Tables")
+def table_files(name):
+    """A table's files under results/tables/ as named outputs: the CSV (flagged for `snakemake --report` with
+    its caption, workflow/report/<name>.rst), the Markdown and the LaTeX."""
+    return {
+        f"{name}_csv": report(result(f"tables/{name}.csv"), caption=f"../report/{name}.rst", category="Tables"),
+        f"{name}_md": result(f"tables/{name}.md"),
+        f"{name}_tex": result(f"tables/{name}.tex"),
+    }
 
 
 def benchmark_file(name):

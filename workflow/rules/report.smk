@@ -10,13 +10,9 @@ use rule notebook_stage as tables with:
         stats=result("sky/stats.json"),
         chunks=each("noise", "chunk_file"),
     output:
+        **table_files("table1"),
+        **table_files("table2"),
         distances=result("noise/distances.csv"),
-        table1_csv=table("table1", "table1"),
-        table1_md=result("tables/table1.md"),
-        table1_tex=result("tables/table1.tex"),
-        table2_csv=table("table2", "table2"),
-        table2_md=result("tables/table2.md"),
-        table2_tex=result("tables/table2.tex"),
         html=html("tables"),
     log:
         **notebook_log("tables"),

@@ -62,9 +62,7 @@ use rule notebook_stage as table4 with:
         table2_distances=result("noise/distances.csv"),
         baseline_run_files=each("baseline_runs", "runs_file"),
     output:
-        table4_csv=table("table4", "table4"),
-        table4_md=result("tables/table4.md"),
-        table4_tex=result("tables/table4.tex"),
+        **table_files("table4"),
         table4_summary=result("tables/table4_summary.md"),
         figure=figure("research_rules", "research_rules"),
         html=html("table4"),
@@ -85,9 +83,7 @@ use rule notebook_stage as table5 with:
         source=notebook("research"),
         depth_files=each("depth_runs", "runs_file"),
     output:
-        table5_csv=table("table5", "table5"),
-        table5_md=result("tables/table5.md"),
-        table5_tex=result("tables/table5.tex"),
+        **table_files("table5"),
         table5_summary=result("tables/table5_summary.md"),
         figure=figure("research_depth", "research_depth"),
         html=html("table5"),
