@@ -60,5 +60,9 @@ rule all:
     """Everything: tables, figures, the reproduction report and every rendered notebook."""
     default_target: True
     input:
-        [getattr(rules, s).output for s in ("tables", "table3", "table4", "table5", "figures", "report") if JOBS[s]],
+        [
+            getattr(rules, stage).output
+            for stage in ("tables", "table3", "table4", "table5", "figures", "report")
+            if JOBS[stage]
+        ],
         [each(stage, "html") for stage in JOBS],
