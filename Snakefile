@@ -39,6 +39,9 @@ wildcard_constraints:
     lr=r"[0-9][0-9.e+-]*",
     level=r"\d+",
     chunk=r"\d+",
+    method=one_of(BASELINES),
+    flow=one_of(RULE_NAMES),
+    c=one_of(DEPTH_SHIFTS),
 
 
 # Small jobs run on the submitting node on a cluster (no queue wait for seconds of work).
@@ -57,9 +60,9 @@ rule all:
     """Everything: tables, figures, the reproduction report and every rendered notebook."""
     default_target: True
     input:
-        rules.tables.output,
-        rules.figures.output,
-        rules.report.output,
-        table3_outputs(),
-        notebook_html(),
-        research_outputs(),
+        [
+            getattr(rules, stage).output
+            for stage in ("tables", "table3", "table4", "table5", "figures", "report")
+            if JOBS[stage]
+        ],
+        [each(stage, "html") for stage in JOBS],

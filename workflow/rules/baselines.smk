@@ -18,8 +18,6 @@ use rule notebook_stage as baseline_tune with:
         **notebook_log("baselines_tune_{method}"),
     benchmark:
         benchmark_file("baselines_tune_{method}")
-    wildcard_constraints:
-        method=BASELINE_PATTERN,
     params:
         part="tune",
         methods=lambda wildcards: [wildcards.method],
@@ -43,8 +41,6 @@ use rule notebook_stage as baseline_runs with:
         **notebook_log("baselines_{method}_level{level}"),
     benchmark:
         benchmark_file("baselines_{method}_level{level}")
-    wildcard_constraints:
-        method=BASELINE_PATTERN,
     resources:
         runtime=15,
     params:
@@ -60,14 +56,12 @@ use rule notebook_stage as table3 with:
     """Table 3 (SDM's rows from Table 2's runs), the tuning table, the figure, the answer in words."""
     input:
         source=notebook("baselines"),
-        tuning_files=baseline_tuning_files(),
-        run_files=baseline_run_files(),
+        tuning_files=each("baseline_tune", "tuning_files"),
+        run_files=each("baseline_runs", "runs_file"),
         table2_distances=result("noise/distances.csv"),
-        sdm_timings=noise_timing_files(),
+        sdm_timings=each("noise", "timing_file"),
     output:
-        table3_csv=table("table3", "table3"),
-        table3_md=result("tables/table3.md"),
-        table3_tex=result("tables/table3.tex"),
+        **table_files("table3"),
         tuning_csv=result("tables/table3_tuning.csv"),
         tuning_md=result("tables/table3_tuning.md"),
         summary=result("tables/table3_summary.md"),

@@ -1,9 +1,11 @@
-# Shared helpers: paths derived from the config, the annotation manifest, the tuning grid, the noise
-# chunks and Table 3's methods (the notebook-stage template is in stage.smk).
+# Shared helpers: paths derived from the config, the annotation manifest, and the jobs of each stage
+# (the tuning grid, the noise chunks, Table 3's methods, Tables 4-5's rules and c*); the notebook-stage
+# template is in stage.smk.
 # Nothing here imports torch or sdm: parsing the workflow stays fast and works without them.
 import hashlib
 import json
 import os
+import re
 from pathlib import Path
 
 NOTEBOOKS = Path(workflow.basedir) / "notebooks"
@@ -35,10 +37,7 @@ def notebook(stage):
 
 def notebook_log(name):
     """A stage's logs: the executed notebook (kept when the stage fails) and the tools' messages."""
-    return {
-        "notebook": result(f"notebooks/{name}.ipynb"),
-        "stderr": f"{LOGS}/{name}.log",
-    }
+    return {"notebook": result(f"notebooks/{name}.ipynb"), "stderr": f"{LOGS}/{name}.log"}
 
 
 def html(name):
@@ -46,22 +45,19 @@ def html(name):
     return result(f"notebooks/{name}.html")
 
 
-def figure(name, caption, category="Figures"):
+def figure(name, caption):
     """A figure under results/figures/, flagged for `snakemake --report` with its caption."""
-    return report(
-        result(f"figures/{name}.png"),
-        caption=f"../report/{caption}.rst",
-        category=category,
-    )
+    return report(result(f"figures/{name}.png"), caption=f"../report/{caption}.rst", category="Figures")
 
 
-def table(name, caption):
-    """A table's CSV under results/tables/, flagged for `snakemake --report` with its caption."""
-    return report(
-        result(f"tables/{name}.csv"),
-        caption=f"../report/{caption}.rst",
-        category="Tables",
-    )
+def table_files(name):
+    """A table's files under results/tables/ as named outputs: the CSV (flagged for `snakemake --report` with
+    its caption, workflow/report/<name>.rst), the Markdown and the LaTeX."""
+    return {
+        f"{name}_csv": report(result(f"tables/{name}.csv"), caption=f"../report/{name}.rst", category="Tables"),
+        f"{name}_md": result(f"tables/{name}.md"),
+        f"{name}_tex": result(f"tables/{name}.tex"),
+    }
 
 
 def benchmark_file(name):
@@ -91,10 +87,7 @@ def annotation_manifest(folder):
     entries = {}
     for path in files:
         content = path.read_bytes()
-        entries[path.relative_to(root).as_posix()] = [
-            len(content),
-            hashlib.sha256(content).hexdigest(),
-        ]
+        entries[path.relative_to(root).as_posix()] = [len(content), hashlib.sha256(content).hexdigest()]
     text = json.dumps({"files": entries}, indent=1, sort_keys=True) + "\n"
     target = Path(ANNOTATION_MANIFEST)
     if not target.is_file() or target.read_text() != text:
@@ -118,48 +111,101 @@ def annotation_inputs():
 
 
 def annotation_params():
-    """The ApolloCar3D folder as a plain param (a different folder reruns the stages); none otherwise."""
+    """The source's kind, and the ApolloCar3D folder as a plain param (a different folder reruns the stages)."""
     if config["data"]["source"] == "apollo":
-        return {"annotations": config["data"]["apollo_folder"]}
-    return {}
+        return {"source_kind": "apollo", "annotations": config["data"]["apollo_folder"]}
+    return {"source_kind": config["data"]["source"]}
 
 
 def annotation_keys():
     """The config key of the data path the current source reads (none for synthetic data)."""
-    return {"synthetic": [], "apollo": ["data.apollo_folder"], "pku": ["data.pku_csv"]}[
-        config["data"]["source"]
-    ]
+    return {"synthetic": [], "apollo": ["data.apollo_folder"], "pku": ["data.pku_csv"]}[config["data"]["source"]]
 
 
 if config["data"]["source"] == "apollo":
     try:
-        check_against_annotations(
-            config,
-            annotation_manifest(config["data"]["apollo_folder"]),
-            config["data"]["apollo_folder"],
-        )
+        folder = config["data"]["apollo_folder"]
+        check_against_annotations(config, annotation_manifest(folder), folder)
     except ConfigError as error:  # one line naming the key, no traceback
         raise WorkflowError(error) from None
 
 
-# -- the tuning grid and the noise chunks --------------------------------------------------------------
+# -- the jobs of each stage ---------------------------------------------------------------------------
 
 
 def lr_label(lr):
     """A learning rate as it appears in file names: ``3e-04`` (only a label: the value comes from the config)."""
-    return (
-        f"{float(lr):.0e}"
-        if float(f"{float(lr):.0e}") == float(lr)
-        else repr(float(lr))
-    )
+    return f"{float(lr):.0e}" if float(f"{float(lr):.0e}") == float(lr) else repr(float(lr))
 
 
-# (n_epoch, lr label) -> the cell's values, in config order (epochs outer).
+def c_label(c):
+    """A depth shift c* as it appears in file names: ``-1.0`` (only a label: the value comes from the config)."""
+    return repr(float(c))
+
+
+# Table 1: (n_epoch, lr label) -> the cell's values, in config order (epochs outer).
 TUNING_CELLS = {
     (str(n_epoch), lr_label(lr)): {"n_epoch": int(n_epoch), "lr": float(lr)}
     for n_epoch in config["tuning"]["n_epoch"]
     for lr in config["tuning"]["lr"]
 }
+# Table 2: noise.runs runs per level in chunks of noise.chunk_size, one job per (level, chunk).
+N_RUNS, CHUNK_SIZE = int(config["noise"]["runs"]), int(config["noise"]["chunk_size"])
+LEVELS = [int(level) for level in config["noise"]["levels"]]
+
+# Table 3: the baselines beside SDM (config section baselines), each with its settings grid. Per
+# baseline one tuning job, then one job per noise level (its paired runs 0..baselines.runs-1). SDM is
+# not rerun: its rows are Table 2's runs, its time per run the noise jobs' own (their timing_file).
+# A method's settings are passed in name order: the order of keys in a YAML mapping means nothing, and
+# Snakemake compares params as written, so a reordered (or re-dumped) config must not rerun the tuning.
+BASELINES = {
+    name: dict(sorted(config["baselines"].get(name, {}).items()))
+    for name in (config["baselines"]["methods"] if config["baselines"]["enabled"] else [])
+}
+BASELINE_RUNS = list(range(int(config["baselines"]["runs"])))
+
+# Beyond the paper (config section research). Table 4: the rules beside the paper's, each run at every
+# noise level with Table 2's runs 0..runs-1. Table 5: c* label -> its value, in config order.
+RESEARCH = config.get("research", {})
+RESEARCH_RULES = RESEARCH.get("rules", {"enabled": False})
+RESEARCH_DEPTH = RESEARCH.get("depth", {"enabled": False})
+RULE_NAMES = list(RESEARCH_RULES["names"]) if RESEARCH_RULES["enabled"] else []
+RULE_RUNS = list(range(int(RESEARCH_RULES.get("runs", 1))))
+DEPTH_SHIFTS = {c_label(c): float(c) for c in RESEARCH_DEPTH["shifts_c"]} if RESEARCH_DEPTH["enabled"] else {}
+DEPTH_LEVELS = [int(level) for level in RESEARCH_DEPTH.get("levels", [])]
+DEPTH_RUNS = list(range(int(RESEARCH_DEPTH.get("runs", 1))))
+
+
+# Every stage's jobs, as their wildcards, in the order the gathering stages read their files: a stage
+# without wildcards has the one job {}, a stage switched off none. `all` asks for each job's rendered
+# notebook (and for the tables, figures and report).
+JOBS = {
+    "synthetic": [{}] if config["data"]["source"] == "synthetic" else [],
+    **{stage: [{}] for stage in ("data", "sample", "sky", "split")},
+    "tune": [{"n_epoch": n_epoch, "lr": lr} for n_epoch, lr in TUNING_CELLS],
+    "best": [{}],
+    "noise": [{"level": level, "chunk": chunk} for level in LEVELS for chunk in range(-(-N_RUNS // CHUNK_SIZE))],
+    **{stage: [{}] for stage in ("tables", "figures", "report")},
+    "baseline_tune": [{"method": method} for method in BASELINES],
+    "baseline_runs": [{"method": method, "level": level} for method in BASELINES for level in LEVELS],
+    "table3": [{}] if config["baselines"]["enabled"] else [],
+    "rule_runs": [{"flow": name, "level": level} for name in RULE_NAMES for level in LEVELS],
+    "table4": [{}] if RESEARCH_RULES["enabled"] else [],
+    "depth_runs": [{"c": label, "level": level} for label in DEPTH_SHIFTS for level in DEPTH_LEVELS],
+    "table5": [{}] if RESEARCH_DEPTH["enabled"] else [],
+}
+
+
+def each(stage, output):
+    """The files of a named output of `stage`, one per job of JOBS[stage] (its wildcards filled in), in order."""
+    patterns = getattr(rules, stage).output[output]
+    patterns = [patterns] if isinstance(patterns, str) else patterns  # a named output may hold a list
+    return [str(pattern).format(**wildcards) for wildcards in JOBS[stage] for pattern in patterns]
+
+
+def one_of(values):
+    """A wildcard constraint matching exactly the given labels ("(?!)", matching nothing, when none)."""
+    return "|".join(re.escape(str(value)) for value in values) or "(?!)"
 
 
 def tuning_value(key):
@@ -167,18 +213,9 @@ def tuning_value(key):
     return lambda wildcards: TUNING_CELLS[(wildcards.n_epoch, wildcards.lr)][key]
 
 
-def tuning_files(kind):
-    """Per-cell outputs of the tuning grid: kind is 'cell' (json) or 'history' (csv)."""
-    ext = "json" if kind == "cell" else "csv"
-    return [result(f"tuning/{kind}_{n}_{lr}.{ext}") for n, lr in TUNING_CELLS]
-
-
-N_RUNS, CHUNK_SIZE = int(config["noise"]["runs"]), int(config["noise"]["chunk_size"])
-NOISE_CHUNKS = [
-    (int(level), chunk)
-    for level in config["noise"]["levels"]
-    for chunk in range(-(-N_RUNS // CHUNK_SIZE))
-]
+def depth_shift(wildcards):
+    """A params function: the c* of a depth job, looked up from its label (never parsed back)."""
+    return DEPTH_SHIFTS[wildcards.c]
 
 
 def chunk_runs(wildcards):
@@ -187,91 +224,22 @@ def chunk_runs(wildcards):
     return list(range(chunk * CHUNK_SIZE, min((chunk + 1) * CHUNK_SIZE, N_RUNS)))
 
 
-def noise_files():
-    """The chunk files of the noise runs, one per (level, chunk) job."""
-    return [
-        result(f"noise/level{level}_chunk{chunk}.csv") for level, chunk in NOISE_CHUNKS
-    ]
+def training(seed):
+    """The training settings every training stage reads (train.s, batch_size, lr_decay, sky.shift), and its seed."""
+    train = config["train"]
+    return dict(
+        s=train["s"],
+        batch_size=train["batch_size"],
+        lr_decay=train["lr_decay"],
+        seed=seed,
+        shift=config["sky"]["shift"],
+    )
 
 
-def noise_timing_files():
-    """The noise jobs' timings (wall seconds of their runs; SDM's time per run in Table 3)."""
-    return [
-        result(f"noise/level{level}_chunk{chunk}_seconds.json")
-        for level, chunk in NOISE_CHUNKS
-    ]
-
-
-# Table 3: the baselines beside SDM (config section baselines), each with its settings grid. Per
-# baseline one tuning job, then one job per noise level (its paired runs 0..baselines.runs-1). SDM is
-# not rerun: its rows are Table 2's runs, its time per run the noise stage's own (noise_timing_files).
-# A method's settings are passed in name order: the order of keys in a YAML mapping means nothing, and
-# Snakemake compares params as written, so a reordered (or re-dumped) config must not rerun the tuning.
-BASELINES = (
-    {
-        name: dict(sorted(config["baselines"].get(name, {}).items()))
-        for name in config["baselines"]["methods"]
-    }
-    if config["baselines"]["enabled"]
-    else {}
-)
-BASELINE_RUNS = list(range(int(config["baselines"]["runs"])))
-BASELINE_PATTERN = "|".join(BASELINES) or "(?!)"  # "(?!)" matches nothing
-BASELINE_LEVELS = [int(level) for level in config["noise"]["levels"]]
-
-
-def table3_report_inputs():
-    """What the report reads of Table 3 (nothing when the baselines are off)."""
-    if not config["baselines"]["enabled"]:
-        return {}
-    return {
-        "table3": result("tables/table3.md"),
-        "table3_summary": result("tables/table3_summary.md"),
-    }
-
-
-def baseline_tuning_files():
-    """One tuning CSV per baseline (its grid on the dev set)."""
-    return [result(f"baselines/tuning_{name}.csv") for name in BASELINES]
-
-
-def baseline_run_files():
-    """One runs CSV per (baseline, noise level)."""
-    return [
-        result(f"baselines/runs_{name}_level{level}.csv")
-        for name in BASELINES
-        for level in BASELINE_LEVELS
-    ]
-
-
-def baseline_html():
-    """The rendered notebooks of the baseline jobs and of Table 3."""
-    return [
-        *(f"baselines_tune_{name}" for name in BASELINES),
-        *(
-            f"baselines_{name}_level{level}"
-            for name in BASELINES
-            for level in BASELINE_LEVELS
-        ),
-        "table3",
-    ]
-
-
-def table3_outputs():
-    """Table 3's files when the baselines are on, else nothing."""
-    return rules.table3.output if config["baselines"]["enabled"] else []
-
-
-def notebook_html():
-    """Every rendered notebook of the run."""
-    names = ["data", "sample", "sky", "split", "best", "tables", "figures", "report"]
-    if config["data"]["source"] == "synthetic":
-        names.insert(0, "synthetic")
-    names += [f"tune_{n}_{lr}" for n, lr in TUNING_CELLS]
-    names += [f"noise_level{level}_chunk{chunk}" for level, chunk in NOISE_CHUNKS]
-    if config["baselines"]["enabled"]:
-        names += baseline_html()
-    return [html(name) for name in names]
+def extra_tables_read_by_report():
+    """What the report reads of Tables 3-5: each enabled table's Markdown and summary."""
+    enabled = [stage for stage in ("table3", "table4", "table5") if JOBS[stage]]
+    return {key: result(f"tables/{key}.md") for stage in enabled for key in (stage, f"{stage}_summary")}
 
 
 def config_values(*keys):
@@ -285,89 +253,3 @@ def config_values(*keys):
         if last in source:
             target[last] = source[last]
     return picked
-
-
-# -- beyond the paper (config section research): Table 4 (rules) and Table 5 (depth) -----------------------
-
-RESEARCH = config.get("research", {})
-RESEARCH_RULES = RESEARCH.get("rules", {"enabled": False})
-RESEARCH_DEPTH = RESEARCH.get("depth", {"enabled": False})
-# Table 4: the rules beside the paper's, each run at every noise level with Table 2's runs 0..runs-1.
-RULE_NAMES = list(RESEARCH_RULES["names"]) if RESEARCH_RULES["enabled"] else []
-RULE_PATTERN = "|".join(RULE_NAMES) or "(?!)"  # "(?!)" matches nothing
-RULE_RUNS = list(range(int(RESEARCH_RULES.get("runs", 1))))
-
-
-def c_label(c):
-    """A depth shift c* as it appears in file names: ``-1.0`` (only a label: the value comes from the config)."""
-    return repr(float(c))
-
-
-# Table 5: c* label -> its value, in config order.
-DEPTH_SHIFTS = (
-    {c_label(c): float(c) for c in RESEARCH_DEPTH["shifts_c"]}
-    if RESEARCH_DEPTH["enabled"]
-    else {}
-)
-DEPTH_PATTERN = "|".join(label.replace(".", r"\.") for label in DEPTH_SHIFTS) or "(?!)"
-DEPTH_LEVELS = [int(level) for level in RESEARCH_DEPTH.get("levels", [])]
-DEPTH_RUNS = list(range(int(RESEARCH_DEPTH.get("runs", 1))))
-
-
-def depth_shift(wildcards):
-    """A params function: the c* of a depth job, looked up from its label (never parsed back)."""
-    return DEPTH_SHIFTS[wildcards.c]
-
-
-def rule_files():
-    """Table 4's run files, one per (rule, noise level) job."""
-    return [
-        result(f"research/rules/{name}_level{level}.csv")
-        for name in RULE_NAMES
-        for level in config["noise"]["levels"]
-    ]
-
-
-def depth_files():
-    """Table 5's run files, one per (c*, noise level) job."""
-    return [
-        result(f"research/depth/c{label}_level{level}.csv")
-        for label in DEPTH_SHIFTS
-        for level in DEPTH_LEVELS
-    ]
-
-
-def research_report_inputs():
-    """What the report reads of Tables 4 and 5 (only the enabled ones)."""
-    inputs = {}
-    if RESEARCH_RULES["enabled"]:
-        inputs |= {
-            "table4": result("tables/table4.md"),
-            "table4_summary": result("tables/table4_summary.md"),
-        }
-    if RESEARCH_DEPTH["enabled"]:
-        inputs |= {
-            "table5": result("tables/table5.md"),
-            "table5_summary": result("tables/table5_summary.md"),
-        }
-    return inputs
-
-
-def research_outputs():
-    """Tables 4 and 5 with their figures and every rendered research notebook (only the enabled parts)."""
-    outputs = []
-    if RESEARCH_RULES["enabled"]:
-        outputs += list(rules.table4.output)
-        outputs += [
-            html(f"research_rules_{name}_level{level}")
-            for name in RULE_NAMES
-            for level in config["noise"]["levels"]
-        ]
-    if RESEARCH_DEPTH["enabled"]:
-        outputs += list(rules.table5.output)
-        outputs += [
-            html(f"research_depth_c{label}_level{level}")
-            for label in DEPTH_SHIFTS
-            for level in DEPTH_LEVELS
-        ]
-    return outputs

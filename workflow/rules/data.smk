@@ -36,7 +36,6 @@ use rule notebook_stage as data with:
         runtime=20,
     params:
         **annotation_params(),
-        source_kind=config["data"]["source"],
 
 
 use rule notebook_stage as sample with:
@@ -74,7 +73,6 @@ use rule notebook_stage as sky with:
         runtime=30,
     params:
         **annotation_params(),
-        source_kind=config["data"]["source"],
         shift=config["sky"]["shift"],
 
 

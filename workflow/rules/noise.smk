@@ -21,10 +21,6 @@ use rule notebook_stage as noise with:
     resources:
         runtime=15,
     params:
+        **training(seed=config["noise"]["seed"]),
         level=lambda wildcards: int(wildcards.level),
         run_indices=chunk_runs,
-        s=config["train"]["s"],
-        batch_size=config["train"]["batch_size"],
-        lr_decay=config["train"]["lr_decay"],
-        seed=config["noise"]["seed"],
-        shift=config["sky"]["shift"],

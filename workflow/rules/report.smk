@@ -8,15 +8,11 @@ use rule notebook_stage as tables with:
         grid=result("tuning/grid.csv"),
         best=BEST_FILE,
         stats=result("sky/stats.json"),
-        chunks=noise_files(),
+        chunks=each("noise", "chunk_file"),
     output:
+        **table_files("table1"),
+        **table_files("table2"),
         distances=result("noise/distances.csv"),
-        table1_csv=table("table1", "table1"),
-        table1_md=result("tables/table1.md"),
-        table1_tex=result("tables/table1.tex"),
-        table2_csv=table("table2", "table2"),
-        table2_md=result("tables/table2.md"),
-        table2_tex=result("tables/table2.tex"),
         html=html("tables"),
     log:
         **notebook_log("tables"),
@@ -59,8 +55,7 @@ use rule notebook_stage as figures with:
 use rule notebook_stage as report with:
     """Compare every number with the paper and explain each gap."""
     input:
-        **table3_report_inputs(),
-        **research_report_inputs(),
+        **extra_tables_read_by_report(),
         source=notebook("report"),
         table1=result("tables/table1.csv"),
         table2=result("tables/table2.csv"),
@@ -70,11 +65,7 @@ use rule notebook_stage as report with:
         sky=SKY_FILE,
         split=SPLIT_FILE,
     output:
-        report=report(
-            result("report/reproduction.md"),
-            caption="../report/reproduction.rst",
-            category="Report",
-        ),
+        report=report(result("report/reproduction.md"), caption="../report/reproduction.rst", category="Report"),
         html=html("report"),
     log:
         **notebook_log("report"),

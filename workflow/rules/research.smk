@@ -18,20 +18,14 @@ use rule notebook_stage as rule_runs with:
         **notebook_log("research_rules_{flow}_level{level}"),
     benchmark:
         benchmark_file("research_rules_{flow}_level{level}")
-    wildcard_constraints:
-        flow=RULE_PATTERN,
     resources:
         runtime=20,
     params:
+        **training(seed=config["noise"]["seed"]),
         part="rules",
         flow=lambda wildcards: wildcards.flow,
         level=lambda wildcards: int(wildcards.level),
         run_indices=RULE_RUNS,
-        s=config["train"]["s"],
-        batch_size=config["train"]["batch_size"],
-        lr_decay=config["train"]["lr_decay"],
-        seed=config["noise"]["seed"],
-        shift=config["sky"]["shift"],
 
 
 use rule notebook_stage as depth_runs with:
@@ -48,35 +42,27 @@ use rule notebook_stage as depth_runs with:
         **notebook_log("research_depth_c{c}_level{level}"),
     benchmark:
         benchmark_file("research_depth_c{c}_level{level}")
-    wildcard_constraints:
-        c=DEPTH_PATTERN,
     resources:
         runtime=30,
     params:
+        **training(seed=config["noise"]["seed"]),
         part="depth",
         flow=RESEARCH_DEPTH.get("flow", "paper"),
         depth_lr_scale=RESEARCH_DEPTH.get("lr_scale", 20),
         c=depth_shift,
         level=lambda wildcards: int(wildcards.level),
         run_indices=DEPTH_RUNS,
-        s=config["train"]["s"],
-        batch_size=config["train"]["batch_size"],
-        lr_decay=config["train"]["lr_decay"],
-        seed=config["noise"]["seed"],
-        shift=config["sky"]["shift"],
 
 
 use rule notebook_stage as table4 with:
     """Table 4: Table 2 per rule beside the paper's rule on the same draws, the paper and the issue's bar."""
     input:
         source=notebook("research"),
-        rule_files=rule_files(),
+        rule_files=each("rule_runs", "runs_file"),
         table2_distances=result("noise/distances.csv"),
-        baseline_run_files=baseline_run_files(),
+        baseline_run_files=each("baseline_runs", "runs_file"),
     output:
-        table4_csv=table("table4", "table4"),
-        table4_md=result("tables/table4.md"),
-        table4_tex=result("tables/table4.tex"),
+        **table_files("table4"),
         table4_summary=result("tables/table4_summary.md"),
         figure=figure("research_rules", "research_rules"),
         html=html("table4"),
@@ -95,11 +81,9 @@ use rule notebook_stage as table5 with:
     """Table 5: the depth runs' mean errors of a, b, c and distances per c* and noise level."""
     input:
         source=notebook("research"),
-        depth_files=depth_files(),
+        depth_files=each("depth_runs", "runs_file"),
     output:
-        table5_csv=table("table5", "table5"),
-        table5_md=result("tables/table5.md"),
-        table5_tex=result("tables/table5.tex"),
+        **table_files("table5"),
         table5_summary=result("tables/table5_summary.md"),
         figure=figure("research_depth", "research_depth"),
         html=html("table5"),

@@ -16,21 +16,17 @@ use rule notebook_stage as tune with:
     benchmark:
         benchmark_file("tune_{n_epoch}_{lr}")
     params:
+        **training(seed=config["train"]["seed"]),
         n_epoch=tuning_value("n_epoch"),
         lr=tuning_value("lr"),
-        s=config["train"]["s"],
-        batch_size=config["train"]["batch_size"],
-        lr_decay=config["train"]["lr_decay"],
-        seed=config["train"]["seed"],
-        shift=config["sky"]["shift"],
 
 
 use rule notebook_stage as best with:
     """Collect the grid (Table 1) and pick the cell with the lowest dev loss."""
     input:
         source=notebook("best"),
-        cells=tuning_files("cell"),
-        histories=tuning_files("history"),
+        cells=each("tune", "cell"),
+        histories=each("tune", "history"),
     output:
         grid=result("tuning/grid.csv"),
         best=BEST_FILE,
