@@ -75,12 +75,12 @@ def _library():
     if os.environ.get("SDM_NATIVE", "1").strip().lower() in ("0", "off", "false", "no"):
         return None
     compiler = os.environ.get("CC", "cc")
-    source = SOURCE.read_bytes()
-    key = hashlib.sha256(b"\0".join([source, compiler.encode(), " ".join(FLAGS).encode(),
-                                     platform.machine().encode(), sys.platform.encode()])).hexdigest()[:16]
-    folder = cache_dir()
-    target = folder / f"sdm_native_{key}.so"
     try:
+        source = SOURCE.read_bytes()  # OSError where an install left the source out
+        key = hashlib.sha256(b"\0".join([source, compiler.encode(), " ".join(FLAGS).encode(),
+                                         platform.machine().encode(), sys.platform.encode()])).hexdigest()[:16]
+        folder = cache_dir()  # RuntimeError where no home folder can be found
+        target = folder / f"sdm_native_{key}.so"
         if not target.is_file():
             folder.mkdir(parents=True, exist_ok=True)
             # Build beside the target and rename: concurrent processes (parallel workflow jobs)
@@ -96,7 +96,7 @@ def _library():
                 if os.path.exists(partial):
                     os.unlink(partial)
         library = ctypes.CDLL(str(target))
-    except (OSError, subprocess.SubprocessError) as error:
+    except (OSError, RuntimeError, subprocess.SubprocessError) as error:
         detail = getattr(error, "stderr", "") or error
         warnings.warn(f"sdm: the compiled CPU kernel is not available ({compiler}: {str(detail).strip()[:300]}); "
                       "the SDM layer runs its torch path (same results, slower). Set CC to a C compiler, "
