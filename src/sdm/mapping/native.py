@@ -27,12 +27,12 @@ import os
 import platform
 import subprocess
 import sys
-import tempfile
 import warnings
 from pathlib import Path
 
 import torch
 
+from ..io import write_atomic
 from ..representation import NO_RANK
 
 SOURCE = Path(__file__).with_name("_native.c")
@@ -82,19 +82,11 @@ def _library():
         folder = cache_dir()  # RuntimeError where no home folder can be found
         target = folder / f"sdm_native_{key}.so"
         if not target.is_file():
-            folder.mkdir(parents=True, exist_ok=True)
-            # Build beside the target and rename: concurrent processes (parallel workflow jobs)
-            # each build their own file, and the rename is atomic.
-            handle, partial = tempfile.mkstemp(prefix=f".{target.name}.", dir=folder)
-            os.close(handle)
-            try:
-                subprocess.run([compiler, *FLAGS, "-o", partial, str(SOURCE)], check=True, capture_output=True,
-                               text=True, timeout=120)
-                os.chmod(partial, 0o755)
-                os.replace(partial, target)
-            finally:
-                if os.path.exists(partial):
-                    os.unlink(partial)
+            # Built beside the target and renamed into place (sdm.io.write_atomic): concurrent processes
+            # (parallel workflow jobs) each build their own file, and no half-written one is ever loaded.
+            write_atomic(target, lambda partial: subprocess.run(
+                [compiler, *FLAGS, "-o", str(partial), str(SOURCE)], check=True, capture_output=True, text=True,
+                timeout=120))
         library = ctypes.CDLL(str(target))
     except (OSError, RuntimeError, subprocess.SubprocessError) as error:
         detail = getattr(error, "stderr", "") or error
