@@ -16,8 +16,7 @@ import pandas as pd
 from ..errors import SDMInputError
 from ..sky import SKY_SHIFT
 from .. import paper
-from .io import write_csv, write_text
-from .tables import TableFormat, to_latex, to_markdown
+from .tables import TableFormat, in_millimetres, write_table
 
 #: The per-run columns Table 3 needs (``sdm.baselines.RUN_COLUMNS`` has these and more).
 RUN_COLUMNS = ("method", "level", "run", "a", "b", "distance", "seconds")
@@ -175,23 +174,12 @@ TABLE3_FORMAT = TableFormat(
 
 def table3_display(frame: pd.DataFrame) -> pd.DataFrame:
     """Table 3 for Markdown / LaTeX: distances in 1e-3 m under short names (``mean``, ``paper_mean``, ...)."""
-    shown = frame.copy()
-    for stat in _DISTANCES:
-        shown[stat] = 1000.0 * frame[f"{stat}_m"]
-        if f"paper_{stat}_m" in frame:
-            shown[f"paper_{stat}"] = 1000.0 * frame[f"paper_{stat}_m"]
-    return shown
+    return in_millimetres(frame, [*_DISTANCES, *(f"paper_{stat}" for stat in _DISTANCES)])
 
 
 def write_table3(frame: pd.DataFrame, stem: str | Path) -> list[Path]:
     """``stem.csv`` (metres, full precision), ``stem.md`` and ``stem.tex`` (1e-3 m), each atomically."""
-    stem = Path(stem)
-    shown = table3_display(frame)
-    return [
-        write_csv(stem.with_suffix(".csv"), frame),
-        write_text(stem.with_suffix(".md"), to_markdown(shown, TABLE3_FORMAT)),
-        write_text(stem.with_suffix(".tex"), to_latex(shown, TABLE3_FORMAT)),
-    ]
+    return write_table(frame, stem, TABLE3_FORMAT, table3_display(frame))
 
 
 def tuning_frame(tunings: Sequence[pd.DataFrame]) -> pd.DataFrame:

@@ -20,8 +20,7 @@ import pandas as pd
 
 from ..errors import SDMInputError
 from .. import paper
-from .io import write_csv, write_text
-from .tables import TableFormat, to_latex, to_markdown
+from .tables import TableFormat, in_millimetres, write_table
 
 #: The issue's bar for the noise-free depth runs (metres): mean |a - a*|, |b - b*| and |c - c*|.
 DEPTH_BAR_M = {"a": 2e-3, "b": 2e-3, "c": 2e-2}
@@ -123,7 +122,7 @@ TABLE4_FORMAT = TableFormat(
 
 def table4_display(frame: pd.DataFrame) -> pd.DataFrame:
     """Table 4 for Markdown / LaTeX: distances in 1e-3 m under the short names of :data:`TABLE4_FORMAT`."""
-    return _in_millimetres(frame, _TABLE4_DISTANCES)
+    return in_millimetres(frame, _TABLE4_DISTANCES)
 
 
 def table4_summary(frame: pd.DataFrame) -> str:
@@ -241,7 +240,7 @@ TABLE5_FORMAT = TableFormat(
 
 def table5_display(frame: pd.DataFrame) -> pd.DataFrame:
     """Table 5 for Markdown / LaTeX: errors in 1e-3 m under the short names of :data:`TABLE5_FORMAT`."""
-    return _in_millimetres(frame, _TABLE5_DISTANCES)
+    return in_millimetres(frame, _TABLE5_DISTANCES)
 
 
 def table5_summary(frame: pd.DataFrame) -> str:
@@ -295,12 +294,7 @@ def write_research_table(frame: pd.DataFrame, stem: str | Path, which: int) -> l
     if which not in (4, 5):
         raise SDMInputError(f"which must be 4 or 5 (the table), got {which!r}")
     shown, style = (table4_display(frame), TABLE4_FORMAT) if which == 4 else (table5_display(frame), TABLE5_FORMAT)
-    stem = Path(stem)
-    return [
-        write_csv(stem.with_suffix(".csv"), frame),
-        write_text(stem.with_suffix(".md"), to_markdown(shown, style)),
-        write_text(stem.with_suffix(".tex"), to_latex(shown, style)),
-    ]
+    return write_table(frame, stem, style, shown)
 
 
 def rules_figure(frame: pd.DataFrame):
@@ -363,9 +357,3 @@ def depth_figure(frame: pd.DataFrame):
     return fig
 
 
-def _in_millimetres(frame: pd.DataFrame, names: Sequence[str]) -> pd.DataFrame:
-    shown = frame.copy()
-    for name in names:
-        if f"{name}_m" in frame:
-            shown[name] = 1e3 * frame[f"{name}_m"]
-    return shown

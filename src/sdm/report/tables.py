@@ -222,14 +222,30 @@ def to_latex(frame: pd.DataFrame, style: TableFormat) -> str:
     return "\n".join(line for line in lines if line) + "\n"
 
 
-def write_table(frame: pd.DataFrame, stem: str | Path, style: TableFormat) -> list[Path]:
-    """Write ``stem.csv`` (full precision), ``stem.md`` and ``stem.tex``, each atomically."""
+def write_table(frame: pd.DataFrame, stem: str | Path, style: TableFormat,
+                shown: pd.DataFrame | None = None) -> list[Path]:
+    """Write ``stem.csv`` (``frame``, full precision), ``stem.md`` and ``stem.tex``, each atomically.
+
+    ``shown`` is what the Markdown and LaTeX render (default ``frame`` itself), e.g. ``frame``
+    with its metres in 1e-3 m (:func:`in_millimetres`) while the CSV keeps metres.
+    """
     stem = Path(stem)
+    shown = frame if shown is None else shown
     return [
         write_csv(stem.with_suffix(".csv"), frame),
-        write_text(stem.with_suffix(".md"), to_markdown(frame, style)),
-        write_text(stem.with_suffix(".tex"), to_latex(frame, style)),
+        write_text(stem.with_suffix(".md"), to_markdown(shown, style)),
+        write_text(stem.with_suffix(".tex"), to_latex(shown, style)),
     ]
+
+
+def in_millimetres(frame: pd.DataFrame, names: Sequence[str]) -> pd.DataFrame:
+    """A copy of ``frame`` with column ``name`` = 1e3 x ``name_m`` (metres to 1e-3 m) for each of ``names``
+    whose ``name_m`` column is present."""
+    shown = frame.copy()
+    for name in names:
+        if f"{name}_m" in frame:
+            shown[name] = 1e3 * frame[f"{name}_m"]
+    return shown
 
 
 def _rows(frame: pd.DataFrame, columns: Sequence[str]):
