@@ -23,7 +23,7 @@ import torch
 from ..camera import Camera
 from ..representation import NO_RANK, inside
 from . import native as native_kernel
-from .flow import dynamic_flow
+from .flow import dynamic_flow, pull_loss
 from .result import MappingResult
 
 
@@ -104,9 +104,7 @@ def fast_mapping(
         if flow_rule is dynamic_flow and screen.dtype == torch.float64:
             flow, matched, pulled, window_l1 = native_kernel.paper_flow(screen, config, landed, block, landing,
                                                                         target, zoom)
-            # The loss in metres as dynamic_flow forms it: the same (p, 2) products, summed by torch.
-            metres_per_pixel = torch.stack(camera.metres_per_screen_pixel(points[:, 2].index_select(0, pulled)), -1)
-            loss = (window_l1 * metres_per_pixel).sum()
+            loss = pull_loss(window_l1, points[:, 2].index_select(0, pulled), camera)
         else:
             flow, loss, matched = flow_rule(screen, points[:, 2], config, landed, block, landing, target, zoom,
                                             camera)

@@ -95,9 +95,24 @@ def dynamic_flow(
     sign = torch.sign(offset)  # (p, 2, 3)
     pull = torch.stack((_dot3(sign[:, 0], per_row), _dot3(sign[:, 1], per_col)), dim=-1)  # (p, 2) (row, col)
     flow.index_copy_(0, pulled, pull.flip(-1))  # (row, col) -> (x, y)
-    metres_per_pixel = torch.stack(camera.metres_per_screen_pixel(depth), dim=-1)  # (p, 2) (row, col)
-    loss = (_window_l1(offset.abs(), grid) * metres_per_pixel).sum()
+    loss = pull_loss(_window_l1(offset.abs(), grid), depth, camera)
     return flow, loss, matched
+
+
+def pull_loss(window_l1: torch.Tensor, depth: torch.Tensor, camera: Camera) -> torch.Tensor:
+    """``()`` the loss ``J`` in metres from the pulled points' summed window distances.
+
+    Args:
+        window_l1: ``(p, 2)`` per pulled point and axis ``(row, col)``, the summed ``|p - T_q|``
+            over the blocks pulling it, screen pixels.
+        depth: ``(p,)`` depth of each pulled point, metres.
+        camera: metres per screen pixel at that depth.
+
+    The one place the loss is formed: the paper's rule on the torch path and in the compiled
+    kernel (:mod:`~sdm.mapping.native`), so both give the same float, and the other rules.
+    """
+    metres_per_pixel = torch.stack(camera.metres_per_screen_pixel(depth), dim=-1)  # (p, 2) (row, col)
+    return (window_l1 * metres_per_pixel).sum()
 
 
 def _on_axis(index: torch.Tensor, size: int) -> torch.Tensor:

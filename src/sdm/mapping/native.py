@@ -14,8 +14,10 @@ default ``cc``) into a cache folder (``$SDM_CACHE_DIR``, default
 ``$XDG_CACHE_HOME/sdm`` or ``~/.cache/sdm``) and loaded with :mod:`ctypes`; no
 torch headers are involved, so it takes well under a second. Where no compiler
 is found, or ``SDM_NATIVE=0`` is set, the layer runs its torch path (the same
-results, slower) after one warning. It serves only contiguous CPU tensors and
-float64 projections; everything else (CUDA, float32) takes the torch path.
+results, slower) after one warning. It serves CPU tensors (non-contiguous ones
+are copied); CUDA tensors take the torch path. The chain runs in the kernel for
+any gradient rule and point dtype; the flow only for the paper's rule on float64
+points (other rules and float32 points get torch's flow).
 """
 from __future__ import annotations
 

@@ -33,7 +33,7 @@ import torch.nn.functional as F
 
 from ..camera import Camera
 from ..errors import SDMInputError
-from .flow import dynamic_flow, window_offsets
+from .flow import dynamic_flow, pull_loss, window_offsets
 
 FlowRule = Callable[..., tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
 
@@ -106,8 +106,7 @@ def _sign_flow(screen, depth, pulled, offset, weight, camera):
     flow = torch.zeros_like(screen)
     pull = (weight[..., None] * torch.sign(offset)).sum(1)  # (p, 2) (row, col)
     flow.index_copy_(0, pulled, pull.flip(-1))  # (row, col) -> (x, y)
-    metres_per_pixel = torch.stack(camera.metres_per_screen_pixel(depth.index_select(0, pulled)), dim=-1)
-    loss = ((weight[..., None] * offset.abs()).sum(1) * metres_per_pixel).sum()
+    loss = pull_loss((weight[..., None] * offset.abs()).sum(1), depth.index_select(0, pulled), camera)
     return flow, loss
 
 
