@@ -110,3 +110,56 @@ def test_progress_bars_do_not_warn_in_a_notebook(plotting_run):
     _, executed, _ = plotting_run
     text = executed.read_text()
     assert "TqdmWarning" not in text and "IProgress" not in text
+
+
+# -- kernel start-up failures ------------------------------------------------------------------------------
+
+
+def _runner_module():
+    sys.path.insert(0, str(RUNNER.parent))
+    try:
+        import run_notebook
+    finally:
+        sys.path.remove(str(RUNNER.parent))
+    return run_notebook
+
+
+class FlakyStart:
+    """An execute_notebook stand-in whose first ``failures`` calls fail as a kernel that lost a port race."""
+
+    def __init__(self, failures: int, error: Exception = RuntimeError("Kernel died before replying to kernel_info")):
+        self.failures, self.error, self.calls = failures, error, []
+
+    def __call__(self, *args, **kwargs):
+        self.calls.append((args, kwargs))
+        if len(self.calls) <= self.failures:
+            raise self.error
+        return "executed"
+
+
+def test_a_kernel_that_fails_to_start_is_started_again(capsys):
+    runner = _runner_module()
+    execute = FlakyStart(failures=runner.KERNEL_STARTS - 1)
+    assert runner.execute_with_kernel_restarts(execute, "notebook", parameters={"a": 1}) == "executed"
+    assert len(execute.calls) == runner.KERNEL_STARTS
+    assert all(call == (("notebook",), {"parameters": {"a": 1}}) for call in execute.calls)
+    assert capsys.readouterr().err.count("the kernel failed to start") == runner.KERNEL_STARTS - 1
+
+
+def test_kernel_start_failures_give_up_after_kernel_starts():
+    runner = _runner_module()
+    execute = FlakyStart(failures=runner.KERNEL_STARTS)
+    with pytest.raises(RuntimeError, match="Kernel died before replying to kernel_info"):
+        runner.execute_with_kernel_restarts(execute, "notebook")
+    assert len(execute.calls) == runner.KERNEL_STARTS
+
+
+@pytest.mark.parametrize("error", [RuntimeError("Kernel died"), ValueError("Kernel died before replying to kernel_info")])
+def test_other_errors_are_not_retried(error):
+    """A kernel that died while running cells (nbclient's DeadKernelError says "Kernel died"), or any error
+    that is not a start-up failure, may have run cells already: it is raised at once."""
+    runner = _runner_module()
+    execute = FlakyStart(failures=1, error=error)
+    with pytest.raises(type(error)):
+        runner.execute_with_kernel_restarts(execute, "notebook")
+    assert len(execute.calls) == 1

@@ -81,6 +81,48 @@ def test_rule_files_are_snakefmt_formatted():
     assert result.returncode == 0, result.stdout + result.stderr
 
 
+@pytest.mark.parametrize("call, message", [
+    ('notebook_stage("extra", "A stage.", jobs=[{"level": 0}], output=dict(table=result("extra.csv")))',
+     "stage extra: job {'level': 0} must name the wildcards []"),
+    ('notebook_stage("extra", "A stage.", output=dict(html=result("extra.html")))',
+     "stage extra: 'source' and 'html' are the notebook and its rendering"),
+])
+def test_a_misdeclared_stage_is_refused_when_the_workflow_is_parsed(tmp_path, call, message):
+    """notebook_stage checks each job's wildcards against its files' and keeps `source`/`html` its own."""
+    shutil.copytree(ROOT / "workflow", tmp_path / "workflow")
+    shutil.copy(ROOT / "Snakefile", tmp_path)
+    shutil.copy(ROOT / "config.yaml", tmp_path)
+    with (tmp_path / "workflow" / "rules" / "report.smk").open("a") as rules_file:
+        rules_file.write(f"\n{call}\n")
+    result = subprocess.run([sys.executable, "-m", "snakemake", "-n", "--quiet", "rules"], cwd=tmp_path,
+                            capture_output=True, text=True, timeout=300)
+    assert result.returncode != 0
+    assert message in result.stdout + result.stderr
+
+
+def test_dag_jobs_finds_a_changed_param_and_nothing_else(tmp_path):
+    """workflow/scripts/dag_jobs.py (the same-DAG check for refactoring the rule files) dumps every job and
+    tells an identical plan from one where a single config value reaches the jobs that read it."""
+    tool = [sys.executable, str(ROOT / "workflow" / "scripts" / "dag_jobs.py")]
+    config = default_config()
+    for name, seed in (("before", 0), ("again", 0), ("changed", 1)):
+        config["split"]["seed"] = seed
+        workdir(tmp_path, config)
+        dumped = subprocess.run([*tool, "dump", f"{name}.jsonl", "--snakefile", str(ROOT / "Snakefile")],
+                                cwd=tmp_path, capture_output=True, text=True, timeout=300)
+        assert dumped.returncode == 0, dumped.stdout + dumped.stderr
+    jobs = (tmp_path / "before.jsonl").read_text().splitlines()
+    assert len(jobs) == sum(planned(snakemake("-n", "--quiet", "rules", cwd=tmp_path)).values()) + 1  # + all
+    same = subprocess.run([*tool, "compare", "before.jsonl", "again.jsonl"], cwd=tmp_path, capture_output=True,
+                          text=True)
+    assert same.returncode == 0 and same.stdout.strip() == f"SAME {len(jobs)} jobs"
+    changed = subprocess.run([*tool, "compare", "before.jsonl", "changed.jsonl"], cwd=tmp_path,
+                             capture_output=True, text=True)
+    assert changed.returncode == 1 and changed.stdout.splitlines()[-1] == "DIFFERENT"
+    differing = {line.split()[0] for line in changed.stdout.splitlines() if line and not line.startswith(" ")}
+    assert differing == {"split", "DIFFERENT"}, changed.stdout
+
+
 def test_dry_run_works_with_torch_and_sdm_unimportable(tmp_path):
     """A login node without torch can plan a run: the Snakefile and rules import neither torch nor sdm."""
     probe = ("import sys\n"

@@ -1,6 +1,6 @@
-# Shared helpers: paths derived from the config, the annotation manifest, and the jobs of each stage
-# (the tuning grid, the noise chunks, Table 3's methods, Tables 4-5's rules and c*); the notebook-stage
-# template is in stage.smk.
+# Shared helpers: paths derived from the config, the annotation manifest, and what the stages' jobs range
+# over (the tuning grid, the noise chunks, Table 3's methods, Tables 4-5's rules and c*); the rule every
+# stage is made with is notebook_stage, in stage.smk.
 # Nothing here imports torch or sdm: parsing the workflow stays fast and works without them.
 import hashlib
 import json
@@ -30,21 +30,6 @@ def result(path):
     return f"{RESULTS}/{path}"
 
 
-def notebook(stage):
-    """The jupytext source of a stage."""
-    return str(NOTEBOOKS / f"{stage}.py")
-
-
-def notebook_log(name):
-    """A stage's logs: the executed notebook (kept when the stage fails) and the tools' messages."""
-    return {"notebook": result(f"notebooks/{name}.ipynb"), "stderr": f"{LOGS}/{name}.log"}
-
-
-def html(name):
-    """The HTML rendering of a stage's executed notebook."""
-    return result(f"notebooks/{name}.html")
-
-
 def figure(name, caption):
     """A figure under results/figures/, flagged for `snakemake --report` with its caption."""
     return report(result(f"figures/{name}.png"), caption=f"../report/{caption}.rst", category="Figures")
@@ -58,11 +43,6 @@ def table_files(name):
         f"{name}_md": result(f"tables/{name}.md"),
         f"{name}_tex": result(f"tables/{name}.tex"),
     }
-
-
-def benchmark_file(name):
-    """Wall time and memory of a job (Snakemake's benchmark TSV)."""
-    return f"{BENCHMARKS}/{name}.tsv"
 
 
 # -- the annotations -----------------------------------------------------------------------------------
@@ -176,24 +156,9 @@ DEPTH_LEVELS = [int(level) for level in RESEARCH_DEPTH.get("levels", [])]
 DEPTH_RUNS = list(range(int(RESEARCH_DEPTH.get("runs", 1))))
 
 
-# Every stage's jobs, as their wildcards, in the order the gathering stages read their files: a stage
-# without wildcards has the one job {}, a stage switched off none. `all` asks for each job's rendered
-# notebook (and for the tables, figures and report).
-JOBS = {
-    "synthetic": [{}] if config["data"]["source"] == "synthetic" else [],
-    **{stage: [{}] for stage in ("data", "sample", "sky", "split")},
-    "tune": [{"n_epoch": n_epoch, "lr": lr} for n_epoch, lr in TUNING_CELLS],
-    "best": [{}],
-    "noise": [{"level": level, "chunk": chunk} for level in LEVELS for chunk in range(-(-N_RUNS // CHUNK_SIZE))],
-    **{stage: [{}] for stage in ("tables", "figures", "report")},
-    "baseline_tune": [{"method": method} for method in BASELINES],
-    "baseline_runs": [{"method": method, "level": level} for method in BASELINES for level in LEVELS],
-    "table3": [{}] if config["baselines"]["enabled"] else [],
-    "rule_runs": [{"flow": name, "level": level} for name in RULE_NAMES for level in LEVELS],
-    "table4": [{}] if RESEARCH_RULES["enabled"] else [],
-    "depth_runs": [{"c": label, "level": level} for label in DEPTH_SHIFTS for level in DEPTH_LEVELS],
-    "table5": [{}] if RESEARCH_DEPTH["enabled"] else [],
-}
+# Every stage's jobs, as their wildcards (filled in by notebook_stage, in include order): a stage without
+# wildcards has the one job {}, a stage switched off none.
+JOBS = {}
 
 
 def each(stage, output):
@@ -213,9 +178,9 @@ def tuning_value(key):
     return lambda wildcards: TUNING_CELLS[(wildcards.n_epoch, wildcards.lr)][key]
 
 
-def depth_shift(wildcards):
-    """A params function: the c* of a depth job, looked up from its label (never parsed back)."""
-    return DEPTH_SHIFTS[wildcards.c]
+def wildcard(name, convert=str):
+    """A params function: the job's wildcard `name`, converted (a value the file name carries itself)."""
+    return lambda wildcards: convert(wildcards[name])
 
 
 def chunk_runs(wildcards):

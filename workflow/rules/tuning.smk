@@ -1,38 +1,18 @@
 # Table 1: one training run per (n_epoch, lr) cell, scored by the dev loss; then the best cell.
 
+notebook_stage(
+    "tune",
+    "Train on the train set with one cell of the grid; score it on the dev set.",
+    jobs=[{"n_epoch": n_epoch, "lr": lr} for n_epoch, lr in TUNING_CELLS],
+    job="tune_{n_epoch}_{lr}",
+    input=dict(sky=SKY_FILE, split=SPLIT_FILE),
+    output=dict(cell=result("tuning/cell_{n_epoch}_{lr}.json"), history=result("tuning/history_{n_epoch}_{lr}.csv")),
+    params=dict(**training(seed=config["train"]["seed"]), n_epoch=tuning_value("n_epoch"), lr=tuning_value("lr")),
+)
 
-use rule notebook_stage as tune with:
-    """Train on the train set with one cell of the grid; score it on the dev set."""
-    input:
-        source=notebook("tune"),
-        sky=SKY_FILE,
-        split=SPLIT_FILE,
-    output:
-        cell=result("tuning/cell_{n_epoch}_{lr}.json"),
-        history=result("tuning/history_{n_epoch}_{lr}.csv"),
-        html=html("tune_{n_epoch}_{lr}"),
-    log:
-        **notebook_log("tune_{n_epoch}_{lr}"),
-    benchmark:
-        benchmark_file("tune_{n_epoch}_{lr}")
-    params:
-        **training(seed=config["train"]["seed"]),
-        n_epoch=tuning_value("n_epoch"),
-        lr=tuning_value("lr"),
-
-
-use rule notebook_stage as best with:
-    """Collect the grid (Table 1) and pick the cell with the lowest dev loss."""
-    input:
-        source=notebook("best"),
-        cells=each("tune", "cell"),
-        histories=each("tune", "history"),
-    output:
-        grid=result("tuning/grid.csv"),
-        best=BEST_FILE,
-        best_history=result("tuning/best_history.csv"),
-        html=html("best"),
-    log:
-        **notebook_log("best"),
-    benchmark:
-        benchmark_file("best")
+notebook_stage(
+    "best",
+    "Collect the grid (Table 1) and pick the cell with the lowest dev loss.",
+    input=dict(cells=each("tune", "cell"), histories=each("tune", "history")),
+    output=dict(grid=result("tuning/grid.csv"), best=BEST_FILE, best_history=result("tuning/best_history.csv")),
+)

@@ -49,6 +49,27 @@ def _load_writer():
     return module
 
 
+#: How often a kernel that dies or stays silent while starting is started again. Jupyter picks the
+#: kernel's ports before the kernel binds them, so kernels started at the same moment by parallel jobs
+#: can race for a port (jupyter/jupyter_client#154): a lost race is a start-up failure, before any cell
+#: ran, and starting afresh is safe.
+KERNEL_STARTS = 3
+KERNEL_START_FAILURES = ("Kernel died before replying to kernel_info", "Kernel didn't respond in")
+
+
+def execute_with_kernel_restarts(execute, *args, **kwargs):
+    """``execute(*args, **kwargs)`` (papermill's ``execute_notebook``), started again after a kernel start-up
+    failure, at most KERNEL_STARTS times in all; any other error, or the last start-up failure, is raised."""
+    for attempt in range(1, KERNEL_STARTS + 1):
+        try:
+            return execute(*args, **kwargs)
+        except RuntimeError as error:
+            started = not any(message in str(error) for message in KERNEL_START_FAILURES)
+            if started or attempt == KERNEL_STARTS:
+                raise
+            print(f"the kernel failed to start ({error}); starting it again", file=sys.stderr, flush=True)
+
+
 @contextlib.contextmanager
 def captured_output():
     """Collect everything written to this process's stdout and stderr (file descriptors 1 and 2, so the
@@ -122,7 +143,8 @@ def main(source: str, executed: str, html: str, parameters: str | dict, stderr_l
             notebook = jupytext.read(source)
             notebook.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
             Path(executed).parent.mkdir(parents=True, exist_ok=True)
-            result = papermill.execute_notebook(
+            result = execute_with_kernel_restarts(
+                papermill.execute_notebook,
                 notebook,
                 executed,
                 parameters=parameters,

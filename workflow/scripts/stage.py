@@ -1,4 +1,4 @@
-"""One workflow stage, run by Snakemake's ``script:`` directive (the ``notebook_stage`` rule template).
+"""One workflow stage, run by Snakemake's ``script:`` directive (the rule ``notebook_stage`` makes).
 
 The notebook's papermill parameters are the rule's named inputs (but ``source``,
 the notebook itself, and ``tracked``, a file the stage depends on without reading
