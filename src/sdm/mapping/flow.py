@@ -18,7 +18,22 @@ from ..camera import Camera
 WINDOW_OFFSETS: tuple[tuple[int, int], ...] = tuple((dk, dl) for dk in (-1, 0, 1) for dl in (-1, 0, 1))
 
 
-@functools.lru_cache(maxsize=16)
+def _constant(build):
+    """``build(*args)`` (a small constant tensor for a device, dtype, ...), cached per arguments.
+
+    Under ``torch.compile`` it is built afresh instead: Dynamo traces through an ``lru_cache`` (and warns
+    that it does), and a constant built inside the graph is folded into it anyway.
+    """
+    cached = functools.lru_cache(maxsize=64)(build)
+
+    @functools.wraps(build)
+    def constant(*args):
+        return build(*args) if torch.compiler.is_compiling() else cached(*args)
+
+    return constant
+
+
+@_constant
 def window_offsets(device: torch.device) -> torch.Tensor:
     """``(9, 2)`` int64 :data:`WINDOW_OFFSETS` on ``device`` (built once per device)."""
     return torch.tensor(WINDOW_OFFSETS, dtype=torch.int64, device=device)
@@ -144,19 +159,19 @@ def _dot3(values: torch.Tensor, counts: torch.Tensor) -> torch.Tensor:
     return values[:, 0] * counts[:, 0] + values[:, 1] * counts[:, 1] + values[:, 2] * counts[:, 2]
 
 
-@functools.lru_cache(maxsize=16)
+@_constant
 def _axis_shifts(device: torch.device, dtype: torch.dtype) -> torch.Tensor:
     """``(3,)`` ``-1, 0, 1`` in ``dtype`` on ``device``."""
     return torch.tensor([-1, 0, 1], dtype=dtype, device=device)
 
 
-@functools.lru_cache(maxsize=64)
+@_constant
 def _window_deltas(grid_width: int, device: torch.device) -> torch.Tensor:
     """``(9,)`` int64 flat-cell offset ``dk * grid_width + dl`` of each window block."""
     return torch.tensor([dk * grid_width + dl for dk, dl in WINDOW_OFFSETS], dtype=torch.int64, device=device)
 
 
-@functools.lru_cache(maxsize=16)
+@_constant
 def _window_index(device: torch.device) -> torch.Tensor:
     """``(9,)`` int64 ``0..8``."""
     return torch.arange(9, dtype=torch.int64, device=device)

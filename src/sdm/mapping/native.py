@@ -105,13 +105,30 @@ def _library():
     return library
 
 
-@torch.compiler.disable  # a ctypes call: Dynamo runs it as is (one graph break)
+def _eager_under_compile(function):
+    """``function``, run eagerly by Dynamo when a graph is being traced (a ``ctypes`` call cannot be traced).
+
+    The same as decorating it with ``torch.compiler.disable`` (one graph break per call, the kernel runs
+    inside the compiled program), but applied only while tracing: the decorator imports Dynamo, about
+    1.2 s, and ``sdm`` is imported by every workflow job and test process, few of which compile.
+    """
+
+    @functools.wraps(function)
+    def call(*args):
+        if torch.compiler.is_compiling():
+            return torch.compiler.disable(function)(*args)
+        return function(*args)
+
+    return call
+
+
+@_eager_under_compile
 def serves(*tensors: torch.Tensor) -> bool:
     """Whether the kernel can take these tensors: all on the CPU, and the kernel available."""
     return all(t.device.type == "cpu" for t in tensors) and enabled()
 
 
-@torch.compiler.disable  # a ctypes call: Dynamo runs it as is (one graph break)
+@_eager_under_compile
 def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, rank: torch.Tensor,
           scratch: torch.Tensor, height: int, width: int, steps: int, zoom: int):
     """Levels ``steps..zoom`` of the zoom chain (the level loop of :func:`~sdm.mapping.fast.fast_mapping`).
@@ -161,7 +178,7 @@ def _workspace(n_points: int, device: torch.device) -> tuple[torch.Tensor, torch
     return flat[: 2 * n_points].view(n_points, 2), flat[2 * n_points : 3 * n_points], flags[:n_points]
 
 
-@torch.compiler.disable  # a ctypes call: Dynamo runs it as is (one graph break)
+@_eager_under_compile
 def paper_flow(screen: torch.Tensor, config: torch.Tensor, landed: torch.Tensor, block: torch.Tensor,
                landing: torch.Tensor, target: torch.Tensor, zoom: int):
     """The paper's flow (:func:`~sdm.mapping.flow.dynamic_flow`) but the loss's metres.
