@@ -154,7 +154,8 @@ def test_kernel_start_failures_give_up_after_kernel_starts():
     assert len(execute.calls) == runner.KERNEL_STARTS
 
 
-@pytest.mark.parametrize("error", [RuntimeError("Kernel died"), ValueError("Kernel died before replying to kernel_info")])
+@pytest.mark.parametrize("error", [RuntimeError("Kernel died"),
+                                   ValueError("Kernel died before replying to kernel_info")])
 def test_other_errors_are_not_retried(error):
     """A kernel that died while running cells (nbclient's DeadKernelError says "Kernel died"), or any error
     that is not a start-up failure, may have run cells already: it is raised at once."""

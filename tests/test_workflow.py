@@ -682,7 +682,7 @@ def test_a_damaged_sky_file_is_refused_and_a_rebuilt_one_gives_the_same_tables(c
     causes = [line for line in output.splitlines() if " failed: " in line]
     assert causes and "sky.bin" in causes[0] and "SDMInputError" in causes[0], output[-3000:]
     sky.unlink()
-    result = snakemake("-c2", "tables", cwd=directory)  # up to Tables 1-2: the rest reads what they read
+    result = snakemake("-c2", "tables", cwd=directory)  # up to Tables 1-2, the tables this test compares
     assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
     for table in ["table1.csv", "table2.csv", "table2.md", "table1.tex"]:
         assert (directory / "results" / "tables" / table).read_bytes() == \

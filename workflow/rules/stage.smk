@@ -10,9 +10,9 @@
 def notebook_stage(name, doc, *, jobs=({},), notebook=None, job=None, input={}, output={}, params={}, runtime=10):
     """Add the stage `name`, described by `doc`, that runs notebooks/<notebook>.py (default: name), as its rule.
 
-    jobs: the rule's jobs as their wildcards, a dict each (the default, one job without wildcards, or none when
-        the stage is switched off); the target all asks for each job's rendered notebook, and `each(name, output)` lists a
-        named output's files in this order, for the stages that gather them.
+    jobs: the rule's jobs as their wildcards, a dict each (the default, one job without wildcards, or none
+        when the stage is switched off); the target all asks for each job's rendered notebook, and
+        `each(name, output)` lists a named output's files in this order, for the stages that gather them.
     job: the name of a job's rendered notebook, log and benchmark, with the rule's wildcards (default: name).
     input, output, params: the stage's own named inputs, outputs and params; runtime: minutes on a cluster.
     """

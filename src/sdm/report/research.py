@@ -355,5 +355,3 @@ def depth_figure(frame: pd.DataFrame):
     axes[0].legend(fontsize=7)
     fig.suptitle("Table 5: the shift (a, b, c) with depth", fontsize=11)
     return fig
-
-
