@@ -102,6 +102,9 @@ def _library():
     library.sdm_paper_flow.restype = _I64
     library.sdm_paper_flow.argtypes = [_I64, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _I64,
                                        _PTR, _PTR, _PTR, _PTR]
+    library.sdm_train.restype = _I64
+    library.sdm_train.argtypes = [_I64, _I64, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _PTR, _I64, _I64, _I64, _I64,
+                                  _PTR, _PTR, _PTR, _PTR, _I64, _PTR, _PTR, _PTR, _PTR]
     return library
 
 
@@ -204,3 +207,60 @@ def paper_flow(screen: torch.Tensor, config: torch.Tensor, landed: torch.Tensor,
                                          zoom, matched.data_ptr(), flow.data_ptr(), pulled.data_ptr(),
                                          window_l1.data_ptr())
     return flow, matched, pulled[:n_pulled], window_l1[:n_pulled]
+
+
+#: The gradient rules whose whole training run the kernel does (:func:`train_program`).
+TRAINED_RULES = ("paper", "closed_centred_r1")
+
+
+def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor, offsets: torch.Tensor,
+                  camera, steps: int, levels: list[int], n_epoch: int, batch_size: int, rates: list[float],
+                  centred: list[bool], orders: torch.Tensor, targets: list[list[torch.Tensor]],
+                  theta0: torch.Tensor):
+    """``R`` whole SGD runs in one call (``sdm_train``): the compiled twin-free core of :func:`sdm.train.train_runs`.
+
+    Args:
+        points: ``(P, 3)`` float64 points ``Q`` (metres), ``pixels`` ``(P, 2)`` int64, ``rank`` ``(P,)`` int64,
+            ``offsets`` ``(N + 1,)`` int64: the packed set (:class:`~sdm.batch.ConfigurationSet`).
+        camera: :class:`~sdm.camera.Camera` (intrinsics and screen ``(H, W)``).
+        steps: the chain's coarsest level ``s``; ``levels``: the loss levels ``s, s - 1, ...``, one after another.
+        n_epoch, batch_size: epochs per level, configurations per mini-batch (the last incomplete one dropped).
+        rates: the learning rate at each of ``levels``.
+        centred: per level, whether it takes ``closed_centred_r1``'s window (centred on the landing block,
+            on a target the caller closed) instead of the paper's flow.
+        orders: ``(len(levels) * n_epoch, R, N)`` int64, each epoch's shuffling of each run.
+        targets: ``R`` lists, one ``(N, H >> level, W >> level)`` bool target per level of ``levels``.
+        theta0: ``(R, 2)`` float64 starts ``(a, b)``, metres.
+
+    All tensors on the CPU (non-contiguous ones are copied); the results too.
+
+    Returns:
+        ``(thetas, losses, failed)``: ``(steps_total + 1, R, 2)`` float64 theta before the first step and after
+        each, ``(steps_total, R)`` float64 loss of each step (metres), ``(R,)`` int64 the 0-based step at which
+        the run's theta became non-finite (its later entries are not written), ``-1`` where it did not.
+    """
+    points, pixels, rank, offsets, orders, theta0 = (
+        t.contiguous() for t in (points, pixels, rank, offsets, orders, theta0))
+    targets = [[level.contiguous() for level in run] for run in targets]
+    n_runs, n_configs = orders.shape[1], orders.shape[2]
+    device = points.device
+    total = len(levels) * n_epoch * (n_configs // batch_size)
+    constants = torch.tensor([camera.fx, camera.fy, camera.cx, camera.cy, camera.rows_per_image_pixel,
+                              camera.cols_per_image_pixel, camera.fy * camera.rows_per_image_pixel,
+                              camera.fx * camera.cols_per_image_pixel], dtype=torch.float64, device=device)
+    rates_t = torch.tensor(rates, dtype=torch.float64, device=device)
+    centred_t = torch.tensor(centred, dtype=torch.uint8, device=device)
+    addresses = torch.tensor([[level.data_ptr() for level in run] for run in targets], dtype=torch.int64,
+                             device=device)
+    thetas = torch.empty(total + 1, n_runs, 2, dtype=torch.float64, device=device)
+    losses = torch.zeros(total, n_runs, dtype=torch.float64, device=device)
+    failed = torch.empty(n_runs, dtype=torch.int64, device=device)
+    height, width = camera.screen_shape
+    code = _library().sdm_train(
+        n_runs, n_configs, offsets.data_ptr(), points.data_ptr(), pixels.data_ptr(), rank.data_ptr(), height, width,
+        constants.data_ptr(), steps, len(levels), n_epoch, batch_size, rates_t.data_ptr(), centred_t.data_ptr(),
+        orders.data_ptr(), addresses.data_ptr(), NO_RANK, theta0.data_ptr(), thetas.data_ptr(), losses.data_ptr(),
+        failed.data_ptr())
+    if code != 0:
+        raise MemoryError("sdm_train: no memory for one configuration's working rows")
+    return thetas, losses, failed
