@@ -23,10 +23,12 @@ static inline int on_grid(int64_t row, int64_t col, int64_t height, int64_t widt
 }
 
 /* Levels steps..zoom of the zoom chain for points lo..hi-1, which no other point shares a configuration with.
- * config NULL: all of them are one configuration (cell_min then needs height * width + 1 entries). */
+ * config NULL: all of them are one configuration. Points off the grid or dropped compete in cell `sentinel`
+ * of cell_min (past every configuration's cells), so the rmin loops need no branch. */
 static void chain_range(int64_t lo, int64_t hi, const int64_t *projected, const int64_t *pixels,
                         const int64_t *config, const int64_t *rank, int64_t height, int64_t width, int64_t steps,
-                        int64_t zoom, int64_t *cell_min, int64_t no_rank, int64_t *out_pixels, uint8_t *entered,
+                        int64_t zoom, int64_t *cell_min, int64_t sentinel, int64_t no_rank, int64_t *out_pixels,
+                        uint8_t *entered,
                         uint8_t *landed, int64_t *block_out, int64_t *landing_out, int64_t *current, int64_t *cell,
                         uint8_t *alive) {
     const int64_t cells_per_config = height * width;
@@ -55,14 +57,14 @@ static void chain_range(int64_t lo, int64_t hi, const int64_t *projected, const 
             const int candidate = alive[i] && on_grid(row, col, height, width);
             if (level == zoom) landed[i] = (uint8_t)candidate;
             alive[i] = (uint8_t)candidate;
-            cell[i] = candidate ? (config ? config[i] * cells_per_config : 0) + row * width + col : -1;
-            if (candidate && rank[i] < cell_min[cell[i]]) cell_min[cell[i]] = rank[i];
+            const int64_t own = candidate ? (config ? config[i] * cells_per_config : 0) + row * width + col : sentinel;
+            cell[i] = own;
+            const int64_t least = cell_min[own];
+            cell_min[own] = rank[i] < least ? rank[i] : least;
         }
         /* rmin: a point survives where its rank is the lowest that landed in its cell */
-        for (int64_t i = lo; i < hi; ++i)
-            if (alive[i]) alive[i] = cell_min[cell[i]] == rank[i];
-        for (int64_t i = lo; i < hi; ++i)
-            if (cell[i] >= 0) cell_min[cell[i]] = no_rank;
+        for (int64_t i = lo; i < hi; ++i) alive[i] = alive[i] & (cell_min[cell[i]] == rank[i]);
+        for (int64_t i = lo; i < hi; ++i) cell_min[cell[i]] = no_rank;
     }
     for (int64_t i = lo; i < hi; ++i) {
         out_pixels[2 * i] = alive[i] ? current[2 * i] : -1;
@@ -91,7 +93,11 @@ void sdm_chain(int64_t n_points, const int64_t *projected, const int64_t *pixels
                int64_t no_rank, int64_t *out_pixels, uint8_t *entered, uint8_t *landed, int64_t *block_out,
                int64_t *landing_out, int64_t *current, int64_t *cell, uint8_t *alive) {
     int sorted = 1;
-    for (int64_t i = 1; i < n_points && sorted; ++i) sorted = config[i] >= config[i - 1];
+    int64_t last = 0; /* the highest configuration: cell_min has (last + 1) * height * width + 1 entries at least */
+    for (int64_t i = 0; i < n_points; ++i) {
+        if (i && config[i] < config[i - 1]) sorted = 0;
+        if (config[i] > last) last = config[i];
+    }
     int64_t lo = 0;
     while (lo < n_points) {
         int64_t hi = n_points;
@@ -99,10 +105,18 @@ void sdm_chain(int64_t n_points, const int64_t *projected, const int64_t *pixels
             hi = lo + CHUNK_POINTS < n_points ? lo + CHUNK_POINTS : n_points;
             while (hi < n_points && config[hi] == config[hi - 1]) ++hi; /* end on a configuration boundary */
         }
-        chain_range(lo, hi, projected, pixels, config, rank, height, width, steps, zoom, cell_min, no_rank,
+        chain_range(lo, hi, projected, pixels, config, rank, height, width, steps, zoom, cell_min,
+                    (last + 1) * height * width, no_rank,
                     out_pixels, entered, landed, block_out, landing_out, current, cell, alive);
         lo = hi;
     }
+}
+
+/* floor(x) as int64, as torch.floor(x).long() gives it: without a call to libm's floor where x is in range. */
+static inline int64_t floor_to_int(double x) {
+    if (!(x > -9.2e18 && x < 9.2e18)) return (int64_t)floor(x); /* NaN and beyond int64: as the torch path */
+    const int64_t truncated = (int64_t)x;
+    return truncated - ((double)truncated > x);
 }
 
 static inline double sign_of(double value) { return (double)((value > 0.0) - (value < 0.0)); }
@@ -280,18 +294,22 @@ int64_t sdm_train(int64_t n_runs, int64_t n_configs, const int64_t *offsets, con
                         const int64_t c = order[batch * batch_size + j];
                         const int64_t lo = offsets[c], n = offsets[c + 1] - lo;
                         const double *q = points + 3 * lo;
+                        const uint8_t *own = target + c * grid_h * grid_w;
                         for (int64_t i = 0; i < n; ++i) {
                             const double x = q[3 * i] + a, y = q[3 * i + 1] + b, z = q[3 * i + 2] + 0.0;
                             const double u = fx * x / z + cx, v = fy * y / z + cy;
                             screen[2 * i] = v * rows_per_pixel - screen_height;
                             screen[2 * i + 1] = u * cols_per_pixel;
-                            projected[2 * i] = (int64_t)floor(screen[2 * i]);
-                            projected[2 * i + 1] = (int64_t)floor(screen[2 * i + 1]);
+                            projected[2 * i] = floor_to_int(screen[2 * i]);
+                            projected[2 * i + 1] = floor_to_int(screen[2 * i + 1]);
+                            /* the target block it will most likely land in: fetched while the chain runs */
+                            const int64_t near_row = projected[2 * i] >> level, near_col = projected[2 * i + 1] >> level;
+                            if (on_grid(near_row, near_col, grid_h, grid_w))
+                                __builtin_prefetch(own + near_row * grid_w + near_col);
                         }
                         chain_range(0, n, projected, pixels + 2 * lo, 0, rank + lo, height, width, steps, level,
-                                    cell_min, no_rank, out_pixels, entered, landed, block, landing, current, cell,
-                                    alive);
-                        const uint8_t *own = target + c * grid_h * grid_w;
+                                    cell_min, height * width, no_rank, out_pixels, entered, landed, block, landing,
+                                    current, cell, alive);
                         for (int64_t i = 0; i < n; ++i) {
                             if (!landed[i] || own[landing[2 * i] * grid_w + landing[2 * i + 1]]) continue;
                             const int64_t centre_row = centred[li] ? landing[2 * i] : block[2 * i];
