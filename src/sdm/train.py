@@ -5,6 +5,14 @@ over the training set in shuffled mini-batches of 16 configurations (the
 incomplete last batch is dropped), the loss taken at that level; the learning
 rate halves after each level. The loss is the *sum* over all points of the
 batch, which is what the paper's learning rates assume.
+
+One engine, :func:`train_runs`, trains ``R`` independent runs (own targets, seed
+and start each); :func:`train` is it with ``R = 1``. On the CPU, for the paper's
+rule and ``"closed_centred_r1"`` on float64 points, the whole run (every level,
+epoch, mini-batch, chain, flow and SGD step) is one call of the compiled kernel
+(:func:`sdm.mapping.native.train_program`); everything else, and every device,
+runs the torch path, one layer call per step with autograd. Both give the theta
+history of the single-run loop kept in ``tests/train_reference.py`` to the bit.
 """
 from __future__ import annotations
 

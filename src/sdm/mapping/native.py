@@ -1,4 +1,4 @@
-"""A compiled CPU kernel for the SDM chain and the paper's flow, with the torch path as fallback.
+"""A compiled CPU kernel for the SDM chain, the paper's flow and whole training runs, with the torch path as fallback.
 
 On the CPU the fast path's cost is not the arithmetic but the passes over memory:
 every level runs some twenty torch operations over all points, each a full pass
@@ -18,6 +18,15 @@ results, slower) after one warning. It serves CPU tensors (non-contiguous ones
 are copied); CUDA tensors take the torch path. The chain runs in the kernel for
 any gradient rule and point dtype; the flow only for the paper's rule on float64
 points (other rules and float32 points get torch's flow).
+
+It serves two callers. The layer (:func:`~sdm.mapping.fast.fast_mapping`) calls
+:func:`chain` and :func:`paper_flow` once per forward pass. The trainer
+(:func:`sdm.train.train_runs`) calls :func:`train_program` once per program of
+``R`` runs: every level, epoch, mini-batch, projection, chain, flow (the paper's,
+or ``closed_centred_r1``'s, :data:`TRAINED_RULES`), loss and SGD step in C, the
+per-step Python work gone; theta histories equal the torch path's to the bit
+(the loss to 1e-12 relative: its sum is compensated, not in torch's order). The
+paper's flow and the centred closed rule share one window function in C.
 """
 from __future__ import annotations
 
@@ -217,7 +226,7 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
                   camera, steps: int, levels: list[int], n_epoch: int, batch_size: int, rates: list[float],
                   centred: list[bool], orders: torch.Tensor, targets: list[list[torch.Tensor]],
                   theta0: torch.Tensor):
-    """``R`` whole SGD runs in one call (``sdm_train``): the compiled twin-free core of :func:`sdm.train.train_runs`.
+    """``R`` whole SGD runs in one call (``sdm_train``): the compiled path of :func:`sdm.train.train_runs`.
 
     Args:
         points: ``(P, 3)`` float64 points ``Q`` (metres), ``pixels`` ``(P, 2)`` int64, ``rank`` ``(P,)`` int64,
