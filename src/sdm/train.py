@@ -338,7 +338,7 @@ def _starts(theta0, n_runs: int, fit_depth: bool, device: torch.device) -> torch
         raise SDMInputError(f"theta0 must hold one start per run ({n_runs}), got {len(theta0)}")
     starts = []
     for run, one in enumerate(theta0):
-        start = torch.as_tensor(one, dtype=torch.float64).to(device)
+        start = torch.as_tensor(one, dtype=torch.float64, device="cpu").to(device)
         if fit_depth and start.shape == (2,):  # (a, b) -> (a, b, 0)
             start = torch.nn.functional.pad(start, (0, 1))
         if start.shape != (n_params,) or not bool(torch.isfinite(start).all()):
