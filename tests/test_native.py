@@ -145,9 +145,9 @@ def test_the_kernel_is_built_once_into_the_cache_folder(tmp_path):
     for _ in range(2):
         done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
         assert done.stdout.strip() == "True", done.stderr
-    built = list(tmp_path.iterdir())
-    assert len(built) == 1 and built[0].name.startswith("sdm_native_") and built[0].suffix == ".so"
-    assert built[0].stat().st_mode & 0o044 == 0o044  # readable by others
+    library, checksum = sorted(tmp_path.iterdir(), key=lambda path: path.suffix != ".so")  # and nothing else
+    assert library.name.startswith("sdm_native_") and library.suffix == ".so" and checksum.suffix == ".sha256"
+    assert library.stat().st_mode & 0o044 == 0o044  # readable by others
 
 
 def test_sdm_native_0_turns_the_kernel_off():
