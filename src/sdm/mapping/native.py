@@ -10,12 +10,32 @@ integer arithmetic and the same floating-point operations in the same order as
 (``tests/test_native.py``).
 
 The C file is compiled once per machine with the system C compiler (``$CC``,
-default ``cc``) into a cache folder (``$SDM_CACHE_DIR``, default
-``$XDG_CACHE_HOME/sdm`` or ``~/.cache/sdm``) and loaded with :mod:`ctypes`; no
-torch headers are involved, so it takes well under a second. Where no compiler
-is found, or ``SDM_NATIVE=0`` is set, the layer runs its torch path (the same
-results, slower) after one warning. It serves CPU tensors (non-contiguous ones
-are copied); CUDA tensors take the torch path. The chain runs in the kernel for
+default ``cc``, split into words as a shell would: ``CC="ccache gcc"``) into a
+cache folder (``$SDM_CACHE_DIR``, default ``$XDG_CACHE_HOME/sdm`` or
+``~/.cache/sdm``) and loaded with :mod:`ctypes`; no torch headers are involved,
+so it takes well under a second.
+
+The cache (:func:`cache_files`) holds ``sdm_native_<key>.so``, its SHA-256 in
+``sdm_native_<key>.sha256`` and, after a failed build, ``sdm_native_<key>.failed``;
+the key hashes the source, ``$CC``, the flags and the platform. A cached library
+is checked against its checksum before it is loaded, never by loading it (a
+truncated one kills the process with SIGBUS inside ``dlopen``); a missing,
+damaged or foreign one is rebuilt. A build is checked before it is cached: the
+compiler must exit 0 within :data:`BUILD_TIMEOUT_S` (it runs in a session of its
+own; on timeout its whole process group is killed) and write a non-empty library
+that loads and has every function of :data:`SIGNATURES`. A failed build is
+written to the ``.failed`` file, and later processes warn with it instead of
+running the compiler again (parallel workflow jobs do not each wait for a hanging
+compiler): delete that file to build again; a different ``CC`` or a changed
+source has a key of its own and builds by itself. A compiler that cannot be
+found is not remembered (that costs nothing to find out again). Deleting the
+cache folder is always safe.
+
+Whenever the kernel cannot be used the layer runs its torch path (the same
+results, slower) after one warning that says why (and, where a cached file or a
+build failed, which file and what cause); with ``SDM_NATIVE=0`` it does so
+without a warning. It serves CPU tensors (non-contiguous ones are copied); CUDA
+tensors take the torch path. The chain runs in the kernel for
 any gradient rule and point dtype; the flow only for the paper's rule on float64
 points (other rules and float32 points get torch's flow).
 """
@@ -148,7 +168,10 @@ def _cached_or_built(compiler: str):
         except (OSError, _Unavailable) as error:  # a foreign library planted with its checksum
             damage = f"not the kernel ({error})"
     if failure.is_file():
-        cause = failure.read_text(encoding="utf-8", errors="replace").strip()
+        try:
+            cause = failure.read_text(encoding="utf-8", errors="replace").strip()
+        except OSError as error:
+            cause = f"({error})"
         raise _Unavailable(f"an earlier build failed: {cause} That failure is remembered in {failure}: delete "
                            "that file to build again (a different CC or a changed kernel source builds afresh).")
     try:
@@ -241,8 +264,8 @@ def _compile(command: list[str], arguments: list[str]) -> None:
     """
     with tempfile.TemporaryFile() as log:
         try:
-            process = subprocess.Popen([*command, *arguments], stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT,
-                                       start_new_session=True)
+            process = subprocess.Popen([*command, *arguments], stdin=subprocess.DEVNULL, stdout=log,
+                                       stderr=subprocess.STDOUT, start_new_session=True)
         except OSError as error:  # not remembered: finding no compiler is instant, and one may be installed
             raise _Unavailable(f"the C compiler {command[0]!r} cannot be run ({error.strerror or error}); "
                                "set CC to a C compiler.") from None
@@ -250,7 +273,7 @@ def _compile(command: list[str], arguments: list[str]) -> None:
             status = process.wait(timeout=BUILD_TIMEOUT_S)
         except subprocess.TimeoutExpired:
             raise _Unavailable(f"CC={shlex.join(command)!r} did not finish within {BUILD_TIMEOUT_S:g} s; it and "
-                               "every process it started were killed.", remember=True) from None
+                               "its process group were killed.", remember=True) from None
         finally:
             if process.returncode is None:  # timed out or interrupted: the group id is still ours
                 with contextlib.suppress(ProcessLookupError):
