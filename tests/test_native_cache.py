@@ -138,6 +138,23 @@ def test_a_garbage_or_empty_cached_kernel_is_rebuilt_without_a_warning(load, tmp
     assert_same(*layer_call())
 
 
+def test_a_failed_rebuild_of_a_damaged_cache_names_the_file_and_the_cause(load, tmp_path, monkeypatch):
+    broken = tmp_path / "broken"
+    compiler = script(tmp_path / "flaky-cc", f"""\
+        [ -e {shlex.quote(str(broken))} ] && {{ echo "cc1: out of memory" >&2; exit 1; }}
+        exec {COMPILER} "$@"
+        """)
+    monkeypatch.setenv("CC", compiler)
+    name, good = good_build(load, tmp_path, monkeypatch)
+    target = write_bytes(tmp_path / "cache" / name, b"garbage")
+    write_text(target.with_suffix(".sha256"), f"{hashlib.sha256(good).hexdigest()}  {name}\n")
+    broken.touch()
+    library, messages = load()
+    assert library is None and len(messages) == 1
+    assert f"the cached kernel {target} is damaged" in messages[0] and "cc1: out of memory" in messages[0], messages
+    assert "cc1: out of memory" in cached(tmp_path, ".failed")[0].read_text()
+
+
 def test_a_foreign_library_with_a_valid_checksum_is_replaced(load, tmp_path, monkeypatch):
     empty = tmp_path / "empty.c"
     empty.write_text("int sdm_unrelated(void) { return 0; }\n")

@@ -283,7 +283,7 @@ def _compile(command: list[str], arguments: list[str]) -> None:
             log.seek(0)
             output = log.read().decode(errors="replace").strip()
             raise _Unavailable(f"CC={shlex.join(command)!r} failed (exit status {status})"
-                               + (f": {output[-300:]}" if output else "."), remember=True)
+                               + (f"; it printed {output[-300:]!r}." if output else "."), remember=True)
 
 
 def _eager_under_compile(function):
