@@ -1,4 +1,4 @@
-"""The paper's experiments as functions: the train/dev split, a tuning cell, a noise run.
+"""The paper's experiments as functions: the train/dev split, a tuning cell, the paired noise runs of every table.
 
 The workflow's notebooks narrate and call these; nothing here is specific to
 Snakemake. Every random choice takes an explicit seed, so a stage gives the
@@ -40,7 +40,8 @@ from .train import TrainSettings, train, train_runs
 #: there (a chunk of 30 runs of 512 configurations is about 0.7 GB). On a CPU the compiled kernel
 #: (:mod:`sdm.mapping.native`) costs per point, not per operation, so packing buys little: groups of 4
 #: were 1.3x faster per run than one run at a time, one group of 30 was 0.76x (working set out of the
-#: core's cache; ``benchmarks/bench_sdm.py``). 4 is that measured optimum, and its memory is small.
+#: core's cache; ``benchmarks/bench_sdm.py``; again for 8 runs of 512 configurations at level 2, CPU
+#: seconds: 4 1.21x, 8 1.19x). 4 is that measured optimum, and its memory is small.
 NOISE_GROUP_SIZE = 4
 
 
@@ -90,7 +91,7 @@ def settings_for(n_epoch: int, lr: float, s: int, batch_size: int, lr_decay: flo
     """:class:`~sdm.train.TrainSettings` from the config's values (zoom 0: train to full resolution).
 
     ``seed`` becomes ``settings.seed``: the shuffling seed of a tuning cell, and the
-    experiment seed from which :func:`noise_run` derives each run's own seed.
+    experiment seed from which :func:`paired_runs` derives each run's own seed.
     """
     return TrainSettings(lr=float(lr), n_epoch=int(n_epoch), batch_size=int(batch_size), s=int(s), zoom=0,
                          lr_decay=float(lr_decay), seed=int(seed))
@@ -228,9 +229,10 @@ def noise_runs(train_set, level: int, runs: Sequence[int], settings: TrainSettin
 
 def _sdm_runs(train_set, clean_targets, level, runs, settings, record, columns, camera, group_size, device):
     """:func:`paired_runs` trained by SDM (:func:`train_group`): ``record`` gets a run's final theta."""
-    return paired_runs(clean_targets, level, runs, settings.seed,
-                       lambda targets, seeds: train_group(train_set, targets, settings, seeds, camera, device).final_theta,
-                       record, columns, group_size)
+    def fit_group(targets, seeds):
+        return train_group(train_set, targets, settings, seeds, camera, device).final_theta
+
+    return paired_runs(clean_targets, level, runs, settings.seed, fit_group, record, columns, group_size)
 
 
 def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed: int, s: int = 4,

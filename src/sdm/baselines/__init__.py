@@ -257,7 +257,8 @@ def noise_runs(name: str, train_set: ConfigurationSet, level: int, runs: Sequenc
     def fit_group(targets, seeds) -> list[FitResult]:
         sets = [train_set.with_targets(run_targets) for run_targets in targets]
         if entry.fit_runs is None:
-            return [entry.fit(data, settings, seed=run, camera=camera, theta0=(0.0, 0.0)) for data, run in zip(sets, seeds)]
+            return [entry.fit(data, settings, seed=seed_run, camera=camera, theta0=(0.0, 0.0))
+                    for data, seed_run in zip(sets, seeds)]
         return entry.fit_runs(sets, settings, seeds, camera=camera)
 
     def record(result: FitResult) -> dict:
