@@ -13,6 +13,7 @@ import torch
 from sdm.camera import APOLLO_CAMERA_5 as CAM
 from sdm.mapping import native
 from sdm.mapping.fast import _SCRATCH, fast_mapping
+from sdm.mapping.research_rules import RESEARCH_RULES
 from sdm.mapping.rules import FLOW_RULES
 from sdm.representation import NO_RANK
 from sdm.sky import shift_vector
@@ -23,6 +24,7 @@ from scenes import configuration_set
 
 pytestmark = pytest.mark.skipif(not native.enabled(), reason="no C compiler: the compiled kernel is not built")
 
+RULES = FLOW_RULES | RESEARCH_RULES  # the product's rules and the experiments
 FIELDS = ("out_pixels", "flow", "loss", "entered", "matched", "landed")
 
 
@@ -63,12 +65,12 @@ def test_kernel_leaves_the_scratch_buffer_clean():
     assert bool((buffer == NO_RANK).all())
 
 
-@pytest.mark.parametrize("rule", sorted(set(FLOW_RULES) - {"paper"}))
+@pytest.mark.parametrize("rule", sorted(set(RULES) - {"paper"}))
 def test_kernel_chain_with_every_other_rule_equals_the_torch_path(rule):
     data = configuration_set(8, seed=5)
     points, batch = batch_of(data, (0.2, 0.5))
     target = zoom_out(data.targets, 0)
-    args = (points, batch.pixels, batch.config, batch.rank, target, 4, 0, CAM, FLOW_RULES[rule])
+    args = (points, batch.pixels, batch.config, batch.rank, target, 4, 0, CAM, RULES[rule])
     assert_same(fast_mapping(*args), fast_mapping(*args, native=False))
 
 

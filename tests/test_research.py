@@ -19,7 +19,10 @@ import yaml
 from scenes import configuration_set
 from sdm import FLOW_RULES, TrainSettings
 from sdm.errors import SDMInputError
-from sdm.experiments import DEPTH_RUN_COLUMNS, RUN_COLUMNS, depth_noise_runs, noise_runs, rule_noise_runs, run_seed
+from sdm.mapping.research_rules import RESEARCH_RULES
+from sdm.experiments import (
+    DEPTH_RUN_COLUMNS, RUN_COLUMNS, depth_noise_runs, noise_runs, rule_noise_runs, run_seed,
+)
 from run_reference import depth_noise_run, noise_run
 from sdm import paper
 from sdm.report.research import (
@@ -219,11 +222,35 @@ def _config() -> dict:
 
 
 def test_the_schema_lists_the_library_rules():
-    """The workflow does not import sdm at parse time: its rule names are the schema's, held to FLOW_RULES here."""
+    """The workflow does not import sdm at parse time: its rule names are the schema's, held here to the names
+    the library accepts (TrainSettings(flow=NAME): sdm.FLOW_RULES, then the experiments' RESEARCH_RULES)."""
     schema = yaml.safe_load((ROOT / "workflow" / "schemas" / "config.schema.yaml").read_text())
     research = schema["properties"]["research"]["properties"]
-    assert sorted(research["rules"]["properties"]["names"]["items"]["enum"]) == sorted(FLOW_RULES)
-    assert sorted(research["depth"]["properties"]["flow"]["enum"]) == sorted(FLOW_RULES)
+    accepted = sorted(FLOW_RULES | RESEARCH_RULES)
+    assert sorted(research["rules"]["properties"]["names"]["items"]["enum"]) == accepted
+    assert sorted(research["depth"]["properties"]["flow"]["enum"]) == accepted
+    for name in accepted:
+        TrainSettings(flow=name)
+
+
+def test_the_public_registry_holds_the_rules_the_configuration_trains_with():
+    """sdm.FLOW_RULES: the paper's rule (Table 2) and the ones config.yaml's Tables 4 and 5 train with; every
+    other rule is an experiment, in RESEARCH_RULES only."""
+    research = _config()["research"]
+    assert set(FLOW_RULES) == {"paper", *research["rules"]["names"], research["depth"]["flow"]}
+    assert not set(FLOW_RULES) & set(RESEARCH_RULES)
+
+
+def test_the_schema_defaults_are_the_rules_config_yaml_names():
+    """A config without research.rules / research.depth.flow trains with the rules config.yaml names."""
+    config, defaulted = _config(), _config()
+    del defaulted["research"]
+    validate_schema(defaulted)
+    assert defaulted["research"]["rules"]["names"] == config["research"]["rules"]["names"]
+    assert defaulted["research"]["depth"]["flow"] == config["research"]["depth"]["flow"]
+    del config["research"]["depth"]["flow"]  # the key's own default, the section present
+    validate_schema(config)
+    assert config["research"]["depth"]["flow"] == defaulted["research"]["depth"]["flow"]
 
 
 @pytest.mark.parametrize(
