@@ -28,7 +28,7 @@ from .camera import Camera
 from .errors import SDMInputError
 from .mapping import SpatialDomainMapping, native
 from .mapping.layer import METHODS
-from .mapping.rules import FLOW_RULES, _closing, flow_rule
+from .mapping.rules import closing, flow_rule, rule_by_name
 from .sky import shift_vector
 from .zoom import check_divisible, target_pyramid
 
@@ -82,8 +82,7 @@ class TrainSettings:
             raise SDMInputError(f"zoom must be an integer in [0, s] = [0, {self.s}], got {self.zoom!r}")
         if not (math.isfinite(self.lr_decay) and self.lr_decay > 0):
             raise SDMInputError(f"lr_decay must be a positive finite number, got {self.lr_decay!r}")
-        if self.flow not in FLOW_RULES:
-            raise SDMInputError(f"flow must be one of {sorted(FLOW_RULES)}, got {self.flow!r}")
+        rule_by_name(self.flow)  # SDMInputError naming flow: a name of sdm.FLOW_RULES or of RESEARCH_RULES
         if not (math.isfinite(self.depth_lr_scale) and self.depth_lr_scale > 0):
             raise SDMInputError(f"depth_lr_scale must be a positive finite number, got {self.depth_lr_scale!r}")
         if isinstance(self.depth_zoom, bool) or int(self.depth_zoom) != self.depth_zoom or self.depth_zoom < 0:
@@ -316,7 +315,7 @@ def train_runs(
 
 
 #: closed_centred_r1's closing at zoom 0 (sdm.mapping.rules): ``(target, zoom) -> target``.
-_CLOSE_3 = _closing(3)
+_CLOSE_3 = closing(3)
 
 
 def _usable_device(device: torch.device | str) -> torch.device:
