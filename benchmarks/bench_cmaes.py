@@ -31,18 +31,28 @@ from sdm.baselines.common import FitResult
 from sdm.experiments import load_split, noisy_targets, run_seed
 
 
+class _ReferenceLayout:
+    """What :meth:`PixelMismatch.reference` takes from its layout (the projection), without the grouping."""
+
+    def __init__(self, train_set, camera) -> None:
+        self.camera, self._points, self._counts, self._reference = camera, train_set.points, train_set.counts, None
+
+    reference_terms = cmaes.ShiftLayout.reference_terms
+
+
 class ReferenceMismatch(cmaes.PixelMismatch):
     """:class:`PixelMismatch` counted by :meth:`reference` only, without building the fast layout."""
 
     def __init__(self, train_set, camera=None) -> None:
         self.camera = camera or train_set.camera
         self.train_set = train_set
+        self.layout = _ReferenceLayout(train_set, self.camera)
         self.evaluations = 0
-        self._reference = None
+        self._active, self._target_ids = train_set.targets.nonzero(), None
 
-    def __call__(self, theta) -> int:
-        self.evaluations += 1
-        return self.reference(theta)
+    def many(self, thetas) -> list[int]:
+        self.evaluations += len(thetas)
+        return [self.reference(theta) for theta in thetas]
 
 
 def reference_fit(train_set, settings, seed) -> FitResult:
