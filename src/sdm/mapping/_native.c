@@ -239,9 +239,10 @@ void sdm_pixel_mismatch(int64_t n_candidates, const double *theta, int64_t n_gro
                 const int64_t shift = offset[g];
                 for (int64_t p = group_start[g]; p < group_start[g + 1]; ++p) {
                     const int64_t id = (int64_t)cells[p] + shift;
-                    const int64_t fresh = stamp[id] != mark; /* a pixel covered twice counts once */
-                    stamp[id] = mark;
-                    sum += fresh * ((int64_t)weights[id] - 1);
+                    if (stamp[id] != mark) { /* a pixel covered twice counts once (rare: well predicted) */
+                        stamp[id] = mark;
+                        sum += (int64_t)weights[id] - 1;
+                    }
                 }
             }
             counts[k] += sum;
