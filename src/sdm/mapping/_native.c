@@ -344,3 +344,87 @@ int64_t sdm_train(int64_t n_runs, int64_t n_configs, const int64_t *offsets, con
     free(rows), free(cell_min), free(screen), free(flags);
     return 0;
 }
+
+/* ---- CMA-ES baseline: the exact zoom-0 pixel mismatch for many thetas (sdm/baselines/cmaes.py) ----
+ *
+ * sdm_pixel_mismatch <-> sdm.baselines.cmaes.ShiftLayout.rendered_ids + PixelMismatch's count: the same
+ * float operations decide each group's whole shift and whether it can be trusted (one multiply, one
+ * add and a floor per bound, as torch computes them elementwise), then an integer count. A candidate
+ * whose shift cannot be trusted gets -1 and is counted by the torch reference (the caller's job).
+ *
+ * theta:        (K, 2) candidates (a, b), metres
+ * gain:         (G, 2) pixels per metre (row per b, col per a) of each group
+ * frac_bounds:  (2, G, 2) the group's lowest and highest sub-pixel offset, widened by the margin
+ * shift_low, shift_high: (G, 2) clamp range of the group's whole shift (stays in the padded screen)
+ * group_start:  (G + 1,) first point of each group (groups configuration by configuration)
+ * config_group: (N + 1,) first group of each configuration
+ * cells:        (P,) int32 each point's padded pixel at theta = 0, within its configuration
+ * table:        (N * cells_per_config,) int8 per padded pixel its weight + 1 (0 on target, 2 on
+ *               screen off target, 1 in the margin)
+ * limits:       (3,) the largest |gain| (row, col) and the range up to which shifts are trusted
+ * offsets:      (K * G,) int64 scratch; stamp: (cells_per_config + 1,) uint32 scratch, its last entry
+ *               the last stamp used (all zero at first, then only ever written here)
+ * counts:       (K,) out, false positives + false negatives, or -1
+ */
+void sdm_pixel_mismatch(int64_t n_candidates, const double *theta, int64_t n_groups, int64_t n_configs,
+                        const double *gain, const double *frac_bounds, const double *shift_low,
+                        const double *shift_high, const int64_t *group_start, const int64_t *config_group,
+                        const int32_t *cells, const int8_t *table, int64_t cells_per_config, int64_t padded_width,
+                        const double *limits, int64_t n_target, int64_t *offsets, uint32_t *stamp,
+                        int64_t *counts) {
+    const double *frac_high = frac_bounds + 2 * n_groups;
+    const double max_gain_row = limits[0], max_gain_col = limits[1], exact_range = limits[2];
+    for (int64_t k = 0; k < n_candidates; ++k) {
+        const double a = theta[2 * k], b = theta[2 * k + 1];
+        counts[k] = -1;
+        /* as ShiftLayout.rendered_ids: non-finite or too far, then every group's bounds */
+        if (!(a - a == 0.0 && b - b == 0.0) || __builtin_fabs(b) * max_gain_row > exact_range ||
+            __builtin_fabs(a) * max_gain_col > exact_range)
+            continue;
+        int64_t *offset = offsets + k * n_groups;
+        int trusted = 1;
+        for (int64_t g = 0; g < n_groups && trusted; ++g) {
+            const double shift_row = gain[2 * g] * b, shift_col = gain[2 * g + 1] * a;
+            const double low_row = __builtin_floor(frac_bounds[2 * g] + shift_row);
+            const double low_col = __builtin_floor(frac_bounds[2 * g + 1] + shift_col);
+            trusted = low_row == __builtin_floor(frac_high[2 * g] + shift_row) &&
+                      low_col == __builtin_floor(frac_high[2 * g + 1] + shift_col);
+            /* torch.clamp(x, low, high) = min(max(x, low), high) */
+            double row = low_row < shift_low[2 * g] ? shift_low[2 * g] : low_row;
+            double col = low_col < shift_low[2 * g + 1] ? shift_low[2 * g + 1] : low_col;
+            row = row > shift_high[2 * g] ? shift_high[2 * g] : row;
+            col = col > shift_high[2 * g + 1] ? shift_high[2 * g + 1] : col;
+            offset[g] = (int64_t)row * padded_width + (int64_t)col;
+        }
+        if (trusted) counts[k] = n_target; /* plus FP - TP so far: never below 0 while it adds up */
+    }
+    /* Stamps tell which padded pixels a candidate has rendered in the current configuration: one per
+     * (configuration, candidate), never reused before the array is wiped, so nothing is cleared per pass. */
+    uint32_t last = stamp[cells_per_config];
+    if ((uint64_t)last + (uint64_t)(n_configs * n_candidates) >= (uint64_t)UINT32_MAX) {
+        for (int64_t i = 0; i <= cells_per_config; ++i) stamp[i] = 0;
+        last = 0;
+    }
+    /* Configuration by configuration, every candidate: its pixels stay in cache across the candidates. */
+    for (int64_t c = 0; c < n_configs; ++c) {
+        const int8_t *weights = table + c * cells_per_config;
+        for (int64_t k = 0; k < n_candidates; ++k) {
+            if (counts[k] < 0) continue;
+            const uint32_t mark = ++last;
+            const int64_t *offset = offsets + k * n_groups;
+            int64_t sum = 0;
+            for (int64_t g = config_group[c]; g < config_group[c + 1]; ++g) {
+                const int64_t shift = offset[g];
+                for (int64_t p = group_start[g]; p < group_start[g + 1]; ++p) {
+                    const int64_t id = (int64_t)cells[p] + shift;
+                    if (stamp[id] != mark) { /* a pixel covered twice counts once (rare: well predicted) */
+                        stamp[id] = mark;
+                        sum += (int64_t)weights[id] - 1;
+                    }
+                }
+            }
+            counts[k] += sum;
+        }
+    }
+    stamp[cells_per_config] = last;
+}

@@ -92,6 +92,8 @@ SIGNATURES: dict[str, tuple[object, list]] = {
                               _PTR, _PTR, _PTR, _PTR]),
     "sdm_train": (_I64, [_I64, _I64, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _PTR, _I64, _I64, _I64, _I64,
                          _PTR, _PTR, _PTR, _PTR, _I64, _PTR, _PTR, _PTR, _PTR]),
+    # the CMA-ES baseline's count (pixel_mismatch below)
+    "sdm_pixel_mismatch": (None, [_I64, _PTR, _I64, _I64, *[_PTR] * 8, _I64, _I64, _PTR, _I64, *[_PTR] * 3]),
 }
 
 
@@ -453,3 +455,31 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     if code != 0:
         raise MemoryError("sdm_train: no memory for one configuration's working rows")
     return thetas, losses, failed
+
+@_eager_under_compile
+def pixel_mismatch(thetas: torch.Tensor, layout, table: torch.Tensor, n_target: int) -> torch.Tensor:
+    """The CMA-ES baseline's exact zoom-0 pixel mismatch for ``K`` candidates in one pass over the points.
+
+    Args:
+        thetas: ``(K, 2)`` float64 candidates ``(a, b)``, metres, on the CPU.
+        layout: a usable :class:`sdm.baselines.cmaes.ShiftLayout` on the CPU (its grouping and scratch).
+        table: ``(N * Hp * Wp,)`` int8 weight + 1 per padded pixel (:meth:`ShiftLayout.table` with ``compact``).
+        n_target: active target pixels of the run.
+
+    Returns:
+        ``(K,)`` int64 counts (false positives + false negatives), ``-1`` for a candidate whose group
+        shifts cannot be trusted (the caller counts it by the torch reference).
+    """
+    thetas = thetas.to(torch.float64).contiguous()
+    n_candidates = thetas.shape[0]
+    n_groups = layout.gain.shape[0]
+    offsets = layout.native_offsets(n_candidates)
+    counts = torch.empty(n_candidates, dtype=torch.int64, device=thetas.device)
+    _library().sdm_pixel_mismatch(
+        n_candidates, thetas.data_ptr(), n_groups, layout.config_group.shape[0] - 1, layout.gain.data_ptr(),
+        layout.frac_bounds.data_ptr(), layout.shift_low.data_ptr(), layout.shift_high.data_ptr(),
+        layout.group_start.data_ptr(), layout.config_group.data_ptr(), layout.cells.data_ptr(), table.data_ptr(),
+        layout.padded_shape[0] * layout.padded_shape[1], layout.padded_shape[1], layout.limits.data_ptr(),
+        int(n_target), offsets.data_ptr(), layout.stamp.data_ptr(), counts.data_ptr())
+    return counts
+
