@@ -165,32 +165,33 @@ def fingerprint(notebook: str) -> str:
 
 # -- the table of docs/workflow.md ---------------------------------------------------------------------
 
-#: The rule files, where each stage is a call ``notebook_stage("<stage>", ..., notebook="<notebook>")``.
-RULE_FILES = ROOT / "workflow" / "rules"
-
-
 def stage_notebooks() -> dict[str, str]:
-    """Stage -> the notebook it runs, read from the ``notebook_stage`` calls of the rule files, in their order."""
+    """Stage -> the notebook it runs, from the ``notebook_stage("<stage>", ..., notebook="<notebook>")`` calls
+    of the rule files the Snakefile includes, in its order (for the table; the rules know their own)."""
     stages = {}
-    order = ["data", "tuning", "noise", "baselines", "research", "report"]
-    for rule_file in sorted(RULE_FILES.glob("*.smk"), key=lambda p: (order.index(p.stem) if p.stem in order else 99)):
-        for call in rule_file.read_text().split("notebook_stage(")[1:]:
-            stage = re.match(r'\s*"(\w+)"', call)
-            if stage:
-                notebook = re.search(r'\bnotebook="(\w+)"', call.split("\nnotebook_stage(")[0])
-                stages[stage.group(1)] = notebook.group(1) if notebook else stage.group(1)
+    for rule_file in re.findall(r'^include: "([^"]+)"', (ROOT / "Snakefile").read_text(), flags=re.MULTILINE):
+        for call in (ROOT / rule_file).read_text().split("\nnotebook_stage(")[1:]:
+            stage = re.match(r'\s*"(\w+)"', call).group(1)
+            notebook = re.search(r'\bnotebook="(\w+)"', call)
+            stages[stage] = notebook.group(1) if notebook else stage
     return stages
 
 
 def module_table() -> str:
-    """The Markdown table: every library file, and the stages whose notebook runs it."""
+    """The Markdown table of docs/workflow.md: every library file, and the stages whose notebook runs it."""
     stages = stage_notebooks()
     library = sorted(_relative(path) for path in (ROOT / "src" / PACKAGE).rglob("*")
                      if path.is_file() and "__pycache__" not in path.parts)
-    rows = ["| library file | stages whose notebook runs it |", "|---|---|"]
+    rows = ["| library file | stages whose notebook runs it (each reruns, and every stage after it) |", "|---|---|"]
     for path in library:
         running = [stage for stage, notebook in stages.items() if path in stage_files(notebook)]
-        shown = "every stage" if running == list(stages) else ", ".join(running) or "none"
+        others = [stage for stage in stages if stage not in running]
+        if not others:
+            shown = "every stage"
+        elif len(others) <= 3:
+            shown = "every stage but " + ", ".join(others)
+        else:
+            shown = ", ".join(running) or "none"
         rows.append(f"| `{path.removeprefix('src/')}` | {shown} |")
     return "\n".join(rows) + "\n"
 
