@@ -2,7 +2,7 @@
 
 A stage runs its notebook (``notebooks/<name>.py``), the library modules the notebook imports,
 directly or through other modules, and the runner (``stage.py``, ``run_notebook.py``). The
-rules put :func:`fingerprint` of those files into each stage's params (``tracked.code``), so
+rules put :func:`fingerprint` of those files into each stage's param ``stage`` (its ``code``), so
 that Snakemake's params trigger reruns a stage, and everything after it, when any of them
 changes, and no other stage. Read at parse time: the standard library only, never torch or
 ``sdm`` (the imports are read from the source with :mod:`ast`, nothing is imported).
@@ -11,7 +11,8 @@ What counts as a change:
 
 * a notebook: any edit of its text (the rendered HTML shows every cell, prose included);
 * a module or runner script: an edit of its syntax tree without docstrings -- code, not
-  comments, docstrings or layout (:func:`code_digest`); nothing in them reads a docstring;
+  comments, docstrings or layout (:func:`_parsed`); no library code reads a docstring (the
+  runner prints its own only as its usage);
 * a file a module reads beside itself (:data:`RESOURCES`, the native kernel's C source): any edit.
 
 Which modules a notebook reaches follows Python's import semantics: ``import sdm.a.b`` runs

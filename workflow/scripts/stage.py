@@ -28,7 +28,7 @@ parameters = _named(smk.input, set()) | _named(smk.output, {"html"})
 parameters |= {key: value for key, value in smk.params.items() if key != "stage"}
 parameters["threads"] = smk.threads
 
-project = Path(smk.scriptdir).parents[1]
+project = Path(smk.scriptdir).resolve().parents[1]  # scriptdir is workflow/rules/../scripts: resolve the ..
 notebook = project / smk.params.stage["notebook"]
 # Shown in messages relative to where Snakemake runs when the project is there (notebooks/sample.py).
 source = os.path.relpath(notebook) if not os.path.relpath(notebook).startswith("..") else str(notebook)
