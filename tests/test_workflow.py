@@ -85,10 +85,10 @@ def test_rule_files_are_snakefmt_formatted():
     ('notebook_stage("extra", "A stage.", jobs=[{"level": 0}], output=dict(table=result("extra.csv")))',
      "stage extra: job {'level': 0} must name the wildcards []"),
     ('notebook_stage("extra", "A stage.", output=dict(html=result("extra.html")))',
-     "stage extra: 'source' and 'html' are the notebook and its rendering"),
+     "stage extra: the output 'html' (the notebook's rendering) and the param 'stage'"),
 ])
 def test_a_misdeclared_stage_is_refused_when_the_workflow_is_parsed(tmp_path, call, message):
-    """notebook_stage checks each job's wildcards against its files' and keeps `source`/`html` its own."""
+    """notebook_stage checks each job's wildcards against its files' and keeps `html`/`stage` its own."""
     shutil.copytree(ROOT / "workflow", tmp_path / "workflow")
     shutil.copy(ROOT / "Snakefile", tmp_path)
     shutil.copy(ROOT / "config.yaml", tmp_path)

@@ -1,14 +1,14 @@
-# Shared helpers: paths derived from the config, the annotation manifest, and what the stages' jobs range
-# over (the tuning grid, the noise chunks, Table 3's methods, Tables 4-5's rules and c*); the rule every
-# stage is made with is notebook_stage, in stage.smk.
-# Nothing here imports torch or sdm: parsing the workflow stays fast and works without them.
+# Shared helpers: paths derived from the config, what a stage depends on without reading it (its code,
+# the annotation files), and what the stages' jobs range over (the tuning grid, the noise chunks, Table 3's
+# methods, Tables 4-5's rules and c*); the rule every stage is made with is notebook_stage, in stage.smk.
+# Nothing here imports torch or sdm: parsing the workflow stays fast and works without them. Nothing
+# here writes a file either: a dry run or --lint works on a read-only results folder.
 import hashlib
 import json
-import os
 import re
 from pathlib import Path
 
-NOTEBOOKS = Path(workflow.basedir) / "notebooks"
+from code_deps import CodeDepsError, fingerprint
 
 # Every output lives under the results root (config key results_dir, "results" by default), so that
 # runs on different data never overwrite each other. Logs and benchmarks of the default run stay in
@@ -45,17 +45,24 @@ def table_files(name):
     }
 
 
-# -- the annotations -----------------------------------------------------------------------------------
-
-ANNOTATION_MANIFEST = result("data/annotations.manifest.json")
+# -- what a stage depends on without reading it ---------------------------------------------------------
 
 
-def annotation_manifest(folder):
-    """Names, sizes and SHA-256 of every file an ApolloCar3D folder's reader uses.
+def stage_code(notebook):
+    """The fingerprint of the code a stage running notebooks/<notebook>.py runs: the notebook, the library
+    modules it imports (directly or through others) and the runner (workflow/scripts/code_deps.py)."""
+    try:
+        return fingerprint(notebook)
+    except CodeDepsError as error:  # one line naming the file, no traceback
+        raise WorkflowError(error) from None
 
-    Written to ANNOTATION_MANIFEST at parse time, and only when it differs from what is there, so
-    that its timestamp changes exactly when a file is added, removed or edited: the data stage
-    takes it as an input and reruns then (Snakemake sees only a folder's own timestamp).
+
+def annotation_files(folder):
+    """Names, sizes and SHA-256 of every file an ApolloCar3D folder's reader uses: the number of annotation
+    files and one SHA-256 over that list.
+
+    The digest goes into the params of the stages that read the folder, so that adding, removing or editing
+    a file reruns them (Snakemake sees only a folder's own timestamp); nothing is written.
     """
     root = Path(folder)
     if not (root / "car_poses").is_dir():
@@ -68,25 +75,20 @@ def annotation_manifest(folder):
     for path in files:
         content = path.read_bytes()
         entries[path.relative_to(root).as_posix()] = [len(content), hashlib.sha256(content).hexdigest()]
-    text = json.dumps({"files": entries}, indent=1, sort_keys=True) + "\n"
-    target = Path(ANNOTATION_MANIFEST)
-    if not target.is_file() or target.read_text() != text:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        temporary = target.with_name(f".{target.name}.{os.getpid()}")
-        temporary.write_text(text)
-        os.replace(temporary, target)
-    return sum(1 for name in entries if name.startswith("car_poses/"))
+    listing = json.dumps({"files": entries}, indent=1, sort_keys=True) + "\n"
+    count = sum(1 for name in entries if name.startswith("car_poses/"))
+    return count, hashlib.sha256(listing.encode()).hexdigest()
 
 
 def annotation_inputs():
-    """The annotation-reading stages' inputs: the generated folder or the PKU csv (read as ``annotations``),
-    or, for an ApolloCar3D folder, its manifest (``tracked``: the stage reads the folder itself).
+    """The annotation-reading stages' inputs: the generated folder or the PKU csv (read as ``annotations``);
+    none for an ApolloCar3D folder (a param: the stage reads the folder itself, tracked by annotation_tracked).
     """
     source = config["data"]["source"]
     if source == "synthetic":
         return {"annotations": result("data/synthetic_apollo")}
     if source == "apollo":
-        return {"tracked": ANNOTATION_MANIFEST}
+        return {}
     return {"annotations": config["data"]["pku_csv"]}
 
 
@@ -102,12 +104,19 @@ def annotation_keys():
     return {"synthetic": [], "apollo": ["data.apollo_folder"], "pku": ["data.pku_csv"]}[config["data"]["source"]]
 
 
+ANNOTATION_FILES = None  # (number of annotation files, SHA-256 of their listing) of an ApolloCar3D folder
 if config["data"]["source"] == "apollo":
     try:
         folder = config["data"]["apollo_folder"]
-        check_against_annotations(config, annotation_manifest(folder), folder)
+        ANNOTATION_FILES = annotation_files(folder)
+        check_against_annotations(config, ANNOTATION_FILES[0], folder)
     except ConfigError as error:  # one line naming the key, no traceback
         raise WorkflowError(error) from None
+
+
+def annotation_tracked():
+    """What the annotation-reading stages track without reading it: an ApolloCar3D folder's file listing."""
+    return {"annotations": ANNOTATION_FILES[1]} if ANNOTATION_FILES else {}
 
 
 # -- the jobs of each stage ---------------------------------------------------------------------------

@@ -15,6 +15,7 @@ notebook_stage(
     input=annotation_inputs(),
     output=dict(images=result("data/images.csv"), summary=result("data/summary.json")),
     params=annotation_params(),
+    tracked=annotation_tracked(),
     runtime=20,
 )
 
@@ -32,6 +33,7 @@ notebook_stage(
     input=dict(**annotation_inputs(), sample=result("sample/sample.csv")),
     output=dict(sky=SKY_FILE, stats=result("sky/stats.json")),
     params=dict(**annotation_params(), shift=config["sky"]["shift"]),
+    tracked=annotation_tracked(),
     runtime=30,
 )
 

@@ -1,13 +1,19 @@
 # -- the notebook-stage rule ----------------------------------------------------------------------------
 # A stage is a jupytext notebook run by papermill and rendered to HTML, by workflow/scripts/stage.py.
-# Its notebook's parameters are the rule's named inputs (but `source`, the notebook itself, and `tracked`),
-# named outputs (but `html`), params and threads. Params are plain config values (or functions of the
-# wildcards only), so that Snakemake's params trigger reruns the stages a config edit affects.
+# Its notebook's parameters are the rule's named inputs, named outputs (but `html`), params (but `stage`)
+# and threads. Params are plain config values (or functions of the wildcards only), so that Snakemake's
+# params trigger reruns the stages a config edit affects. The param `stage` holds what the stage depends
+# on without reading it: its notebook's path and the fingerprint of the code it runs (and an ApolloCar3D
+# folder's file listing), so that a code edit reruns the stages that run the edited file. The notebook is
+# no input: its path would be absolute, or relative to a working directory that may lie outside the
+# project, and a moved project would rerun every stage; its content is in the fingerprint instead.
 # Each stage is one call of notebook_stage, which states only what is the stage's own; the rest (its
 # notebook, rendering, log, benchmark, environment and resources) is the same for every stage.
 
 
-def notebook_stage(name, doc, *, jobs=({},), notebook=None, job=None, input={}, output={}, params={}, runtime=10):
+def notebook_stage(
+    name, doc, *, jobs=({},), notebook=None, job=None, input={}, output={}, params={}, tracked={}, runtime=10
+):
     """Add the stage `name`, described by `doc`, that runs notebooks/<notebook>.py (default: name), as its rule.
 
     jobs: the rule's jobs as their wildcards, a dict each (the default, one job without wildcards, or none
@@ -15,10 +21,15 @@ def notebook_stage(name, doc, *, jobs=({},), notebook=None, job=None, input={}, 
         `each(name, output)` lists a named output's files in this order, for the stages that gather them.
     job: the name of a job's rendered notebook, log and benchmark, with the rule's wildcards (default: name).
     input, output, params: the stage's own named inputs, outputs and params; runtime: minutes on a cluster.
+    tracked: digests of what the stage reads without a file input (the annotation files), beside its code.
     """
-    if "source" in input or "html" in output:
-        raise WorkflowError(f"stage {name}: 'source' and 'html' are the notebook and its rendering, named by the stage")
+    if "html" in output or "stage" in params:
+        raise WorkflowError(
+            f"stage {name}: the output 'html' (the notebook's rendering) and the param 'stage' (its notebook and "
+            f"code) are named by the stage"
+        )
     job = job or name
+    notebook = notebook or name
     JOBS[name] = jobs
 
     rule:
@@ -26,7 +37,6 @@ def notebook_stage(name, doc, *, jobs=({},), notebook=None, job=None, input={}, 
             name
         input:
             **input,
-            source=str(NOTEBOOKS / f"{notebook or name}.py"),
         output:
             **output,
             html=result(f"notebooks/{job}.html"),
@@ -43,6 +53,8 @@ def notebook_stage(name, doc, *, jobs=({},), notebook=None, job=None, input={}, 
             runtime=runtime,
         params:
             **params,
+            # a function: computed for the jobs a run asks for, after the checks below
+            stage=lambda wildcards: dict(notebook=f"notebooks/{notebook}.py", code=stage_code(notebook), **tracked),
         script:
             "../scripts/stage.py"
 

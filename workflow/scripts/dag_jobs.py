@@ -10,8 +10,10 @@ is a local rule. ``compare`` prints the jobs and fields that differ and ``SAME n
 (exit status 0 or 1). What means nothing to a stage is left out of the comparison: the order of a rule's
 named files (stages read them by name) and the order of the target rule's inputs.
 
-Two checkouts give different absolute paths for the notebooks and captions; run both dumps from the
-same path (one checkout after the other), or compare after replacing one root with the other.
+Two checkouts give different absolute paths for the report captions (a flag); run both dumps from the
+same path (one checkout after the other), or compare after replacing one root with the other. The param
+``stage`` holds the fingerprint of the code a job runs: a refactoring of the rule files keeps it, an edit
+of the code it covers does not (workflow/scripts/code_deps.py).
 """
 from __future__ import annotations
 

@@ -2,18 +2,24 @@
 
     python workflow/scripts/run_notebook.py SOURCE.py EXECUTED.ipynb OUTPUT.html PARAMETERS_JSON
 
-The executed notebook is written as papermill goes (it is the rule's log and is
-kept when a cell fails, with the traceback in it); the HTML is written only
-after the notebook ran through, atomically (:mod:`sdm.io`). One process does all
-three steps (jupytext, papermill, nbconvert), which saves two interpreter
-start-ups per job.
+The executed notebook is written as papermill goes, to a hidden temporary file
+beside EXECUTED.ipynb (``.EXECUTED.<random>.tmp.ipynb``), which becomes
+EXECUTED.ipynb when it holds a whole notebook: the run finished, or it stopped (a
+cell failed: the traceback is in it; the kernel died) after papermill last saved
+it whole. A notebook papermill could not write whole (a full disk) is removed, so
+EXECUTED.ipynb is never half-written, and an older one is removed at the start, so
+it is always this run's. (It is the rule's log, kept when the stage fails.) The
+HTML is written only after the notebook ran through, atomically (:mod:`sdm.io`).
+One process does all three steps (jupytext, papermill, nbconvert), which saves two
+interpreter start-ups per job.
 
 On failure the FIRST line printed (stderr) is the one-line cause::
 
     notebooks/sky.py failed: SDMInputError: results/sky/sky.bin: array 'point_depth' fails its CRC-32 check; ...
 
 then where it happened and the executed notebook to open for the traceback;
-anything the libraries printed meanwhile comes after, colour codes stripped.
+anything the libraries printed meanwhile comes after, colour codes stripped (in
+the text log when one is given; on the console when it cannot be written).
 Exit status 1.
 """
 from __future__ import annotations
@@ -70,6 +76,39 @@ def execute_with_kernel_restarts(execute, *args, **kwargs):
             print(f"the kernel failed to start ({error}); starting it again", file=sys.stderr, flush=True)
 
 
+def _whole_notebook(path: Path) -> bool:
+    """Whether ``path`` holds a whole notebook (JSON with its cells): a truncated write never parses."""
+    try:
+        content = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return False
+    return isinstance(content, dict) and isinstance(content.get("cells"), list)
+
+
+def execute_into(executed: str | Path, run):
+    """``run(temporary)`` with papermill writing the executed notebook to a temporary file beside ``executed``.
+
+    The temporary file becomes ``executed`` (atomically, :func:`sdm.io.write_atomic`) when it holds a whole
+    notebook: ``run`` returned, or raised after papermill last saved it whole (a failed cell, a dead kernel),
+    in which case the error is raised again afterwards. When ``run`` raised and the file is not whole (a
+    write cut short by a full disk), it is removed, ``executed`` is left absent and the error raised.
+    """
+    outcome = {}
+
+    def write(temporary: Path) -> None:
+        try:
+            outcome["result"] = run(temporary)
+        except Exception as error:
+            if not _whole_notebook(temporary):
+                raise  # write_atomic removes the temporary file
+            outcome["error"] = error
+
+    _load_writer().write_atomic(executed, write)
+    if "error" in outcome:
+        raise outcome["error"]
+    return outcome["result"]
+
+
 @contextlib.contextmanager
 def captured_output():
     """Collect everything written to this process's stdout and stderr (file descriptors 1 and 2, so the
@@ -113,9 +152,13 @@ def report_failure(head: str, details: list[str], where: str, noise: str, log: P
     out = [head, *(f"    {line}" for line in details), where]
     noise = strip_ansi(noise).strip()
     if log is not None:
-        _write_log(log, "\n".join(out + (["output of the run:", noise] if noise else [])))
-        out.append(f"(the tools' messages are in {log})")
-    elif noise:
+        try:
+            _write_log(log, "\n".join(out + (["output of the run:", noise] if noise else [])))
+            out.append(f"(the tools' messages are in {log})")
+            noise = ""
+        except OSError as error:  # a full disk: the messages come to the console, after the cause
+            out.append(f"(the tools' messages could not be written to {log}: {error})")
+    if noise:
         out += ["output of the run:", noise]
     print("\n".join(out), file=sys.stderr, flush=True)
 
@@ -140,18 +183,18 @@ def main(source: str, executed: str, html: str, parameters: str | dict, stderr_l
             import papermill
             from nbconvert import HTMLExporter
 
+            Path(executed).unlink(missing_ok=True)  # what is under that name is this run's notebook or nothing
             notebook = jupytext.read(source)
             notebook.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
-            Path(executed).parent.mkdir(parents=True, exist_ok=True)
-            result = execute_with_kernel_restarts(
+            result = execute_into(executed, lambda temporary: execute_with_kernel_restarts(
                 papermill.execute_notebook,
                 notebook,
-                executed,
+                str(temporary),
                 parameters=parameters,
                 kernel_name="python3",
                 progress_bar=False,
                 log_output=False,
-            )
+            ))
             body, _ = HTMLExporter().from_notebook_node(result)
             _load_writer().write_text(html, body)
         except Exception as error:  # noqa: BLE001 - every failure is reported the same way, cause first
@@ -160,17 +203,25 @@ def main(source: str, executed: str, html: str, parameters: str | dict, stderr_l
         else:
             noise, failure = output(), None
     if failure is None:
-        if log is not None:
-            _write_log(log, strip_ansi(noise).strip())
-        elif noise.strip():
-            sys.stderr.write(strip_ansi(noise))
-        return 0
+        try:
+            if log is not None:
+                _write_log(log, strip_ansi(noise).strip())
+            elif noise.strip():
+                sys.stderr.write(strip_ansi(noise))
+            return 0
+        except OSError as error:  # the notebook ran, but its log cannot be written: the job fails, cause first
+            failure = error
     if type(failure).__name__ == "PapermillExecutionError":
         head, details = one_line_cause(source, failure.ename, failure.evalue)
         where = f"(in cell [{failure.exec_count}]; the executed notebook, with the traceback, is {executed})"
     else:
         head, details = one_line_cause(source, type(failure).__name__, str(failure))
-        kept = f"; the executed notebook so far is {executed}" if Path(executed).is_file() else ""
+        if Path(executed).is_file():
+            kept = f"; the executed notebook so far is {executed}"
+        elif isinstance(failure, OSError):
+            kept = f"; no executed notebook is kept: {executed} could not be written whole"
+        else:
+            kept = ""
         where = f"(while running the notebook{kept})"
     report_failure(head, details, where, noise, log)
     return 1

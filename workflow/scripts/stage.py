@@ -1,8 +1,9 @@
 """One workflow stage, run by Snakemake's ``script:`` directive (the rule ``notebook_stage`` makes).
 
-The notebook's papermill parameters are the rule's named inputs (but ``source``,
-the notebook itself, and ``tracked``, a file the stage depends on without reading
-it), named outputs (but ``html``), params and ``threads``.
+The notebook, ``params.stage["notebook"]`` (relative to the project root: the
+project can move), gets as papermill parameters the rule's named inputs, named
+outputs (but ``html``), params (but ``stage``, what the stage depends on without
+reading it: its notebook and the fingerprint of its code) and ``threads``.
 The job's threads cap torch/OpenMP; the project's ``src/`` goes on the kernel's
 PYTHONPATH so that a conda environment works without installing ``sdm``. The
 tools' own messages go to ``log.stderr``; on failure, the first line Snakemake
@@ -23,13 +24,18 @@ def _named(items, skip):
             for key, value in items.items() if key not in skip}
 
 
-parameters = _named(smk.input, {"source", "tracked"}) | _named(smk.output, {"html"}) | dict(smk.params.items())
+parameters = _named(smk.input, set()) | _named(smk.output, {"html"})
+parameters |= {key: value for key, value in smk.params.items() if key != "stage"}
 parameters["threads"] = smk.threads
 
-src = str(Path(smk.scriptdir).parents[1] / "src")
+project = Path(smk.scriptdir).resolve().parents[1]  # scriptdir is workflow/rules/../scripts: resolve the ..
+notebook = project / smk.params.stage["notebook"]
+# Shown in messages relative to where Snakemake runs when the project is there (notebooks/sample.py).
+source = os.path.relpath(notebook) if not os.path.relpath(notebook).startswith("..") else str(notebook)
+src = str(project / "src")
 threads = str(smk.threads)
 os.environ.update(OMP_NUM_THREADS=threads, MKL_NUM_THREADS=threads,
                   PYTHONPATH=os.pathsep.join(filter(None, [src, os.environ.get("PYTHONPATH")])))
 os.environ.pop("MPLBACKEND", None)  # the kernel's inline backend puts every plot in the rendered notebook
 
-sys.exit(main(smk.input.source, smk.log.notebook, smk.output.html, parameters, stderr_log=smk.log.stderr))
+sys.exit(main(source, smk.log.notebook, smk.output.html, parameters, stderr_log=smk.log.stderr))
