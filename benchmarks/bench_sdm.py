@@ -9,9 +9,9 @@ Prints, in one run on one thread:
     with the kernel and on the torch path;
   * the time to build the default Sky data set (4,248 configurations) on one core;
   * many runs as one program (issue 10): ``--runs`` (30) noise runs at noise level 2
-    trained one after another (:func:`sdm.experiments.noise_run`) and together
-    (:func:`sdm.experiments.noise_runs`, one group of ``--runs``, and the default
-    group size), ms per run-step of each and the ratio;
+    trained one after another (:func:`sdm.experiments.noise_runs` with groups of one run) and
+    together (one group of ``--runs``, and the default group size), ms per run-step of each and
+    the ratio;
   * all of Table 2: 5 noise levels x ``--table2-runs`` (60) runs, 512 training
     configurations, the tuned settings of the default workflow (n_epoch 2, lr 1e-4),
     batched with the default group size;
@@ -36,7 +36,7 @@ import torch
 from sdm.batch import ConfigurationSet
 from sdm.data import build_sky_dataset
 from sdm.data.synthetic import synthetic_images
-from sdm.experiments import NOISE_GROUP_SIZE, noise_run, noise_runs
+from sdm.experiments import NOISE_GROUP_SIZE, noise_runs
 from sdm.mapping import SpatialDomainMapping, native
 from sdm.sky import shift_vector
 from sdm.train import TrainSettings, train
@@ -71,11 +71,9 @@ def runs_together_vs_alone(data: ConfigurationSet, n_runs: int, device: str) -> 
     steps = 5 * TABLE2_SETTINGS.n_epoch * (len(data) // TABLE2_SETTINGS.batch_size)
     data = data.to(device)
     with Clock(device) as alone:
-        for run in range(n_runs):
-            noise_run(data, 2, run, TABLE2_SETTINGS)
+        noise_runs(data, 2, range(n_runs), TABLE2_SETTINGS, group_size=1)
     with native.disabled(), Clock(device) as alone_torch:  # the same runs without the kernel (as before it)
-        for run in range(n_runs):
-            noise_run(data, 2, run, TABLE2_SETTINGS)
+        noise_runs(data, 2, range(n_runs), TABLE2_SETTINGS, group_size=1)
     with Clock(device) as together:
         noise_runs(data, 2, range(n_runs), TABLE2_SETTINGS, group_size=n_runs)
     with Clock(device) as grouped:

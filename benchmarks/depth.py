@@ -5,7 +5,7 @@
 
 Run r at noise level n: targets of the shift (0.517, 0.303, c) (``sdm.depth.depth_targets``), moved by
 noise n drawn from ``run_seed(0, n, r)``, which also shuffles; the tuned settings with ``fit_depth``.
-Runs are trained ``--group`` at a time by ``sdm.train.train_runs`` (each as ``train`` alone, to 1e-12 m).
+Runs are Table 5's (``sdm.experiments.depth_noise_runs``), ``--group`` at a time (each as ``train`` alone, to 1e-12 m).
 Prints per (c, level) the mean |a - a*|, |b - b*| (1e-3 m) and |c - c*| (1e-2 m) and the distance in (a, b).
 """
 from __future__ import annotations
@@ -18,9 +18,7 @@ from dataclasses import replace
 import pandas as pd
 import torch
 
-from sdm.depth import depth_targets
-from sdm.experiments import load_split, noisy_targets, run_seed, settings_for
-from sdm.train import train_runs
+from sdm.experiments import depth_noise_runs, load_split, settings_for
 
 TUNED = dict(n_epoch=2, lr=1e-4, s=4, batch_size=16, lr_decay=0.5, seed=0)
 
@@ -35,7 +33,7 @@ def main(argv=None) -> int:
     parser.add_argument("--flow", default="paper")
     parser.add_argument("--depth-lr-scale", type=float, default=None, help="default TrainSettings'")
     parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--group", type=int, default=20, help="runs trained together (sdm.train.train_runs)")
+    parser.add_argument("--group", type=int, default=20, help="runs trained together (group_size)")
     parser.add_argument("--epochs", type=int, default=None, help="n_epoch (default the tuned 2)")
     parser.add_argument("--depth-zoom", type=int, default=None, help="finest level moving c (default TrainSettings')")
     parser.add_argument("--csv", help="write the per-run rows here")
@@ -49,21 +47,15 @@ def main(argv=None) -> int:
         settings = replace(settings, depth_zoom=args.depth_zoom)
     if args.epochs is not None:
         settings = replace(settings, n_epoch=args.epochs)
-    rows = []
+    frames = []
     for c in (float(v) for v in args.depths.split(",")):
-        truth = (0.517, 0.303, c)
-        clean = depth_targets(train_set, truth)
         for level in (int(v) for v in args.levels.split(",")):
-            # Runs trained together, each exactly as train() alone would (to 1e-12 m; tests/test_depth.py).
-            for first in range(0, args.runs, args.group):
-                group = range(first, min(first + args.group, args.runs))
-                seeds = [run_seed(settings.seed, level, run) for run in group]
-                targets = [noisy_targets(clean, level, seed) for seed in seeds]
-                history = train_runs(train_set, targets, [replace(settings, seed=seed) for seed in seeds])
-                for run, (a, b, fitted) in zip(group, history.final_theta):
-                    rows.append({"c_true": c, "level": level, "run": run, "a": a, "b": b, "c": fitted})
+            # Table 5's runs (sdm.experiments.depth_noise_runs), --group at a time (each as train() alone, to 1e-12 m).
+            runs = depth_noise_runs(train_set, c, level, range(args.runs), settings, shift=(0.517, 0.303),
+                                    group_size=args.group)
+            frames.append(runs[["c_true", "level", "run", "a", "b", "c"]])
             print(f"# c {c} level {level} done", file=sys.stderr, flush=True)
-    frame = pd.DataFrame(rows)
+    frame = pd.concat(frames, ignore_index=True)
     frame["err_a_mm"] = 1e3 * (frame.a - 0.517).abs()
     frame["err_b_mm"] = 1e3 * (frame.b - 0.303).abs()
     frame["err_c_cm"] = 1e2 * (frame.c - frame.c_true).abs()

@@ -22,6 +22,7 @@ import pandas as pd
 import torch
 
 from sdm import FLOW_RULES
+from sdm.mapping.research_rules import RESEARCH_RULES
 from sdm.experiments import flow_at_true_shift, load_split, noise_runs, settings_for
 
 TUNED = dict(n_epoch=2, lr=1e-4, s=4, batch_size=16, lr_decay=0.5, seed=0)
@@ -33,7 +34,8 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("sky")
     parser.add_argument("split")
-    parser.add_argument("--rules", default="paper,closed_centred_r1", help=f"comma-separated, of {','.join(FLOW_RULES)}")
+    parser.add_argument("--rules", default="paper,closed_centred_r1",
+                        help=f"comma-separated, of {','.join(FLOW_RULES)} or the experiments {','.join(RESEARCH_RULES)}")
     parser.add_argument("--runs", type=int, default=20)
     parser.add_argument("--levels", default="0,1,2,3,4")
     parser.add_argument("--threads", type=int, default=1)

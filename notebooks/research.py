@@ -94,9 +94,10 @@ if part in ("rules", "depth"):
 # ## The runs
 #
 # `rules`: `sdm.experiments.rule_noise_runs`, i.e. Table 2's `noise_runs` with the rule's flow (runs trained
-# together, each moved only by its own flow). `depth`: `sdm.experiments.depth_noise_runs`, one run at a time
-# (the batched trainer fits (a, b) only); each row has the fitted (a, b, c), the absolute errors and the
-# distances to (a*, b*) and to (a*, b*, c*), in metres.
+# together, each moved only by its own flow). `depth`: `sdm.experiments.depth_noise_runs`, trained together
+# the same way with `fit_depth` (each run equal to the run trained alone to 1e-12 m: the depth flow is a
+# float sum); each row has the fitted (a, b, c), the absolute errors and the distances to (a*, b*) and to
+# (a*, b*, c*), in metres.
 
 # %%
 if part == "rules":

@@ -22,7 +22,7 @@ import torch
 
 def probe(data_path: str, device: str) -> dict:
     from sdm.batch import ConfigurationSet
-    from sdm.experiments import flow_at_true_shift, noise_run, noise_runs
+    from sdm.experiments import flow_at_true_shift, noise_runs
     from sdm.mapping import SpatialDomainMapping, dynamic_flow, explain_point  # noqa: F401 (import is the probe)
     from sdm.metrics import false_positive_pixels
     from sdm.train import TrainSettings, train
@@ -53,7 +53,7 @@ def probe(data_path: str, device: str) -> dict:
     history = train(data, settings, progress=False)
     out |= {"train_theta": history.theta, "train_loss": history.loss}
     out["false_positive"] = false_positive_pixels(data, history.final_theta)
-    single = noise_run(data, 1, 0, settings)
+    single = noise_runs(data, 1, [0], settings, group_size=1).iloc[0]
     out["noise_run"] = torch.tensor([single["a"], single["b"]], dtype=torch.float64, device="cpu")
     batched = noise_runs(data, 1, [0, 1], settings)
     out["noise_runs"] = torch.tensor(batched[["a", "b"]].to_numpy(), device="cpu")

@@ -15,18 +15,19 @@ import pytest
 import torch
 
 import baseline_reference
+from run_reference import baseline_noise_run
 from scenes import configuration_set
 from sdm import SKY_SHIFT, distance
 from sdm.baselines import (
     CMAESSettings, ChamferSettings, SilhouetteSettings, SinkhornSettings, best_settings, fit, grid, make_settings,
-    noise_run, settings_grid, tune,
+    noise_runs, settings_grid, tune,
 )
 from sdm.baselines import chamfer as chamfer_module
 from sdm.baselines import common
 from sdm.baselines import silhouette as silhouette_module
 from sdm.baselines.cmaes import PixelMismatch
 from sdm.errors import SDMInputError
-from sdm.experiments import noise_run as sdm_noise_run
+from sdm.experiments import noise_runs as sdm_noise_runs
 from sdm.experiments import settings_for
 from sdm.sky import shifted_target
 from sdm.train import TrainSettings
@@ -43,13 +44,16 @@ def small():
 
 
 def test_sdm_through_the_common_interface_is_table2s_run(small):
-    """fit('sdm') on a noise run's targets is sdm.experiments.noise_run: same seed, same theta."""
+    """Table 3's SDM runs are Table 2's (sdm.experiments.noise_runs), and fit('sdm') on a run's noisy targets
+    is that run trained alone: same seed, same theta, to the bit."""
     train_set, _ = small
     settings = settings_for(1, 1e-3, 4, 16, 0.5, 0)
-    ours = noise_run("sdm", train_set, level=2, run=3, settings=settings, seed=5)
-    theirs = sdm_noise_run(train_set, 2, 3, replace(settings, seed=5))  # settings.seed: the noise seed
-    assert (ours["a"], ours["b"], ours["seed"]) == (theirs["a"], theirs["b"], theirs["seed"])
-    assert ours["seconds"] > 0
+    ours = noise_runs("sdm", train_set, 2, [3, 0, 1], settings, seed=5, group_size=2)
+    theirs = sdm_noise_runs(train_set, 2, [3, 0, 1], replace(settings, seed=5))  # settings.seed: the noise seed
+    pd.testing.assert_frame_equal(ours[list(theirs.columns)], theirs)
+    assert set(ours["method"]) == {"sdm"} and (ours["seconds"] > 0).all()
+    alone = baseline_noise_run("sdm", train_set, 2, 3, settings, seed=5)
+    assert (alone["a"], alone["b"], alone["seed"]) == tuple(ours.loc[0, ["a", "b", "seed"]])
 
 
 def test_sdm_recovers_the_shift(small):
@@ -258,11 +262,12 @@ def test_noise_runs_are_paired_and_seeded(small):
     pytest.importorskip("cma")
     train_set, _ = small
     settings = CMAESSettings(budget=30)
-    first = noise_run("cmaes", train_set, 2, 1, settings, seed=4)
-    again = noise_run("cmaes", train_set, 2, 1, settings, seed=4)
-    other = noise_run("cmaes", train_set, 2, 2, settings, seed=4)
+    first, other = noise_runs("cmaes", train_set, 2, [1, 2], settings, seed=4).to_dict("records")
+    again = noise_runs("cmaes", train_set, 2, [1], settings, seed=4).iloc[0]
     assert (first["a"], first["b"]) == (again["a"], again["b"])
     assert first["seed"] == again["seed"] != other["seed"]
+    alone = baseline_noise_run("cmaes", train_set, 2, 1, settings, seed=4)  # the run fitted alone
+    assert (first["a"], first["b"], first["evaluations"]) == (alone["a"], alone["b"], alone["evaluations"])
 
 
 # -- Table 3 ------------------------------------------------------------------------------------------------

@@ -11,13 +11,16 @@ is far above it: every run drawing from run 0's generator moved run 1's theta by
 sets (``test_the_tolerance_catches_a_shared_generator``).
 """
 
+from dataclasses import replace
+
 import pandas as pd
 import pytest
 import torch
 
 import baseline_reference
+from run_reference import baseline_noise_run
 from scenes import configuration_set
-from sdm.baselines import METHODS, ChamferSettings, SilhouetteSettings, SinkhornSettings, noise_run, noise_runs
+from sdm.baselines import METHODS, RUN_COLUMNS, ChamferSettings, SilhouetteSettings, SinkhornSettings, noise_runs
 from sdm.baselines import chamfer, common, silhouette, sinkhorn
 from sdm.errors import SDMInputError
 from sdm.experiments import noisy_targets
@@ -133,33 +136,60 @@ def test_subsample_runs_draws_what_subsample_draws():
 
 
 def test_noise_runs_batched_equal_the_loop(runs):
-    """noise_runs through fit_runs (groups of 2 over 3 runs) gives noise_run's rows."""
+    """noise_runs through fit_runs (groups of 2 over 3 runs) gives the rows of each run fitted alone."""
     sets, _ = runs
     data = configuration_set(48, seed=23)
     _, settings = SHORT["chamfer"]
     assert METHODS["chamfer"].fit_runs is chamfer.fit_runs
     frame = noise_runs("chamfer", data, 2, [0, 3, 1], settings, seed=4, group_size=2)
-    loop = pd.DataFrame([noise_run("chamfer", data, 2, run, settings, seed=4) for run in (0, 3, 1)])
-    assert list(frame["run"]) == [0, 3, 1]
+    loop = pd.DataFrame([baseline_noise_run("chamfer", data, 2, run, settings, seed=4) for run in (0, 3, 1)])
+    assert list(frame.columns) == RUN_COLUMNS and list(frame["run"]) == [0, 3, 1]
     assert list(frame["seed"]) == list(loop["seed"])
     assert (frame[["a", "b"]] - loop[["a", "b"]]).abs().to_numpy().max() <= TOLERANCE_M
+    assert frame.loc[0, "seconds"] == frame.loc[1, "seconds"] > 0  # the first group's time over its runs
     with pytest.raises(SDMInputError, match="group_size"):
         noise_runs("chamfer", data, 2, [0], settings, seed=4, group_size=0)
+    with pytest.raises(SDMInputError, match="settings for 'chamfer'"):
+        noise_runs("chamfer", data, 2, [0], SilhouetteSettings(), seed=4)
+
+
+def test_noise_runs_of_a_method_without_fit_runs_fit_each_run_alone(monkeypatch):
+    """A method with no fit_runs gets one fit per run, on the same paired draws."""
+    data = configuration_set(48, seed=23)
+    _, settings = SHORT["chamfer"]
+    monkeypatch.setitem(METHODS, "chamfer", replace(METHODS["chamfer"], fit_runs=None))
+    frame = noise_runs("chamfer", data, 1, [2, 0], settings, seed=4)
+    for row in frame.to_dict("records"):
+        alone = baseline_noise_run("chamfer", data, 1, row["run"], settings, seed=4)
+        assert (row["seed"], row["a"], row["b"]) == (alone["seed"], alone["a"], alone["b"])
 
 
 def test_sdm_batched_equals_its_single_runs(monkeypatch):
+    """sdm_layer.fit_runs is one train_runs call over its runs (the grouping is noise_runs'), run for run fit()."""
+    from sdm import experiments
     from sdm.baselines import sdm_layer
     from sdm.train import TrainSettings
 
+    calls = []
+    original = experiments.train_runs
+
+    def counting(train_set, targets, settings, **kwargs):
+        calls.append(len(targets))
+        return original(train_set, targets, settings, **kwargs)
+
+    monkeypatch.setattr(experiments, "train_runs", counting)
     data = configuration_set(48, seed=23)
-    seeds = (5, 6, 7)
+    seeds = (5, 6, 7, 8, 9)
     sets = [data.with_targets(noisy_targets(data.targets, 2, seed)) for seed in seeds]
     settings = TrainSettings(lr=1e-3, n_epoch=1, s=2)
-    monkeypatch.setattr(sdm_layer, "NOISE_GROUP_SIZE", 2)  # two train_runs groups: 2 runs, then 1
     batched = sdm_layer.fit_runs(sets, settings, list(seeds))
-    assert len({result.theta for result in batched}) == 3
+    assert calls == [5]
+    assert len({result.theta for result in batched}) == 5
     for data_run, seed, result in zip(sets, seeds, batched):
         assert result.theta == sdm_layer.fit(data_run, settings, seed).theta
+    calls.clear()
+    frame = noise_runs("sdm", data, 2, range(5), settings, seed=1)  # the method's default group: Table 2's
+    assert calls == [4, 1] and list(frame["run"]) == [0, 1, 2, 3, 4]
 
 
 def test_runs_must_share_points_and_have_a_seed_each(runs):

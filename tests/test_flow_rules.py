@@ -4,6 +4,7 @@ from __future__ import annotations
 import pytest
 import torch
 
+from flow_reference import uncovered_pull, window_pull
 from scenes import configurations
 from sdm import FLOW_RULES, TrainSettings
 from sdm.batch import ConfigurationSet
@@ -11,11 +12,13 @@ from sdm.camera import APOLLO_CAMERA_5
 from sdm.errors import SDMInputError
 from sdm.mapping import SpatialDomainMapping, dynamic_flow
 from sdm.mapping.fast import fast_mapping
-from sdm.mapping.rules import _rule
+from sdm.mapping.research_rules import RESEARCH_RULES
+from sdm.mapping.rules import closing, flow_rule, window_rule
 from sdm.sky import SKY_SHIFT, add_target_noise, shift_vector
 from sdm.zoom import zoom_out
 
 CAM = APOLLO_CAMERA_5
+RULES = FLOW_RULES | RESEARCH_RULES  # every rule, product and experiment
 
 
 @pytest.fixture(scope="module")
@@ -41,30 +44,83 @@ def test_paper_is_the_default_and_unknown_names_are_refused():
         SpatialDomainMapping(method="dense", flow="nearest")
 
 
+
+def test_experiments_are_chosen_by_name_or_as_functions():
+    """An experiment is outside sdm.FLOW_RULES but still selectable: by name (the lookup searches RESEARCH_RULES
+    after FLOW_RULES) and as the function itself; an unknown name's error lists both registries."""
+    nearest = RESEARCH_RULES["nearest"]
+    assert "nearest" not in FLOW_RULES
+    assert flow_rule("nearest") is nearest and flow_rule(nearest) is nearest and flow_rule("paper") is dynamic_flow
+    assert SpatialDomainMapping(flow="nearest").flow_rule is nearest
+    assert SpatialDomainMapping(flow=nearest).flow_rule is nearest
+    assert TrainSettings(flow="nearest").flow == "nearest"
+    with pytest.raises(SDMInputError, match=r"^flow must be a rule of sdm\.FLOW_RULES \['closed_centred_r1', 'paper'\] "
+                                            r"or an experiment of .*RESEARCH_RULES \[.*'nearest'.*\], got 'no-such'"):
+        flow_rule("no-such")
+
+def _rule_inputs(batch, theta, target, zoom):
+    """The arguments the layer's chain hands a rule at loss level ``zoom`` (torch path, s = 4)."""
+    captured = []
+
+    def spy(*args):
+        captured.append(args)
+        return dynamic_flow(*args)
+
+    _ = _map(batch, theta, target, zoom, spy)
+    return captured[0]
+
+
+# name: (window centred on the landing block, target preparation or None, two-sided), at zoom 0 and at zoom 2
+PLAIN = {
+    "paper": ((False, None, False), (False, None, False)),
+    "generic": ((False, None, False), (False, None, False)),
+    "centred": ((True, None, False), (True, None, False)),
+    "closed": ((False, closing(3), False), (False, closing(3), False)),
+    "closed_r1": ((False, closing(3), False), (False, None, False)),
+    "closed_centred_r1": ((True, closing(3), False), (False, None, False)),
+    "two_sided": ((False, None, True), (False, None, True)),
+    "closed_two_sided": ((False, closing(3), True), (False, closing(3), True)),
+}
+
+
 @pytest.mark.parametrize("zoom", [0, 2])
-def test_the_generic_window_reproduces_the_paper(batch, zoom):
-    """The rule builder with no hooks is eq. 19: its flow equals dynamic_flow's off theta* (an independent window)."""
-    for theta in ((0.3, 0.1), (0.7, 0.45)):
-        paper = _map(batch, theta, batch.targets, zoom, dynamic_flow)
-        generic = _map(batch, theta, batch.targets, zoom, _rule())
-        assert bool(paper.flow.any())  # not vacuous: points are pulled here
-        assert torch.equal(paper.flow, generic.flow) and torch.equal(paper.matched, generic.matched)
-        assert float(generic.loss) == pytest.approx(float(paper.loss), rel=1e-12)
+@pytest.mark.parametrize("name", sorted(PLAIN))
+def test_rules_on_the_window_equal_the_plain_reference(name, zoom):
+    """Every rule built on the 3x3 window (eq. 19 itself, the generic window rule, centring, closing, the zoom
+    switch, the reverse pull) equals :func:`flow_reference.window_pull`, a loop over points: flow and matched
+    to the bit, the loss to rounding (another order of summation)."""
+    batch = ConfigurationSet.from_configurations(configurations(3, 11)).batch(range(3))
+    rule = window_rule() if name == "generic" else RULES[name]
+    noisy = add_target_noise(batch.targets, 2, torch.Generator().manual_seed(1))
+    centred, prepare, two_sided = PLAIN[name][zoom > 0]
+    for theta, target in (((0.3, 0.1), batch.targets), ((0.7, 0.45), noisy), (SKY_SHIFT, noisy)):
+        screen, depth, config, landed, block, landing, zoomed, _, camera = _rule_inputs(batch, theta, target, zoom)
+        flow, loss, matched = rule(screen, depth, config, landed, block, landing, zoomed, zoom, camera)
+        # The two-sided rules pull back towards the target as given, the forward side towards the prepared one.
+        forward = prepare(zoomed, zoom) if prepare is not None else zoomed
+        ref_flow, ref_loss, ref_matched = window_pull(screen, depth, config, landed, landing if centred else block,
+                                                      landing, forward, zoom, camera)
+        if two_sided:
+            back_flow, back_loss = uncovered_pull(screen, depth, config, landed, landing, zoomed, zoom, camera)
+            ref_flow, ref_loss = ref_flow + back_flow, ref_loss + back_loss
+        assert bool(flow.any()) and bool(matched.any()) and bool((landed & ~matched).any())  # not vacuous
+        assert torch.equal(matched, ref_matched) and torch.equal(flow, ref_flow), theta
+        assert float(loss) == pytest.approx(ref_loss, rel=1e-12), theta
 
 
-@pytest.mark.parametrize("name", sorted(FLOW_RULES))
+@pytest.mark.parametrize("name", sorted(RULES))
 def test_true_shift_is_an_exact_fixed_point_without_noise(batch, name):
     for zoom in (4, 3, 2, 1, 0):
-        result = _map(batch, SKY_SHIFT, batch.targets, zoom, FLOW_RULES[name])
+        result = _map(batch, SKY_SHIFT, batch.targets, zoom, RULES[name])
         assert float(result.loss) == 0 and not bool(result.flow.any()), (name, zoom)
     # ... and it is not a fixed point elsewhere: the rule pulls towards theta*.
-    result = _map(batch, (SKY_SHIFT[0] - 0.3, SKY_SHIFT[1] - 0.2), batch.targets, 0, FLOW_RULES[name])
+    result = _map(batch, (SKY_SHIFT[0] - 0.3, SKY_SHIFT[1] - 0.2), batch.targets, 0, RULES[name])
     assert float(result.flow[:, 0].sum()) < 0 and float(result.flow[:, 1].sum()) < 0, name
 
 
 @pytest.mark.parametrize("name,bound", [("nearest", 1.0), ("normalised", 1.0)])
 def test_bounded_rules_pull_each_point_at_most_once_per_axis(batch, name, bound):
-    result = _map(batch, (0.2, 0.1), batch.targets, 0, FLOW_RULES[name])
+    result = _map(batch, (0.2, 0.1), batch.targets, 0, RULES[name])
     assert bool(result.flow.any()) and float(result.flow.abs().max()) <= bound
 
 
@@ -91,8 +147,8 @@ def test_closing_the_target_removes_most_of_the_bias_at_the_true_shift(batch, na
     draws). The bound, a quarter of the paper's own mean on the same draws, sits well clear of both
     (the standard errors over 12 draws are about 1 to 2).
     """
-    paper = _mean_flow_at_true_shift(batch, level, FLOW_RULES["paper"], 12).mean(0)
-    rule = _mean_flow_at_true_shift(batch, level, FLOW_RULES[name], 12).mean(0)
+    paper = _mean_flow_at_true_shift(batch, level, RULES["paper"], 12).mean(0)
+    rule = _mean_flow_at_true_shift(batch, level, RULES[name], 12).mean(0)
     assert float(paper[1]) < -20  # the bias is there to remove
     assert abs(float(rule[1])) < abs(float(paper[1])) / 4
     assert abs(float(rule[0])) < max(abs(float(paper[0])), 5.0)
@@ -123,10 +179,10 @@ def test_zoom_scheduled_rules_are_the_paper_coarse_and_closed_at_full_resolution
     theta = (SKY_SHIFT[0] - 0.05, SKY_SHIFT[1] + 0.03)
     for zoom in (3, 2, 1):
         paper = _map(batch, theta, noisy, zoom, dynamic_flow)
-        scheduled = _map(batch, theta, noisy, zoom, FLOW_RULES[name])
+        scheduled = _map(batch, theta, noisy, zoom, RULES[name])
         assert bool(paper.flow.any()) and torch.equal(paper.flow, scheduled.flow), zoom
-    closed = _map(batch, theta, noisy, 0, FLOW_RULES[fine])
-    scheduled = _map(batch, theta, noisy, 0, FLOW_RULES[name])
+    closed = _map(batch, theta, noisy, 0, RULES[fine])
+    scheduled = _map(batch, theta, noisy, 0, RULES[name])
     assert torch.equal(closed.flow, scheduled.flow) and float(closed.loss) == float(scheduled.loss)
     assert not torch.equal(closed.flow, _map(batch, theta, noisy, 0, dynamic_flow).flow)
 
@@ -135,8 +191,6 @@ def test_a_centred_window_is_centred_on_the_landing_block():
     """One point whose kernel stepped it one column right: the paper's window (around its input block) sees a
     target block two columns left of where it landed; the centred window (around the landing block) does not,
     and sees one a column right of it that the paper's window cannot."""
-    from sdm.mapping.rules import _rule
-
     screen = torch.tensor([[5.5, 11.5]], dtype=torch.float64)  # landed in pixel (5, 11)
     depth = torch.tensor([20.0], dtype=torch.float64)
     config = torch.zeros(1, dtype=torch.int64)
@@ -146,7 +200,7 @@ def test_a_centred_window_is_centred_on_the_landing_block():
         target = torch.zeros(1, *CAM.screen_shape, dtype=torch.bool)
         target[0, 5, target_column] = True
         paper = dynamic_flow(screen, depth, config, landed, block, landing, target, 0, CAM)[0]
-        centred = _rule(centred=True)(screen, depth, config, landed, block, landing, target, 0, CAM)[0]
+        centred = window_rule(centred=True)(screen, depth, config, landed, block, landing, target, 0, CAM)[0]
         assert bool(paper.any()) == paper_pulls and bool(centred.any()) == centred_pulls, target_column
         if centred_pulls:  # towards the target on the right: dJ/dx < 0
             assert float(centred[0, 0]) == -1.0
@@ -162,6 +216,6 @@ def test_the_two_sided_rule_pulls_a_matched_point_towards_an_uncovered_target_bl
     block = landing = torch.tensor([[5, 11]])
     target = torch.zeros(1, *CAM.screen_shape, dtype=torch.bool)
     target[0, 5, 11] = target[0, 6, 11] = True  # its own pixel (matched) and one below it, uncovered
-    flow, loss, matched = FLOW_RULES["two_sided"](screen, depth, config, landed, block, landing, target, 0, CAM)
+    flow, loss, matched = RULES["two_sided"](screen, depth, config, landed, block, landing, target, 0, CAM)
     assert bool(matched[0]) and flow[0].tolist() == [0.0, -1.0] and float(loss) > 0
-    assert not bool(FLOW_RULES["paper"](screen, depth, config, landed, block, landing, target, 0, CAM)[0].any())
+    assert not bool(RULES["paper"](screen, depth, config, landed, block, landing, target, 0, CAM)[0].any())

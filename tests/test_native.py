@@ -13,6 +13,7 @@ import torch
 from sdm.camera import APOLLO_CAMERA_5 as CAM
 from sdm.mapping import native
 from sdm.mapping.fast import _SCRATCH, fast_mapping
+from sdm.mapping.research_rules import RESEARCH_RULES
 from sdm.mapping.rules import FLOW_RULES
 from sdm.representation import NO_RANK
 from sdm.sky import shift_vector
@@ -23,6 +24,7 @@ from scenes import configuration_set
 
 pytestmark = pytest.mark.skipif(not native.enabled(), reason="no C compiler: the compiled kernel is not built")
 
+RULES = FLOW_RULES | RESEARCH_RULES  # the product's rules and the experiments
 FIELDS = ("out_pixels", "flow", "loss", "entered", "matched", "landed")
 
 
@@ -63,12 +65,12 @@ def test_kernel_leaves_the_scratch_buffer_clean():
     assert bool((buffer == NO_RANK).all())
 
 
-@pytest.mark.parametrize("rule", sorted(set(FLOW_RULES) - {"paper"}))
+@pytest.mark.parametrize("rule", sorted(set(RULES) - {"paper"}))
 def test_kernel_chain_with_every_other_rule_equals_the_torch_path(rule):
     data = configuration_set(8, seed=5)
     points, batch = batch_of(data, (0.2, 0.5))
     target = zoom_out(data.targets, 0)
-    args = (points, batch.pixels, batch.config, batch.rank, target, 4, 0, CAM, FLOW_RULES[rule])
+    args = (points, batch.pixels, batch.config, batch.rank, target, 4, 0, CAM, RULES[rule])
     assert_same(fast_mapping(*args), fast_mapping(*args, native=False))
 
 
@@ -145,9 +147,9 @@ def test_the_kernel_is_built_once_into_the_cache_folder(tmp_path):
     for _ in range(2):
         done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
         assert done.stdout.strip() == "True", done.stderr
-    built = list(tmp_path.iterdir())
-    assert len(built) == 1 and built[0].name.startswith("sdm_native_") and built[0].suffix == ".so"
-    assert built[0].stat().st_mode & 0o044 == 0o044  # readable by others
+    library, checksum = sorted(tmp_path.iterdir(), key=lambda path: path.suffix != ".so")  # and nothing else
+    assert library.name.startswith("sdm_native_") and library.suffix == ".so" and checksum.suffix == ".sha256"
+    assert library.stat().st_mode & 0o044 == 0o044  # readable by others
 
 
 def test_sdm_native_0_turns_the_kernel_off():

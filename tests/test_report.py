@@ -7,7 +7,7 @@ import torch
 
 from scenes import configuration_set, configurations
 from sdm.errors import SDMInputError
-from sdm.experiments import noise_run, noisy_targets, run_seed, settings_for, split_indices, tune_cell
+from sdm.experiments import noise_runs, noisy_targets, run_seed, settings_for, split_indices, tune_cell
 from sdm import paper
 from sdm.report import figures
 from sdm.report.io import read_json, write_json
@@ -175,8 +175,8 @@ def test_split():
 def test_noise_run_is_reproducible_and_noise_moves_targets():
     data = configuration_set(32, seed=5)
     settings = settings_for(1, 1e-3, 4, 16, 0.5, 0)
-    first = noise_run(data, 2, 0, settings)
-    assert first == noise_run(data, 2, 0, settings)
+    first = noise_runs(data, 2, [0], settings).iloc[0].to_dict()
+    assert first == noise_runs(data, 2, [0], settings).iloc[0].to_dict()
     assert first["seed"] == run_seed(0, 2, 0) and first["distance"] == pytest.approx(
         math.hypot(first["a"] - SKY_SHIFT[0], first["b"] - SKY_SHIFT[1]))
     assert torch.equal(noisy_targets(data.targets, 0, 1), data.targets)

@@ -18,12 +18,13 @@ import torch
 import yaml
 
 from scenes import configuration_set
-from sdm import FLOW_RULES, TrainSettings, train
-from sdm.depth import depth_targets
+from sdm import FLOW_RULES, TrainSettings
 from sdm.errors import SDMInputError
+from sdm.mapping.research_rules import RESEARCH_RULES
 from sdm.experiments import (
-    DEPTH_RUN_COLUMNS, RUN_COLUMNS, depth_noise_runs, noise_runs, noisy_targets, rule_noise_runs, run_seed,
+    DEPTH_RUN_COLUMNS, RUN_COLUMNS, depth_noise_runs, noise_runs, rule_noise_runs, run_seed,
 )
+from run_reference import depth_noise_run, noise_run
 from sdm import paper
 from sdm.report.research import (
     DEPTH_BAR_M, beyond_the_paper, depth_figure, issue_bar_m, rules_against_baselines, rules_figure, table4_frame,
@@ -49,33 +50,33 @@ def small_set():
 
 def test_rule_noise_runs_are_table2_runs_with_the_rule_and_the_same_draws(small_set):
     table = rule_noise_runs(small_set, "closed", 2, [0, 3], SETTINGS, shift=SHIFT)
-    reference = noise_runs(small_set, 2, [0, 3], replace(SETTINGS, flow="closed"), shift=SHIFT)
     assert list(table.columns) == ["flow", *RUN_COLUMNS]
     assert set(table["flow"]) == {"closed"}
-    pd.testing.assert_frame_equal(table.drop(columns="flow"), reference)
+    for row in table.drop(columns="flow").to_dict("records"):  # each run is the run trained alone with the rule
+        assert row == noise_run(small_set, 2, row["run"], replace(SETTINGS, flow="closed"), shift=SHIFT)
     # The seeds (noise draw and shuffling) are Table 2's: they do not depend on the rule.
     paper_rule = noise_runs(small_set, 2, [0, 3], SETTINGS, shift=SHIFT)
     assert table["seed"].tolist() == paper_rule["seed"].tolist() == [run_seed(7, 2, 0), run_seed(7, 2, 3)]
     assert table["distance"].tolist() != paper_rule["distance"].tolist()  # another rule, another result
 
 
-def test_depth_noise_runs_equal_a_single_run_built_by_hand(small_set):
-    """Run r: targets of (a*, b*, c*), Table 2's noise draw of (seed, level, r), fit_depth trained with that seed."""
+def test_depth_noise_runs_equal_the_runs_trained_alone(small_set):
+    """Run r: targets of (a*, b*, c*), Table 2's noise draw of (seed, level, r), fit_depth trained with that
+    seed (tests/run_reference.py), batched (two groups: 2 runs, then 1): the depth flow is a float sum,
+    so a packed run may round it otherwise, held to 1e-12 m (as test_depth.py holds train_runs)."""
     c, level = 0.5, 1
-    table = depth_noise_runs(small_set, c, level, [2, 0], SETTINGS, shift=SHIFT)
-    assert list(table.columns) == DEPTH_RUN_COLUMNS and table["run"].tolist() == [2, 0]
-    truth = (*SHIFT, c)
-    clean = depth_targets(small_set, truth)
-    for row in table.itertuples():
-        seed = run_seed(SETTINGS.seed, level, row.run)
-        noisy = small_set.with_targets(noisy_targets(clean, level, seed))
-        fitted = train(noisy, replace(SETTINGS, fit_depth=True, seed=seed), progress=False).final_theta
-        assert row.seed == seed and (row.a, row.b, row.c) == fitted and row.c_true == c and row.level == level
-        errors = [abs(v - t) for v, t in zip(fitted, truth)]
-        assert (row.error_a, row.error_b, row.error_c) == pytest.approx(errors, abs=1e-15)
-        assert row.distance_ab == pytest.approx(math.hypot(*errors[:2]))
-        assert row.distance == pytest.approx(math.sqrt(sum(e * e for e in errors)))
-    again = depth_noise_runs(small_set, c, level, [2, 0], SETTINGS, shift=SHIFT)
+    table = depth_noise_runs(small_set, c, level, [2, 0, 1], SETTINGS, shift=SHIFT, group_size=2)
+    assert list(table.columns) == DEPTH_RUN_COLUMNS and table["run"].tolist() == [2, 0, 1]
+    for row in table.to_dict("records"):
+        alone = depth_noise_run(small_set, c, level, row["run"], SETTINGS, shift=SHIFT)
+        assert {key: row[key] for key in ("c_true", "level", "run", "seed")} == {
+            key: alone[key] for key in ("c_true", "level", "run", "seed")}
+        assert row["seed"] == run_seed(SETTINGS.seed, level, row["run"])
+        for key in DEPTH_RUN_COLUMNS[4:]:
+            assert abs(row[key] - alone[key]) <= 1e-12, key
+        assert abs(alone["c"]) > 1e-3  # c moved: the comparison is not between two zeros
+    assert table["c"].nunique() == 3  # each run its own
+    again = depth_noise_runs(small_set, c, level, [2, 0, 1], SETTINGS, shift=SHIFT, group_size=2)
     pd.testing.assert_frame_equal(table, again)  # deterministic from the seed
 
 
@@ -222,11 +223,35 @@ def _config() -> dict:
 
 
 def test_the_schema_lists_the_library_rules():
-    """The workflow does not import sdm at parse time: its rule names are the schema's, held to FLOW_RULES here."""
+    """The workflow does not import sdm at parse time: its rule names are the schema's, held here to the names
+    the library accepts (TrainSettings(flow=NAME): sdm.FLOW_RULES, then the experiments' RESEARCH_RULES)."""
     schema = yaml.safe_load((ROOT / "workflow" / "schemas" / "config.schema.yaml").read_text())
     research = schema["properties"]["research"]["properties"]
-    assert sorted(research["rules"]["properties"]["names"]["items"]["enum"]) == sorted(FLOW_RULES)
-    assert sorted(research["depth"]["properties"]["flow"]["enum"]) == sorted(FLOW_RULES)
+    accepted = sorted(FLOW_RULES | RESEARCH_RULES)
+    assert sorted(research["rules"]["properties"]["names"]["items"]["enum"]) == accepted
+    assert sorted(research["depth"]["properties"]["flow"]["enum"]) == accepted
+    for name in accepted:
+        TrainSettings(flow=name)
+
+
+def test_the_public_registry_holds_the_rules_the_configuration_trains_with():
+    """sdm.FLOW_RULES: the paper's rule (Table 2) and the ones config.yaml's Tables 4 and 5 train with; every
+    other rule is an experiment, in RESEARCH_RULES only."""
+    research = _config()["research"]
+    assert set(FLOW_RULES) == {"paper", *research["rules"]["names"], research["depth"]["flow"]}
+    assert not set(FLOW_RULES) & set(RESEARCH_RULES)
+
+
+def test_the_schema_defaults_are_the_rules_config_yaml_names():
+    """A config without research.rules / research.depth.flow trains with the rules config.yaml names."""
+    config, defaulted = _config(), _config()
+    del defaulted["research"]
+    validate_schema(defaulted)
+    assert defaulted["research"]["rules"]["names"] == config["research"]["rules"]["names"]
+    assert defaulted["research"]["depth"]["flow"] == config["research"]["depth"]["flow"]
+    del config["research"]["depth"]["flow"]  # the key's own default, the section present
+    validate_schema(config)
+    assert config["research"]["depth"]["flow"] == defaulted["research"]["depth"]["flow"]
 
 
 @pytest.mark.parametrize(

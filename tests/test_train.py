@@ -120,23 +120,56 @@ def test_runs_trained_together_follow_their_own_histories(sky768):
     assert torch.equal(together.lr, alone.lr) and torch.equal(together.level, alone.level)
 
 
-def test_noise_runs_equal_single_noise_runs(sky768):
-    """Issue 10: each batched run's final theta equals noise_run's for that run alone, to 1e-12 m."""
-    from sdm.experiments import noise_run, noise_runs
+@pytest.mark.parametrize("flow", ["paper", "closed_centred_r1", "normalised"])
+def test_noise_runs_equal_single_noise_runs(sky768, flow):
+    """Issues 10, 18: each batched run of Table 2 (the paper's rule) or Table 4 (another rule) is the run
+    trained alone (tests/run_reference.py), to the bit where the rule's flow is a sum of signs (or of
+    halves); normalised's weights are fractions, so packed sums may round otherwise: 1e-12 m (the issue's)."""
+    from run_reference import noise_run
+    from sdm.experiments import noise_runs, rule_noise_runs
 
     train_set, _ = sky768
     small = train_set.subset(range(64))
     settings = TrainSettings(lr=1e-4, n_epoch=2, seed=3)
     for level in (0, 2):
-        table = noise_runs(small, level, [0, 1, 2, 5], settings, group_size=3)  # two groups: 3 runs, then 1
+        if flow == "paper":
+            table = noise_runs(small, level, [0, 1, 2, 5], settings, group_size=3)  # two groups: 3 runs, then 1
+        else:
+            table = rule_noise_runs(small, flow, level, [0, 1, 2, 5], settings, group_size=3)
+            assert set(table.pop("flow")) == {flow}
         assert table["run"].tolist() == [0, 1, 2, 5]
         for row in table.to_dict("records"):
-            alone = noise_run(small, level, row["run"], settings)
-            assert row["seed"] == alone["seed"]
-            assert abs(row["a"] - alone["a"]) <= 1e-12 and abs(row["b"] - alone["b"]) <= 1e-12
-            assert row == alone  # in fact bit-identical
+            alone = noise_run(small, level, row["run"], replace(settings, flow=flow))
+            if flow == "normalised":
+                assert all(abs(row[key] - alone[key]) <= 1e-12 for key in ("a", "b", "distance"))
+                row |= {key: alone[key] for key in ("a", "b", "distance")}
+            assert row == alone
         if level:
             assert table["a"].nunique() > 1  # the runs differ: each has its own noise and shuffling
+
+
+def test_paired_runs_pack_group_size_runs_per_train_runs_call(sky768, monkeypatch):
+    """Table 2's and Table 5's runs go group_size at a time through one train_runs call each."""
+    from sdm import experiments
+
+    calls = []
+    original = experiments.train_runs
+
+    def counting(train_set, targets, settings, **kwargs):
+        calls.append((len(targets), settings[0].fit_depth))
+        return original(train_set, targets, settings, **kwargs)
+
+    monkeypatch.setattr(experiments, "train_runs", counting)
+    train_set, _ = sky768
+    small = train_set.subset(range(32))
+    settings = TrainSettings(lr=1e-4, n_epoch=1, s=2, seed=3)
+    experiments.noise_runs(small, 1, range(5), settings, group_size=2)
+    experiments.depth_noise_runs(small, 0.5, 1, range(5), settings, group_size=3)
+    assert calls == [(2, False), (2, False), (1, False), (3, True), (2, True)]
+    with pytest.raises(SDMInputError, match="group_size"):
+        experiments.noise_runs(small, 1, [0], settings, group_size=0)
+    with pytest.raises(SDMInputError, match="group_size"):
+        experiments.depth_noise_runs(small, 0.5, 1, [0], settings, group_size=1.5)
 
 
 def test_bad_runs_input(sky768):

@@ -5,7 +5,8 @@ Public API (everything else is reachable through the submodules):
 * geometry: :class:`Camera`, :data:`APOLLO_CAMERA_5`
 * data: :func:`build_configuration`, :class:`SkyConfiguration`, :data:`SKY_SHIFT`,
   :func:`add_target_noise`, :func:`noise_displacement`, :class:`ConfigurationSet`
-* the layer: :class:`SpatialDomainMapping`; its gradient rules by name: :data:`FLOW_RULES`
+* the layer: :class:`SpatialDomainMapping`; its gradient rules by name: :data:`FLOW_RULES` (the experiments
+  measured beside them: :data:`sdm.mapping.research_rules.RESEARCH_RULES`)
 * training: :class:`TrainSettings`, :func:`train`, :class:`History`; many runs as one program:
   :func:`train_runs`, :class:`RunsHistory`
 * metrics: :func:`distance`, :func:`dev_loss`

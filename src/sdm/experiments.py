@@ -1,4 +1,4 @@
-"""The paper's experiments as functions: the train/dev split, a tuning cell, a noise run.
+"""The paper's experiments as functions: the train/dev split, a tuning cell, the paired noise runs of every table.
 
 The workflow's notebooks narrate and call these; nothing here is specific to
 Snakemake. Every random choice takes an explicit seed, so a stage gives the
@@ -16,7 +16,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, replace
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import pandas as pd
@@ -31,10 +31,17 @@ from .metrics import dev_loss, distance
 from .sky import SKY_SHIFT, add_target_noise, shift_vector
 from .train import TrainSettings, train, train_runs
 
-#: Noise runs trained together by default (see :func:`noise_runs`). On one CPU core larger groups
-#: stop paying: with the compiled kernel (:mod:`sdm.mapping.native`) the chain costs per point, and
-#: groups of 8 or 16 runs were slower per run than groups of 4 (working set out of the core's cache;
-#: benchmarks/bench_sdm.py measures it).
+#: Runs packed into one :func:`sdm.train.train_runs` call by default (:func:`paired_runs`'s
+#: ``group_size``). The group size changes no result of the paper's rule (flows are exact sums of
+#: signs, so a run's theta is its single run's to the bit in any group); it trades memory for speed:
+#: every run of a group holds its noisy targets and their zoom pyramid at once (about 22 MB per 512
+#: configurations of 128 x 256), and one step packs the group's mini-batches into one layer call. On a
+#: GPU that is what pays (one step of many runs costs about one run's step), so pass a larger group
+#: there (a chunk of 30 runs of 512 configurations is about 0.7 GB). On a CPU the compiled kernel
+#: (:mod:`sdm.mapping.native`) costs per point, not per operation, so packing buys little: groups of 4
+#: were 1.3x faster per run than one run at a time, one group of 30 was 0.76x (working set out of the
+#: core's cache; ``benchmarks/bench_sdm.py``; again for 8 runs of 512 configurations at level 2, CPU
+#: seconds: 4 1.21x, 8 1.19x). 4 is that measured optimum, and its memory is small.
 NOISE_GROUP_SIZE = 4
 
 
@@ -84,7 +91,7 @@ def settings_for(n_epoch: int, lr: float, s: int, batch_size: int, lr_decay: flo
     """:class:`~sdm.train.TrainSettings` from the config's values (zoom 0: train to full resolution).
 
     ``seed`` becomes ``settings.seed``: the shuffling seed of a tuning cell, and the
-    experiment seed from which :func:`noise_run` derives each run's own seed.
+    experiment seed from which :func:`paired_runs` derives each run's own seed.
     """
     return TrainSettings(lr=float(lr), n_epoch=int(n_epoch), batch_size=int(batch_size), s=int(s), zoom=0,
                          lr_decay=float(lr_decay), seed=int(seed))
@@ -122,75 +129,113 @@ def noisy_targets(targets: torch.Tensor, level: int, seed: int, active: torch.Te
     return add_target_noise(targets, level, generator, active)  # one draw for all targets, in target order
 
 
-def noise_run(train_set, level: int, run: int, settings: TrainSettings, shift: Sequence[float] = SKY_SHIFT,
-              camera: Camera | None = None) -> dict:
-    """One run of the robustness experiment: noisy training targets, train, distance to theta*.
+#: Columns of Table 2's run rows (:func:`noise_runs`); lengths in metres, ``seed`` the run's own.
+#: Table 3's (:data:`sdm.baselines.RUN_COLUMNS`) and Table 4's (:func:`rule_noise_runs`) are built on it.
+RUN_COLUMNS = ["level", "run", "seed", "a", "b", "distance"]
 
-    The single-run reference that :func:`noise_runs` must reproduce, run for run.
+
+def paired_runs(clean_targets: torch.Tensor, level: int, runs: Sequence[int], seed: int,
+                fit_group: Callable[[list[torch.Tensor], list[int]], Sequence], record: Callable[[object], dict],
+                columns: Sequence[str], group_size: int | None = NOISE_GROUP_SIZE) -> pd.DataFrame:
+    """The paired runs of every table (2, 3, 4, 5) at one noise level, one row each.
+
+    The one place where runs get their seeds, their noisy targets and their groups: run ``r`` has
+    the seed :func:`run_seed` ``(seed, level, r)`` and the targets :func:`noisy_targets`
+    ``(clean_targets, level, that seed)``, whatever the table or the method, so every table's run
+    ``(level, r)`` sees the same noise (the comparisons are paired). The runs go to ``fit_group``
+    ``group_size`` at a time, in the order of ``runs``; a group's noisy targets are dropped before
+    the next group is drawn.
 
     Args:
-        train_set: the training configurations (noise-free targets).
+        clean_targets: ``(N, H, W)`` bool noise-free targets of the training configurations (any device).
         level: noise level ``n`` (screen pixels).
-        run: run index.
-        settings: the tuned settings; ``settings.seed`` is the experiment's seed, from
-            which the run's own seed :func:`run_seed` ``(settings.seed, level, run)`` is
-            derived: it draws the noise and shuffles the mini-batches.
-        shift: theta* ``(a, b)``, metres.
-        camera: default the set's.
+        runs: run indices (non-negative integers).
+        seed: the experiment's seed.
+        fit_group: ``fit_group(targets, seeds)``: a group's ``(N, H, W)`` bool noisy targets (on the
+            device of ``clean_targets``) and their run seeds -> one result per run, in order.
+        record: ``record(result)``: the row's columns beyond ``level, run, seed``.
+        columns: the table's columns, in order (:data:`RUN_COLUMNS`, ...).
+        group_size: runs per ``fit_group`` call, a positive integer; ``None``: all of ``runs`` at once.
+
+    Raises:
+        SDMInputError: ``group_size`` is not a positive integer, or a run, the level or the seed is
+            not a non-negative integer (naming it).
 
     Returns:
-        ``{"level", "run", "seed", "a", "b", "distance"}`` (metres; ``seed`` is the run's seed).
+        ``columns``, one row per run, in the order of ``runs``.
     """
-    seed_run = run_seed(settings.seed, level, run)
-    noisy = train_set.with_targets(noisy_targets(train_set.targets, level, seed_run))
-    history = train(noisy, replace(settings, seed=seed_run), camera=camera, progress=False)
-    a, b = history.final_theta
-    return _run_record(level, run, seed_run, (a, b), shift)
+    if group_size is not None and (isinstance(group_size, bool) or int(group_size) != group_size or group_size < 1):
+        raise SDMInputError(f"group_size must be a positive integer, got {group_size!r}")
+    seeds = [run_seed(seed, level, run) for run in runs]
+    runs = [int(run) for run in runs]
+    group_size = int(group_size) if group_size is not None else max(len(runs), 1)
+    active = clean_targets.nonzero() if level else None  # every run moves the same clean pixels
+    rows = []
+    for first in range(0, len(runs), group_size):
+        group = range(first, min(first + group_size, len(runs)))
+        noisy = [noisy_targets(clean_targets, level, seeds[i], active) for i in group]
+        results = fit_group(noisy, [seeds[i] for i in group])
+        del noisy
+        rows += [{"level": int(level), "run": runs[i], "seed": seeds[i]} | record(result)
+                 for i, result in zip(group, results)]
+    return pd.DataFrame.from_records(rows, columns=list(columns))
 
 
-def _run_record(level: int, run: int, seed_run: int, theta, shift) -> dict:
+def train_group(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], settings: TrainSettings,
+                seeds: Sequence[int], camera: Camera | None = None, device: torch.device | str | None = None):
+    """SDM's fit of a group of paired runs: run ``r`` is ``settings`` with seed ``seeds[r]`` (its shuffling)
+    on the points of ``train_set`` and the targets ``targets[r]``, all as one :func:`sdm.train.train_runs`.
+
+    Table 2's, 4's and 5's runs (through :func:`paired_runs`) and SDM's rows of Table 3
+    (:func:`sdm.baselines.sdm_layer.fit_runs`) all train here.
+
+    Returns:
+        :class:`sdm.train.RunsHistory` (on the CPU).
+    """
+    return train_runs(train_set, targets, [replace(settings, seed=int(seed)) for seed in seeds], camera=camera,
+                      device=device)
+
+
+def shift_record(theta: Sequence[float], shift: Sequence[float]) -> dict:
+    """The columns ``a, b, distance`` of a run that estimated ``theta = (a, b)`` (metres) against theta* ``shift``."""
     a, b = float(theta[0]), float(theta[1])
-    return {"level": int(level), "run": int(run), "seed": seed_run, "a": a, "b": b,
-            "distance": float(distance((a, b), tuple(shift)))}
+    return {"a": a, "b": b, "distance": float(distance((a, b), tuple(shift)))}
 
 
 def noise_runs(train_set, level: int, runs: Sequence[int], settings: TrainSettings,
                shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
                group_size: int = NOISE_GROUP_SIZE, device: torch.device | str | None = None) -> pd.DataFrame:
-    """Several noise runs at one level, trained together as one program; one row each.
+    """Table 2: noise runs at one level, trained ``group_size`` at a time as one program; one row each.
 
-    Run ``r`` is exactly :func:`noise_run` ``(train_set, level, r, settings)``: the same
-    seed :func:`run_seed` ``(settings.seed, level, r)``, hence the same noisy targets
-    and the same shuffling; the runs are packed ``group_size`` at a time into one
-    batch of ``group_size x batch_size`` configurations per step by
-    :func:`sdm.train.train_runs`, each run's theta moved only by its own flow.
-    ``test_train.py`` holds every run's result to :func:`noise_run`'s.
+    Run ``r`` (:func:`paired_runs`) trains with the seed :func:`run_seed` ``(settings.seed, level, r)``,
+    which draws its noisy targets and shuffles its mini-batches, from ``(0, 0)``; the runs of a group
+    are packed by :func:`sdm.train.train_runs`, each run's theta moved only by its own flow, so each
+    run's theta is what it would be trained alone, to the bit (``test_train.py`` holds it to the
+    single-run reference of ``tests/run_reference.py``).
 
     Args:
-        group_size: runs trained together (memory grows with it: each run keeps its
-            own zoomed-out targets, about 22 MB per 512 configurations of 128 x 256).
+        train_set: the training configurations (noise-free targets).
+        level: noise level ``n`` (screen pixels).
+        runs: run indices.
+        settings: the tuned settings; ``settings.seed`` is the experiment's seed.
+        shift: theta* ``(a, b)``, metres.
+        camera: default the set's.
+        group_size: runs trained together (:data:`NOISE_GROUP_SIZE`: the trade-off).
         device: where to train; default the set's device.
 
     Returns:
-        Columns :data:`RUN_COLUMNS`, one row per run, in the order of ``runs``.
+        Columns :data:`RUN_COLUMNS`, one row per run, in the order of ``runs`` (metres).
     """
-    if int(group_size) != group_size or group_size < 1:
-        raise SDMInputError(f"group_size must be a positive integer, got {group_size!r}")
-    runs = [int(run) for run in runs]
-    seeds = [run_seed(settings.seed, level, run) for run in runs]
-    active = train_set.targets.nonzero() if level else None  # every run moves the same clean pixels
-    rows = []
-    for first in range(0, len(runs), int(group_size)):
-        group = range(first, min(first + int(group_size), len(runs)))
-        targets = [noisy_targets(train_set.targets, level, seeds[i], active) for i in group]
-        history = train_runs(train_set, targets, [replace(settings, seed=seeds[i]) for i in group], camera=camera,
-                             device=device)
-        rows += [_run_record(level, runs[i], seeds[i], theta, shift) for i, theta in zip(group, history.final_theta)]
-    return pd.DataFrame.from_records(rows, columns=RUN_COLUMNS)
+    return _sdm_runs(train_set, train_set.targets, level, runs, settings, lambda theta: shift_record(theta, shift),
+                     RUN_COLUMNS, camera, group_size, device)
 
 
-#: Columns of a noise-run table.
-RUN_COLUMNS = ["level", "run", "seed", "a", "b", "distance"]
+def _sdm_runs(train_set, clean_targets, level, runs, settings, record, columns, camera, group_size, device):
+    """:func:`paired_runs` trained by SDM (:func:`train_group`): ``record`` gets a run's final theta."""
+    def fit_group(targets, seeds):
+        return train_group(train_set, targets, settings, seeds, camera, device).final_theta
+
+    return paired_runs(clean_targets, level, runs, settings.seed, fit_group, record, columns, group_size)
 
 
 def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed: int, s: int = 4,
@@ -243,7 +288,7 @@ DEPTH_RUN_COLUMNS = ["c_true", "level", "run", "seed", "a", "b", "c", "error_a",
 def rule_noise_runs(train_set, rule: str, level: int, runs: Sequence[int], settings: TrainSettings,
                     shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
                     group_size: int = NOISE_GROUP_SIZE, device: torch.device | str | None = None) -> pd.DataFrame:
-    """Table 2's runs at one level trained with another gradient rule, one row each.
+    """Table 4: Table 2's runs at one level trained with another gradient rule, one row each.
 
     :func:`noise_runs` with ``replace(settings, flow=rule)``: run ``r`` draws the same noisy
     targets and shuffling as Table 2's run ``r`` (:func:`run_seed` ``(settings.seed, level, r)``
@@ -256,23 +301,25 @@ def rule_noise_runs(train_set, rule: str, level: int, runs: Sequence[int], setti
     Returns:
         Columns ``flow`` (the rule) then :data:`RUN_COLUMNS`, in the order of ``runs``.
     """
-    frame = noise_runs(train_set, level, runs, replace(settings, flow=rule), shift=shift, camera=camera,
-                       group_size=group_size, device=device)
-    frame.insert(0, "flow", rule)
-    return frame
+    return _sdm_runs(train_set, train_set.targets, level, runs, replace(settings, flow=rule),
+                     lambda theta: {"flow": rule} | shift_record(theta, shift), ["flow", *RUN_COLUMNS], camera,
+                     group_size, device)
 
 
 def depth_noise_runs(train_set, c: float, level: int, runs: Sequence[int], settings: TrainSettings,
                      shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
-                     device: torch.device | str | None = None) -> pd.DataFrame:
-    """The robustness experiment for the general shift ``theta* = (a*, b*, c)``: one row per run.
+                     group_size: int = NOISE_GROUP_SIZE, device: torch.device | str | None = None) -> pd.DataFrame:
+    """Table 5: the robustness experiment for the general shift ``theta* = (a*, b*, c)``, one row per run.
 
     The training set's targets are rebuilt for its points moved by ``(a*, b*, c)``
-    (:func:`sdm.depth.depth_targets`); run ``r`` moves them by noise ``level`` drawn from
-    :func:`run_seed` ``(settings.seed, level, r)`` (the draw of Table 2's run ``r``, applied to
-    these targets), which also shuffles its mini-batches, and trains ``(a, b, c)`` from
-    ``(0, 0, 0)`` with ``fit_depth`` (the rest of ``settings`` as given: flow rule,
-    ``depth_lr_scale``). The runs train one at a time (:func:`sdm.train.train`).
+    (:func:`sdm.depth.depth_targets`); run ``r`` (:func:`paired_runs`) moves them by noise ``level``
+    drawn from :func:`run_seed` ``(settings.seed, level, r)`` (the draw of Table 2's run ``r``, applied
+    to these targets), which also shuffles its mini-batches, and trains ``(a, b, c)`` from ``(0, 0, 0)``
+    with ``fit_depth`` (the rest of ``settings`` as given: flow rule, ``depth_lr_scale``). The runs
+    train ``group_size`` at a time (:func:`sdm.train.train_runs`). The depth flow is a float sum, not a
+    sum of integer signs, so a packed run may round it differently than alone: each run's
+    ``(a, b, c)`` is the single run's to 1e-12 m (``test_research.py``), and may move at that scale
+    with ``group_size`` or with the runs it is grouped with.
 
     Args:
         train_set: the training configurations (their points ``Q``; their own targets are not used).
@@ -282,6 +329,7 @@ def depth_noise_runs(train_set, c: float, level: int, runs: Sequence[int], setti
         settings: the tuned settings; ``settings.seed`` is the experiment's seed.
         shift: ``(a*, b*)``, metres.
         camera: default the set's.
+        group_size: runs trained together (as :func:`noise_runs`).
         device: where to train; default the set's device.
 
     Raises:
@@ -304,18 +352,13 @@ def depth_noise_runs(train_set, c: float, level: int, runs: Sequence[int], setti
     if len(train_set.points) and float(train_set.points[:, 2].min()) + truth[2] <= 0:
         raise SDMInputError(f"c = {truth[2]!r} m moves the nearest point (depth {float(train_set.points[:, 2].min()):.2f} m) "
                             f"on or behind the camera")
-    clean = depth_targets(train_set, truth, camera)
-    depth_settings = replace(settings, fit_depth=True)
-    rows = []
-    for run in (int(run) for run in runs):
-        seed_run = run_seed(settings.seed, level, run)
-        noisy = train_set.with_targets(noisy_targets(clean, level, seed_run))
-        history = train(noisy, replace(depth_settings, seed=seed_run), camera=camera, progress=False, device=device)
-        fitted = history.final_theta
+
+    def record(fitted) -> dict:
         errors = [abs(value - true) for value, true in zip(fitted, truth)]
-        rows.append({"c_true": truth[2], "level": int(level), "run": run, "seed": seed_run,
-                     "a": fitted[0], "b": fitted[1], "c": fitted[2],
-                     "error_a": errors[0], "error_b": errors[1], "error_c": errors[2],
-                     "distance_ab": float(np.hypot(errors[0], errors[1])),
-                     "distance": float(np.sqrt(sum(error ** 2 for error in errors)))})
-    return pd.DataFrame.from_records(rows, columns=DEPTH_RUN_COLUMNS)
+        return {"c_true": truth[2], "a": fitted[0], "b": fitted[1], "c": fitted[2],
+                "error_a": errors[0], "error_b": errors[1], "error_c": errors[2],
+                "distance_ab": float(np.hypot(errors[0], errors[1])),
+                "distance": float(np.sqrt(sum(error ** 2 for error in errors)))}
+
+    return _sdm_runs(train_set, depth_targets(train_set, truth, camera), level, runs,
+                     replace(settings, fit_depth=True), record, DEPTH_RUN_COLUMNS, camera, group_size, device)

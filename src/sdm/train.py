@@ -19,7 +19,7 @@ from .batch import ConfigurationSet, PointBatch
 from .camera import Camera
 from .errors import SDMInputError
 from .mapping import SpatialDomainMapping
-from .mapping.rules import FLOW_RULES
+from .mapping.rules import rule_by_name
 from .sky import shift_vector
 from .zoom import target_pyramid
 
@@ -75,8 +75,6 @@ class TrainSettings:
                 raise SDMInputError(f"{name} must be an integer, got {value!r} ({type(value).__name__})")
         if not isinstance(self.fit_depth, bool):
             raise SDMInputError(f"fit_depth must be True or False, got {self.fit_depth!r}")
-        if not isinstance(self.flow, str):
-            raise SDMInputError(f"flow must be a rule's name (str), got {self.flow!r}")
         if not (math.isfinite(self.lr) and self.lr > 0):
             raise SDMInputError(f"lr must be a positive finite number, got {self.lr!r}")
         for name in ("n_epoch", "batch_size"):
@@ -89,8 +87,7 @@ class TrainSettings:
             raise SDMInputError(f"zoom must be an integer in [0, s] = [0, {self.s}], got {self.zoom!r}")
         if not (math.isfinite(self.lr_decay) and self.lr_decay > 0):
             raise SDMInputError(f"lr_decay must be a positive finite number, got {self.lr_decay!r}")
-        if self.flow not in FLOW_RULES:
-            raise SDMInputError(f"flow must be one of {sorted(FLOW_RULES)}, got {self.flow!r}")
+        rule_by_name(self.flow)  # SDMInputError naming flow: a name of sdm.FLOW_RULES or of RESEARCH_RULES
         if not (math.isfinite(self.depth_lr_scale) and self.depth_lr_scale > 0):
             raise SDMInputError(f"depth_lr_scale must be a positive finite number, got {self.depth_lr_scale!r}")
         if isinstance(self.depth_zoom, bool) or int(self.depth_zoom) != self.depth_zoom or self.depth_zoom < 0:

@@ -31,8 +31,8 @@ ways; the ``seconds_per_run`` of Table 3 is the batched cost).
 
 :func:`tune` scores a grid of settings by the dev loss of Table 1 (:func:`sdm.metrics.dev_loss`:
 mean false-positive pixels per dev configuration at ``theta``), so every method is picked by the
-same criterion as SDM; :func:`noise_run` is :func:`sdm.experiments.noise_run` for any method:
-the same run seeds, hence the same noisy targets (paired comparison).
+same criterion as SDM; :func:`noise_runs` runs Table 2's runs (:func:`sdm.experiments.paired_runs`)
+for any method: the same run seeds, hence the same noisy targets (paired comparison).
 
 ``geomloss`` and ``cma`` are imported only when their method runs: they are dependencies of the
 workflow's baseline stage, not of the ``sdm`` library.
@@ -48,7 +48,8 @@ import pandas as pd
 from ..batch import ConfigurationSet
 from ..camera import Camera
 from ..errors import SDMInputError
-from ..experiments import noisy_targets, run_seed
+from .. import experiments
+from ..experiments import NOISE_GROUP_SIZE, paired_runs, shift_record
 from ..metrics import dev_loss, distance
 from ..sky import SKY_SHIFT
 from . import chamfer, cmaes, sdm_layer, silhouette, sinkhorn
@@ -73,6 +74,8 @@ class Method:
         fit_runs: ``fit_runs(train_sets, settings, seeds, camera, theta0) -> list[FitResult]``: many
             independent runs as one program, run ``r`` equal to ``fit(train_sets[r], settings,
             seeds[r])``; ``None`` when the method has none (:func:`noise_runs` then loops over ``fit``).
+        group_size: runs :func:`noise_runs` hands ``fit_runs`` at a time by default; ``None``: all the
+            runs of the call (the baselines' dense steps share nothing across groups).
     """
 
     name: str
@@ -81,10 +84,13 @@ class Method:
     fit: Callable[..., FitResult]
     requires: str | None = None
     fit_runs: Callable[..., list[FitResult]] | None = None
+    group_size: int | None = None
 
 
 METHODS: dict[str, Method] = {
-    "sdm": Method("sdm", "SDM (ours, Table 2)", SDMSettings, sdm_layer.fit, fit_runs=sdm_layer.fit_runs),
+    # SDM's runs in Table 2's groups (sdm.experiments.NOISE_GROUP_SIZE: the memory/speed trade-off).
+    "sdm": Method("sdm", "SDM (ours, Table 2)", SDMSettings, sdm_layer.fit, fit_runs=sdm_layer.fit_runs,
+                  group_size=NOISE_GROUP_SIZE),
     "silhouette": Method("silhouette", "soft silhouette (soft IoU)", SilhouetteSettings, silhouette.fit,
                          fit_runs=silhouette.fit_runs),
     "chamfer": Method("chamfer", "2D Chamfer", ChamferSettings, chamfer.fit, fit_runs=chamfer.fit_runs),
@@ -161,10 +167,17 @@ def fit(name: str, train_set: ConfigurationSet, settings=None, seed: int = 0, ca
         theta0: Sequence[float] = (0.0, 0.0)) -> FitResult:
     """Estimate ``theta`` with method ``name`` (default settings when ``settings`` is None)."""
     entry = method(name)
+    return entry.fit(train_set, _checked_settings(entry, settings), seed=int(seed), camera=camera,
+                     theta0=tuple(theta0))
+
+
+def _checked_settings(entry: Method, settings):
+    """``settings`` for ``entry`` (its defaults when ``None``); :class:`SDMInputError` if of another method."""
     settings = entry.settings() if settings is None else settings
     if not isinstance(settings, entry.settings):
-        raise SDMInputError(f"settings for {name!r} must be {entry.settings.__name__}, got {type(settings).__name__}")
-    return entry.fit(train_set, settings, seed=int(seed), camera=camera, theta0=tuple(theta0))
+        raise SDMInputError(f"settings for {entry.name!r} must be {entry.settings.__name__}, "
+                            f"got {type(settings).__name__}")
+    return settings
 
 
 def tune(name: str, train_set: ConfigurationSet, dev_set: ConfigurationSet, settings: Sequence, seed: int = 0,
@@ -211,71 +224,52 @@ def best_settings(name: str, tuning: pd.DataFrame):
     return entry.settings(**values)
 
 
-RUN_COLUMNS = ["method", "level", "run", "seed", "a", "b", "distance", "seconds", "evaluations"]
-
-
-def noise_run(name: str, train_set: ConfigurationSet, level: int, run: int, settings, seed: int,
-              shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None) -> dict:
-    """One paired robustness run: Table 2's noisy targets for ``(seed, level, run)``, then ``fit``.
-
-    The run's seed (:func:`sdm.experiments.run_seed`) draws the noise exactly as Table 2's run
-    does and seeds the method (mini-batches, subsampling, CMA-ES).
-
-    Returns:
-        ``{"method", "level", "run", "seed", "a", "b", "distance", "seconds", "evaluations"}``
-        (metres, seconds; ``seconds`` is the fit alone, without drawing the noise).
-    """
-    seed_run = run_seed(seed, level, run)
-    noisy = train_set.with_targets(noisy_targets(train_set.targets, level, seed_run))
-    result = fit(name, noisy, settings, seed_run, camera)
-    a, b = result.theta
-    return {"method": name, "level": int(level), "run": int(run), "seed": seed_run, "a": float(a), "b": float(b),
-            "distance": distance((a, b), tuple(shift)), "seconds": result.seconds, "evaluations": result.evaluations}
+#: Columns of Table 3's run rows (:func:`noise_runs`): the method, Table 2's columns
+#: (:data:`sdm.experiments.RUN_COLUMNS`), the fit's ``seconds`` and its loss ``evaluations``.
+RUN_COLUMNS = ["method", *experiments.RUN_COLUMNS, "seconds", "evaluations"]
 
 
 def noise_runs(name: str, train_set: ConfigurationSet, level: int, runs: Sequence[int], settings, seed: int,
                shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
                group_size: int | None = None) -> pd.DataFrame:
-    """Several :func:`noise_run` at one level, one row each (columns :data:`RUN_COLUMNS`).
+    """Table 3's paired robustness runs of method ``name`` at one level, one row each (:data:`RUN_COLUMNS`).
 
-    A method with ``fit_runs`` fits the runs ``group_size`` at a time as one program (row for row
-    what :func:`noise_run` gives, ``tests/test_baselines_batched.py`` holds it); its ``seconds`` is
-    then the group's wall time over the group's runs. Other methods run one :func:`noise_run` each.
+    Run ``r`` is Table 2's run ``(level, r)`` (:func:`sdm.experiments.paired_runs`: the seed
+    :func:`sdm.experiments.run_seed` ``(seed, level, r)``, which draws the same noisy targets as
+    Table 2's run and seeds the method: mini-batches, subsampling, CMA-ES), fitted by the method's
+    ``fit_runs`` ``group_size`` runs at a time as one program (each run what ``fit`` gives it alone,
+    ``tests/test_baselines_batched.py``), or by one ``fit`` per run for a method without ``fit_runs``.
+    ``seconds`` is the fit alone, without drawing the noise: a ``fit_runs`` group's wall time over
+    its runs.
 
     Args:
-        group_size: runs fitted together; default all of ``runs``. Memory grows with it: each run of
-            the group holds its noisy targets (``N x H x W`` bool, 16.8 MB for 512 configurations of
-            128 x 256) and, for ``silhouette``/``sdm``, their zoom pyramid (about 6 MB more).
+        settings: the method's settings (``None``: its defaults).
+        seed: the experiment's noise seed (as ``noise.seed`` for Table 2).
+        group_size: runs fitted together; default the method's ``group_size`` (``None``: all of
+            ``runs``). Memory grows with it: each run of the group holds its noisy targets (``N x H x W``
+            bool, 16.8 MB for 512 configurations of 128 x 256) and, for ``silhouette``/``sdm``, their
+            zoom pyramid (about 6 MB more).
     """
     entry = method(name)
-    runs = [int(run) for run in runs]
-    if entry.fit_runs is None or not runs:
-        rows = [noise_run(name, train_set, level, run, settings, seed, shift, camera) for run in runs]
-        return pd.DataFrame.from_records(rows, columns=RUN_COLUMNS)
-    group_size = len(runs) if group_size is None else group_size
-    if isinstance(group_size, bool) or int(group_size) != group_size or group_size < 1:
-        raise SDMInputError(f"group_size must be a positive integer, got {group_size!r}")
-    settings = entry.settings() if settings is None else settings
-    if not isinstance(settings, entry.settings):
-        raise SDMInputError(f"settings for {name!r} must be {entry.settings.__name__}, got {type(settings).__name__}")
-    seeds = [run_seed(seed, level, run) for run in runs]
-    active = train_set.targets.nonzero() if level else None  # every run moves the same clean pixels
-    rows = []
-    for first in range(0, len(runs), int(group_size)):
-        group = range(first, min(first + int(group_size), len(runs)))
-        noisy = [train_set.with_targets(noisy_targets(train_set.targets, level, seeds[i], active)) for i in group]
-        results = entry.fit_runs(noisy, settings, [seeds[i] for i in group], camera=camera)
-        del noisy
-        for i, result in zip(group, results):
-            a, b = result.theta
-            rows.append({"method": name, "level": int(level), "run": runs[i], "seed": seeds[i], "a": float(a),
-                         "b": float(b), "distance": distance((a, b), tuple(shift)), "seconds": result.seconds,
-                         "evaluations": result.evaluations})
-    return pd.DataFrame.from_records(rows, columns=RUN_COLUMNS)
+    settings = _checked_settings(entry, settings)
+    group_size = entry.group_size if group_size is None else group_size
+
+    def fit_group(targets, seeds) -> list[FitResult]:
+        sets = [train_set.with_targets(run_targets) for run_targets in targets]
+        if entry.fit_runs is None:
+            return [entry.fit(data, settings, seed=seed_run, camera=camera, theta0=(0.0, 0.0))
+                    for data, seed_run in zip(sets, seeds)]
+        return entry.fit_runs(sets, settings, seeds, camera=camera)
+
+    def record(result: FitResult) -> dict:
+        return {"method": name} | shift_record(result.theta, shift) | {"seconds": result.seconds,
+                                                                       "evaluations": result.evaluations}
+
+    return paired_runs(train_set.targets, level, runs, seed, fit_group, record, RUN_COLUMNS, group_size)
 
 
 __all__ = [
     "METHODS", "Method", "FitResult", "SDMSettings", "SilhouetteSettings", "ChamferSettings", "SinkhornSettings",
-    "CMAESSettings", "RUN_COLUMNS", "best_settings", "fit", "grid", "make_settings", "method", "noise_run",
-    "noise_runs", "settings_grid", "tune",
+    "CMAESSettings", "RUN_COLUMNS", "best_settings", "fit", "grid", "make_settings", "method", "noise_runs",
+    "settings_grid", "tune",
 ]

@@ -2,10 +2,9 @@
 
 Kept behind the same ``fit(train_set, settings, seed)`` interface as the baselines so that Table 3
 compares like with like. ``seed`` replaces ``settings.seed`` (it shuffles the mini-batches), exactly
-as :func:`sdm.experiments.noise_run` does with the run's seed: a fit here on the same noisy targets
-gives the same ``theta`` as the Table 2 run. :func:`fit_runs` trains many runs as one program with
-:func:`sdm.train.train_runs` (the batching of Table 2's :func:`sdm.experiments.noise_runs`), run for
-run bit-identical to :func:`fit`.
+as Table 2's runs (:func:`sdm.experiments.noise_runs`) do with the run's seed: a fit here on the same
+noisy targets gives the same ``theta`` as the Table 2 run. :func:`fit_runs` trains many runs as one
+program as Table 2 does (:func:`sdm.experiments.train_group`), run for run bit-identical to :func:`fit`.
 """
 from __future__ import annotations
 
@@ -14,8 +13,8 @@ from typing import Sequence
 
 from ..batch import ConfigurationSet
 from ..camera import Camera
-from ..experiments import NOISE_GROUP_SIZE
-from ..train import TrainSettings, train, train_runs
+from ..experiments import train_group
+from ..train import TrainSettings, train
 from .common import FitResult, check_runs, timed, timed_runs
 
 #: SDM's settings are :class:`sdm.TrainSettings` (the noise stage builds them with
@@ -46,19 +45,19 @@ def fit(train_set: ConfigurationSet, settings: TrainSettings = TrainSettings(), 
 
 def fit_runs(train_sets: Sequence[ConfigurationSet], settings: TrainSettings = TrainSettings(),
              seeds: Sequence[int] = (0,), camera: Camera | None = None, theta0=(0.0, 0.0)) -> list[FitResult]:
-    """``R`` independent SDM fits packed as Table 2's noise runs are (:func:`sdm.train.train_runs`, in
-    groups of :data:`sdm.experiments.NOISE_GROUP_SIZE`): run ``r`` is ``fit(train_sets[r], settings,
-    seeds[r])``, theta for theta, to the bit.
-
-    A start other than ``(0, 0)`` or ``settings.fit_depth`` (which ``train_runs`` does not do) falls
-    back to one :func:`fit` per run.
+    """``R`` independent SDM fits as one program, as Table 2 trains its runs
+    (:func:`sdm.experiments.train_group`, one :func:`sdm.train.train_runs` call): run ``r`` is
+    ``fit(train_sets[r], settings, seeds[r])``, theta for theta, to the bit (with ``fit_depth``, to
+    1e-12 m: the depth flow is a float sum). How many runs go together is the caller's choice
+    (:func:`sdm.baselines.noise_runs` groups them).
 
     Args:
         train_sets: ``R`` sets with the same points, offsets and camera, differing only in targets.
         settings: shared; ``seeds[r]`` replaces ``settings.seed`` for run ``r``.
         seeds: ``R`` seeds (mini-batch shuffling).
         camera: default the sets' camera.
-        theta0: every run's start ``(a, b)``, metres.
+        theta0: every run's start ``(a, b)``, metres; one other than ``(0, 0)`` falls back to one
+            :func:`fit` per run.
 
     Returns:
         One :class:`~sdm.baselines.common.FitResult` per run; ``seconds`` is the batched fit's wall
@@ -66,22 +65,21 @@ def fit_runs(train_sets: Sequence[ConfigurationSet], settings: TrainSettings = T
         summed over the runs).
     """
     check_runs(train_sets, seeds)
-    if tuple(float(v) for v in theta0) != (0.0, 0.0) or settings.fit_depth:
+    if tuple(float(v) for v in theta0) != (0.0, 0.0):
+        # TODO(merge): theta0 -- pass it to train_runs(theta0=...) once helper A's keyword-only start is merged.
         return [fit(train_set, settings, seed, camera, theta0) for train_set, seed in zip(train_sets, seeds)]
 
     def run() -> list[FitResult]:
+        history = train_group(train_sets[0], [train_set.targets for train_set in train_sets], settings, seeds, camera)
+        levels = history.level.tolist()
         results = []
-        for first in range(0, len(seeds), NOISE_GROUP_SIZE):  # Table 2's groups: larger ones leave the cache
-            group = range(first, min(first + NOISE_GROUP_SIZE, len(seeds)))
-            history = train_runs(train_sets[0], [train_sets[i].targets for i in group],
-                                 [replace(settings, seed=int(seeds[i])) for i in group], camera=camera)
-            levels = history.level.tolist()
-            for run_index in range(len(group)):
-                a, b = history.theta[1:, run_index].unbind(-1)
-                results.append(FitResult(
-                    tuple(history.theta[-1, run_index].tolist()), 0.0, len(levels),
-                    {"stage": levels, "loss": [float("nan")] * len(levels), "a": a.tolist(), "b": b.tolist()},
-                ))
+        for run_index in range(len(train_sets)):
+            a, b = history.theta[1:, run_index, :2].unbind(-1)
+            # TODO(merge): the run's own loss, once RunsHistory.loss is per run (steps, R).
+            results.append(FitResult(
+                tuple(history.theta[-1, run_index].tolist()), 0.0, len(levels),
+                {"stage": levels, "loss": [float("nan")] * len(levels), "a": a.tolist(), "b": b.tolist()},
+            ))
         return results
 
     return timed_runs(run)

@@ -5,9 +5,8 @@ import torch
 
 from ..camera import APOLLO_CAMERA_5, Camera, check_points
 from ..errors import SDMInputError
-from ..representation import inside
 from ..zoom import zoom_out
-from .flow import dynamic_flow, window_offsets
+from .flow import block_window, dynamic_flow, nine
 
 
 def explain_point(
@@ -44,22 +43,19 @@ def explain_point(
     if target.shape != camera.screen_shape:
         raise SDMInputError(f"target must have shape {camera.screen_shape}, got {tuple(target.shape)}")
     device = point.device
-    block_size = 1 << level
     block = torch.tensor(pixel, dtype=torch.int64, device=device) >> level
-    window = block + window_offsets(device)  # (9, 2) blocks
-    centres = (window.to(torch.float64) + 0.5) * block_size
+    zoomed, config = zoom_out(target, level), torch.zeros(1, dtype=torch.int64, device=device)
+    window = block_window(block[None], config, zoomed[None], level, torch.float64)  # the flow's window, p = 1
+    blocks, centres = window.blocks()[0], nine(window.centres)[0]  # (9, 2) blocks, (9, 2) screen pixels
     adjustments = camera.backproject(centres, point[2].expand(9))
     distance = (point[:2] - adjustments[:, :2]).norm(dim=-1)
     kernel = torch.softmax(-c * distance, dim=0)
     nearest = int(distance.argmin())
-    zoomed = zoom_out(target, level)
-    in_grid = inside(window, *zoomed.shape)
-    active = torch.zeros(9, dtype=torch.bool, device=device)
-    active[in_grid] = zoomed[window[in_grid, 0], window[in_grid, 1]]
-    landing = window[nearest]
+    in_grid, active = window.on_grid[0], window.active[0]
+    landing = blocks[nearest]
     flow, _, matched = dynamic_flow(
-        camera.project(point)[None], point[2:], torch.zeros(1, dtype=torch.int64, device=device),
-        in_grid[nearest : nearest + 1], block[None], landing[None], zoomed[None], level, camera,
+        camera.project(point)[None], point[2:], config, in_grid[nearest : nearest + 1], block[None], landing[None],
+        zoomed[None], level, camera,
     )
     return {
         "block": block,

@@ -9,6 +9,7 @@ what the backward pass does with that is decided here, once (docs/method.md,
 from __future__ import annotations
 
 import functools
+from typing import NamedTuple
 
 import torch
 
@@ -80,30 +81,16 @@ def dynamic_flow(
         dimensionless sums of signs), ``()`` loss ``J`` in metres (the summed L1 distance
         of the pulled points to the adjustments pulling them) and ``(P,)`` bool matched.
     """
-    grid_h, grid_w = target.shape[1:]
-    flat_target = target.reshape(-1)
-    config_offset = config * (grid_h * grid_w)
-    landing_cell = torch.where(landed, config_offset + landing[:, 0] * grid_w + landing[:, 1], 0)
-    matched = landed & flat_target.take(landing_cell)
+    matched = landing_matched(config, landed, landing, target)
     flow = torch.zeros_like(screen)
 
     # Only the unmatched points are pulled; they are few once training is under way.
     pulled = (landed & ~matched).nonzero().squeeze(1)
     screen, depth = screen.index_select(0, pulled), depth.index_select(0, pulled)
-    block, landing = block.index_select(0, pulled), landing.index_select(0, pulled)
-    # The window is separable: block q = block + (dk, dl) has centre row (block_row + dk + 0.5) B and
-    # centre column (block_col + dl + 0.5) B, so its sign and distance on each axis depend on dk or dl
-    # alone: three values per axis instead of nine.
-    shifts = _axis_shifts(block.device, screen.dtype)  # (3,) -1, 0, 1
-    offset = screen[:, :, None] - (block[:, :, None] + shifts + 0.5) * (1 << zoom)  # (p, 2, 3) screen pixels
-    row_ok, col_ok = (_on_axis(block[:, axis, None] + shifts.long(), size) for axis, size in ((0, grid_h), (1, grid_w)))
-    base_cell = config_offset.index_select(0, pulled) + block[:, 0] * grid_w + block[:, 1]
-    in_grid = (row_ok[:, :, None] & col_ok[:, None, :]).reshape(-1, 9)
-    window_cell = torch.where(in_grid, base_cell[:, None] + _window_deltas(grid_w, block.device), 0)  # (p, 9)
-    step = landing - block  # (p, 2) in {-1, 0, 1}
-    landing_index = step[:, 0] * 3 + step[:, 1] + 4  # (p,) window index of the landing block, 0..8
-    weight = in_grid & flat_target.take(window_cell) & (_window_index(block.device) != landing_index[:, None])
-    weight = weight.to(screen.dtype)  # (p, 9) 1.0 where block q pulls the point
+    block = block.index_select(0, pulled)
+    window = block_window(block, config.index_select(0, pulled), target, zoom, screen.dtype)
+    offset = window.offset(screen)  # (p, 2, 3) screen pixels
+    weight = window.pulling(landing.index_select(0, pulled)).to(screen.dtype)  # (p, 9) 1.0 where block q pulls
     grid = weight.view(-1, 3, 3)  # (p, dk, dl)
     per_row = grid[:, :, 0] + grid[:, :, 1] + grid[:, :, 2]  # (p, 3) pulling blocks in window row dk
     per_col = grid[:, 0, :] + grid[:, 1, :] + grid[:, 2, :]  # (p, 3) pulling blocks in window column dl
@@ -112,6 +99,100 @@ def dynamic_flow(
     flow.index_copy_(0, pulled, pull.flip(-1))  # (row, col) -> (x, y)
     loss = pull_loss(_window_l1(offset.abs(), grid), depth, camera)
     return flow, loss, matched
+
+
+def landing_matched(config: torch.Tensor, landed: torch.Tensor, landing: torch.Tensor,
+                    target: torch.Tensor) -> torch.Tensor:
+    """``(P,)`` bool: the point landed on the grid in a block active in ``target`` (it gets no pull).
+
+    Args:
+        config: ``(P,)`` int64 configuration of each point in ``[0, n)``.
+        landed: ``(P,)`` bool, the landing block is on the grid (``landing`` is read only there).
+        landing: ``(P, 2)`` int64 landing block ``(row, col)``.
+        target: ``(n, h, w)`` bool target at the level of ``landing``; all on one device.
+    """
+    grid_h, grid_w = target.shape[1:]
+    landing_cell = torch.where(landed, config * (grid_h * grid_w) + landing[:, 0] * grid_w + landing[:, 1], 0)
+    return landed & target.reshape(-1).take(landing_cell)
+
+
+class Window(NamedTuple):
+    """The 3x3 window of blocks around one centre block per point, at one level (:func:`block_window`).
+
+    Window block ``q = centre + (dk, dl)`` has index ``3 * (dk + 1) + (dl + 1)`` (row-major,
+    :data:`WINDOW_OFFSETS`). Its centre is ``(centre + (dk, dl) + 0.5) * 2^zoom`` screen pixels,
+    so a row of the window shares its centre row and a column its centre column: ``centres``
+    holds three values per axis instead of nine (the separable form; :func:`nine` expands it).
+    All tensors on the device of the centre blocks.
+    """
+
+    #: ``(p, 2)`` int64 centre block ``(row, col)`` of each point's window.
+    centre: torch.Tensor
+    #: ``(p, 2, 3)`` float, screen pixels: ``[:, 0, dk + 1]`` the centre row of window row ``dk``,
+    #: ``[:, 1, dl + 1]`` the centre column of window column ``dl``.
+    centres: torch.Tensor
+    #: ``(p, 9)`` bool, the window block is on the block grid.
+    on_grid: torch.Tensor
+    #: ``(p, 9)`` int64 index of the window block in ``target.reshape(-1)`` (0 off the grid).
+    cell: torch.Tensor
+    #: ``(p, 9)`` bool, the window block is on the grid and active in the target.
+    active: torch.Tensor
+
+    def offset(self, screen: torch.Tensor) -> torch.Tensor:
+        """``(p, 2, 3)`` ``p - T_q`` per axis and shift: ``screen`` ``(p, 2)`` ``(row, col)`` minus :attr:`centres`."""
+        return screen[:, :, None] - self.centres
+
+    def pulling(self, landing: torch.Tensor) -> torch.Tensor:
+        """``(p, 9)`` bool, the paper's pulling blocks: :attr:`active` and not the landing block.
+
+        ``landing`` ``(p, 2)`` int64 must lie in the window (it does: the kernel moves a point
+        by at most one block, and a window centred on the landing block holds it at index 4).
+        """
+        step = landing - self.centre  # (p, 2) in {-1, 0, 1}
+        landing_index = step[:, 0] * 3 + step[:, 1] + 4  # (p,) window index of the landing block, 0..8
+        return self.active & (_window_index(self.centre.device) != landing_index[:, None])
+
+    def blocks(self) -> torch.Tensor:
+        """``(p, 9, 2)`` int64 the window blocks ``(row, col)``."""
+        return self.centre[:, None, :] + window_offsets(self.centre.device)
+
+
+def block_window(centre: torch.Tensor, config: torch.Tensor, target: torch.Tensor, zoom: int,
+                 dtype: torch.dtype) -> Window:
+    """The 3x3 :class:`Window` around block ``centre`` of each point: the one window of every gradient rule.
+
+    Args:
+        centre: ``(p, 2)`` int64 centre block ``(row, col)`` at level ``zoom`` (the input block for
+            eq. 19, the landing block for the centred rules).
+        config: ``(p,)`` int64 configuration of each point in ``[0, n)``.
+        target: ``(n, h, w)`` bool blocks that may pull (the zoomed-out target, or a rule's version of it).
+        zoom: the level (blocks of ``2^zoom`` screen pixels).
+        dtype: float dtype of the centres (that of the screen coordinates they are compared with).
+
+    All tensors on one device (any); the window lives there too. The centres are exact: block
+    indices are small integers, so ``(block + shift + 0.5) * 2^zoom`` rounds nowhere.
+    """
+    grid_h, grid_w = target.shape[1:]
+    device = centre.device
+    shifted = centre[:, :, None] + _axis_shifts(device, torch.int64)  # (p, 2, 3) blocks per axis
+    centres = (centre[:, :, None] + _axis_shifts(device, dtype) + 0.5) * (1 << zoom)  # (p, 2, 3) screen pixels
+    row_ok, col_ok = _on_axis(shifted[:, 0], grid_h), _on_axis(shifted[:, 1], grid_w)  # (p, 3) each
+    on_grid = (row_ok[:, :, None] & col_ok[:, None, :]).reshape(-1, 9)
+    base_cell = config * (grid_h * grid_w) + centre[:, 0] * grid_w + centre[:, 1]
+    cell = torch.where(on_grid, base_cell[:, None] + _window_deltas(grid_w, device), 0)  # (p, 9)
+    active = on_grid & target.reshape(-1).take(cell)
+    return Window(centre, centres, on_grid, cell, active)
+
+
+def nine(per_axis: torch.Tensor) -> torch.Tensor:
+    """``(p, 9, 2)`` ``(row, col)`` per window block from a separable ``(p, 2, 3)`` (``Window.centres``, ``offset``).
+
+    Block ``3 * (dk + 1) + (dl + 1)`` takes row value ``[:, 0, dk + 1]`` and column value
+    ``[:, 1, dl + 1]``: the same floats, copied (a contiguous tensor).
+    """
+    rows = per_axis[:, 0, :, None].expand(-1, 3, 3)
+    cols = per_axis[:, 1, None, :].expand(-1, 3, 3)
+    return torch.stack((rows, cols), dim=-1).reshape(-1, 9, 2)
 
 
 def pull_loss(window_l1: torch.Tensor, depth: torch.Tensor, camera: Camera) -> torch.Tensor:

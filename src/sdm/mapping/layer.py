@@ -112,8 +112,9 @@ class SpatialDomainMapping(nn.Module):
         method: ``"fast"`` (point rows) or ``"dense"`` (the paper's grids, for reference).
         c: kernel shape constant of the dense path, 1/metres (ignored by ``"fast"``,
             which is the ``c -> infinity`` limit).
-        flow: the gradient rule, a name of :data:`sdm.FLOW_RULES` (default ``"paper"``, eq. 19)
-            or a function with :func:`~sdm.mapping.flow.dynamic_flow`'s signature; only
+        flow: the gradient rule, a name of :data:`sdm.FLOW_RULES` (default ``"paper"``, eq. 19) or of
+            the experiments' :data:`~sdm.mapping.research_rules.RESEARCH_RULES`, or a function with
+            :func:`~sdm.mapping.flow.dynamic_flow`'s signature; only
             ``"paper"`` with ``method="dense"``.
         fit_depth: also give ``z`` a gradient, the depth flow of :mod:`sdm.depth`
             (beyond the paper; default off: ``z`` gets none, as in the paper).
