@@ -1,17 +1,20 @@
-"""Seconds per CMA-ES run (Table 3's ``cmaes`` baseline): the straightforward count against the fast one.
+"""Seconds per CMA-ES run (Table 3's ``cmaes`` baseline): the straightforward count against the fast ones.
 
     PYTHONPATH=src python benchmarks/bench_cmaes.py SKY.bin SPLIT.json [--tuning TUNING_CMAES.csv] [--level 2] [--runs 20]
 
 Protocol: the training set of the split; the tuned settings (the row of the tuning CSV with
 ``best`` True, else the defaults); the noisy targets and seeds of Table 2's runs
-``run_seed(0, level, r)``, r = 0..R-1; one thread, one process. Three ways, the same runs:
+``run_seed(0, level, r)``, r = 0..R-1; one thread, one process. Four ways, the same runs:
 
 * ``reference``: every evaluation by :meth:`PixelMismatch.reference` (the count as committed before
   the fast one: a fresh ``N x H x W`` bitmap per call), each run building its own objective;
-* ``fit``: :func:`sdm.baselines.cmaes.fit` per run (fast count, own set-up per run);
-* ``fit_runs``: :func:`sdm.baselines.cmaes.fit_runs` over chunks of ``--chunk`` runs (set-up shared).
+* ``fit_runs (torch count)``: :func:`sdm.baselines.cmaes.fit_runs` over chunks of ``--chunk`` runs,
+  the grouped count in torch, one candidate at a time (``sdm.mapping.native.disabled``: the path
+  without a C compiler or with ``SDM_NATIVE=0``);
+* ``fit``: :func:`sdm.baselines.cmaes.fit` per run (compiled count, own set-up per run);
+* ``fit_runs``: the same chunks with the compiled count (a generation per call, set-up shared).
 
-Asserts that the three give the same theta and evaluation count for every run, then prints the
+Asserts that the four give the same theta and evaluation count for every run, then prints the
 seconds per run and the ratios. The machine's load inflates the seconds; the ratios, taken in one
 process on the same runs, are the figures to quote, the CPU-time ones first (one thread: process
 time is the time the run had the core).
@@ -29,6 +32,16 @@ import torch
 from sdm.baselines import cmaes
 from sdm.baselines.common import FitResult
 from sdm.experiments import load_split, noisy_targets, run_seed
+from sdm.mapping import native
+
+
+class _ReferenceLayout:
+    """What :meth:`PixelMismatch.reference` takes from its layout (the projection), without the grouping."""
+
+    def __init__(self, train_set, camera) -> None:
+        self.camera, self._points, self._counts, self._reference = camera, train_set.points, train_set.counts, None
+
+    reference_terms = cmaes.ShiftLayout.reference_terms
 
 
 class ReferenceMismatch(cmaes.PixelMismatch):
@@ -37,12 +50,13 @@ class ReferenceMismatch(cmaes.PixelMismatch):
     def __init__(self, train_set, camera=None) -> None:
         self.camera = camera or train_set.camera
         self.train_set = train_set
+        self.layout = _ReferenceLayout(train_set, self.camera)
         self.evaluations = 0
-        self._reference = None
+        self._active, self._target_ids = train_set.targets.nonzero(), None
 
-    def __call__(self, theta) -> int:
-        self.evaluations += 1
-        return self.reference(theta)
+    def many(self, thetas) -> list[int]:
+        self.evaluations += len(thetas)
+        return [self.reference(theta) for theta in thetas]
 
 
 def reference_fit(train_set, settings, seed) -> FitResult:
@@ -81,9 +95,9 @@ def main(argv=None) -> int:
 
     # Interleaved in chunks of runs (fit_runs over the chunk, then fit and the reference count run by run),
     # so that a change of the machine's load during the benchmark hits the three ways alike.
-    cpu = {"reference (before)": 0.0, "fit (after)": 0.0, "fit_runs (after)": 0.0}
-    wall_batched = 0.0
-    batched, single, reference = [], [], []
+    cpu = {"reference (before)": 0.0, "fit_runs (torch count)": 0.0, "fit (after)": 0.0, "fit_runs (after)": 0.0}
+    wall_batched = wall_torch = 0.0
+    batched, torch_count, single, reference = [], [], [], []
     stride = max(args.runs // max(n_reference, 1), 1)
     for first in range(0, args.runs, args.chunk):
         chunk = range(first, min(first + args.chunk, args.runs))
@@ -91,6 +105,11 @@ def main(argv=None) -> int:
         batched += cmaes.fit_runs([sets[run] for run in chunk], settings, [seeds[run] for run in chunk])
         cpu["fit_runs (after)"] += time.process_time() - start
         wall_batched += time.perf_counter() - start_wall
+        start, start_wall = time.process_time(), time.perf_counter()
+        with native.disabled():
+            torch_count += cmaes.fit_runs([sets[run] for run in chunk], settings, [seeds[run] for run in chunk])
+        cpu["fit_runs (torch count)"] += time.process_time() - start
+        wall_torch += time.perf_counter() - start_wall
         for run in chunk:
             start = time.process_time()
             single.append(cmaes.fit(sets[run], settings, seed=seeds[run]))
@@ -100,22 +119,24 @@ def main(argv=None) -> int:
                 reference.append(reference_fit(sets[run], settings, seeds[run]))
                 cpu["reference (before)"] += time.process_time() - start
     cpu = {name: seconds / (len(reference) if name.startswith("reference") else args.runs) for name, seconds in cpu.items()}
-    for run, (one, many) in enumerate(zip(single, batched)):
+    for run, (one, many, counted) in enumerate(zip(single, batched, torch_count)):
         assert one.theta == many.theta and one.evaluations == many.evaluations, f"run {run}: fit_runs != fit"
+        assert counted.history == many.history, f"run {run}: torch count != compiled count"
     for index, ref in enumerate(reference):
         one = single[index * stride]
         assert one.theta == ref.theta and one.evaluations == ref.evaluations, f"run {index * stride}: fast != reference"
 
     wall = {
         "reference (before)": sum(r.seconds for r in reference) / len(reference),
+        "fit_runs (torch count)": wall_torch / args.runs,
         "fit (after)": sum(r.seconds for r in single) / args.runs,
         "fit_runs (after)": wall_batched / args.runs,
     }
     evaluations = sum(r.evaluations for r in single) / args.runs
-    print(f"same theta and evaluations in all three ways; {evaluations:.1f} evaluations per run")
+    print(f"same theta and evaluations in all four ways; {evaluations:.1f} evaluations per run")
     print("seconds per run: wall (FitResult.seconds) and CPU (process time: what the load does not inflate)")
     for name in wall:
-        print(f"{name:20s} wall {wall[name]:7.3f} s  x{wall['reference (before)'] / wall[name]:5.2f}   "
+        print(f"{name:22s} wall {wall[name]:7.3f} s  x{wall['reference (before)'] / wall[name]:5.2f}   "
               f"cpu {cpu[name]:7.3f} s  x{cpu['reference (before)'] / cpu[name]:5.2f}   "
               f"{1e3 * cpu[name] / evaluations:6.2f} cpu ms/evaluation")
     return 0

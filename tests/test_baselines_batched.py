@@ -186,7 +186,16 @@ def test_sdm_batched_equals_its_single_runs(monkeypatch):
     assert calls == [5]
     assert len({result.theta for result in batched}) == 5
     for data_run, seed, result in zip(sets, seeds, batched):
-        assert result.theta == sdm_layer.fit(data_run, settings, seed).theta
+        alone = sdm_layer.fit(data_run, settings, seed)
+        assert result.theta == alone.theta and result.history["loss"] == alone.history["loss"]
+    # Another start goes through the same one call, not one fit per run.
+    calls.clear()
+    start = (0.3, -0.2)
+    moved = sdm_layer.fit_runs(sets[:2], settings, list(seeds[:2]), theta0=start)
+    assert calls == [2]
+    for data_run, seed, result in zip(sets, seeds, moved):
+        alone = sdm_layer.fit(data_run, settings, seed, theta0=start)
+        assert result.theta == alone.theta and result.history["loss"] == alone.history["loss"]
     calls.clear()
     frame = noise_runs("sdm", data, 2, range(5), settings, seed=1)  # the method's default group: Table 2's
     assert calls == [4, 1] and list(frame["run"]) == [0, 1, 2, 3, 4]

@@ -3,8 +3,10 @@
 The fast count moves groups of points rigidly (same configuration, depth and sub-pixel offset)
 and must give exactly the straightforward count: every point projected, floored, the rendered
 image compared with the target, pixel by pixel. These tests hold it to that on random, far and
-border thetas, with noise-free and noisy targets, and hold :func:`fit_runs` to :func:`fit`.
+border thetas, with noise-free and noisy targets, on both of its paths (the compiled count of
+``sdm.mapping.native`` and the torch count it falls back to), and hold :func:`fit_runs` to :func:`fit`.
 """
+import contextlib
 import math
 
 import numpy as np
@@ -17,7 +19,22 @@ from sdm.baselines import cmaes
 from sdm.baselines.cmaes import CMAESSettings, PixelMismatch, ShiftLayout, fit, fit_runs
 from sdm.errors import SDMInputError
 from sdm.experiments import noisy_targets
+from sdm.mapping import native
 from sdm.sky import shifted_target
+
+PATHS = ["compiled", "torch"]
+
+
+@contextlib.contextmanager
+def counting(path):
+    """Objectives built inside count on ``path``: the compiled kernel (skipped without a C compiler) or torch."""
+    if path == "compiled":
+        if not native.enabled():
+            pytest.skip("no C compiler: the compiled count is not built")
+        yield
+    else:
+        with native.disabled():
+            yield
 
 
 @pytest.fixture(scope="module")
@@ -41,26 +58,33 @@ def random_thetas(count: int, seed: int, spread: float):
     return [(float(a), float(b)) for a, b in rng.normal((0.5, 0.3), spread, size=(count, 2))]
 
 
+@pytest.mark.parametrize("path", PATHS)
 @pytest.mark.parametrize("level", [0, 3])
-def test_fast_count_is_the_straightforward_count(small, level):
+def test_fast_count_is_the_straightforward_count(small, level, path):
     """Random thetas around and far from theta* (whole cars off screen: clamped groups), clean and noisy targets."""
     train_set = small.with_targets(noisy_targets(small.targets, level, seed=17)) if level else small
-    objective = PixelMismatch(train_set)
+    with counting(path):
+        objective = PixelMismatch(train_set)
+    assert objective.native == (path == "compiled")
     thetas = random_thetas(12, seed=level, spread=0.3) + random_thetas(6, seed=10 + level, spread=3.0)
     thetas += [(0.0, 0.0), SKY_SHIFT, (40.0, -25.0)]
-    for theta in thetas:
-        assert objective(theta) == straightforward_count(train_set, theta), theta
+    expected = [straightforward_count(train_set, theta) for theta in thetas]
+    assert [objective(theta) for theta in thetas] == expected
+    assert objective.many(thetas) == expected  # all at once (one pass of the compiled count)
     assert objective.fallbacks == 0  # the fast path was taken every time, not the reference
-    assert objective.evaluations == len(thetas)
+    assert objective.evaluations == 2 * len(thetas)
     if level == 0:
         assert objective(SKY_SHIFT) == 0
 
 
-def test_one_pixel_tiles_take_the_wide_table(small, monkeypatch):
-    """Tiles of one pixel: a group per point, hundreds per configuration, so int32 entries with int16 codes."""
+@pytest.mark.parametrize("path", PATHS)
+def test_one_pixel_tiles_take_the_wide_table(small, monkeypatch, path):
+    """Tiles of one pixel: a group per point, hundreds per configuration, so (torch) int32 entries with int16 codes."""
     monkeypatch.setattr(cmaes, "TILE", 1)
-    objective = PixelMismatch(small)
-    assert objective.table.dtype == torch.int32 and objective.layout.gain.shape[0] == small.points.shape[0]
+    with counting(path):
+        objective = PixelMismatch(small)
+    assert objective.table.dtype == (torch.int8 if objective.native else torch.int32)
+    assert objective.layout.gain.shape[0] == small.points.shape[0]
     for theta in random_thetas(4, seed=21, spread=0.3) + [(6.0, -3.0)]:
         assert objective(theta) == straightforward_count(small, theta), theta
     assert objective.fallbacks == 0
@@ -79,16 +103,50 @@ def test_groups_move_several_points_and_overlaps_are_counted_once(small):
     assert overlapped > 0
 
 
-def test_border_theta_falls_back_to_the_reference(small):
-    """A theta that puts a group's points exactly on a pixel border is counted by reference, and still right."""
-    objective = PixelMismatch(small)
+@pytest.mark.parametrize("path", PATHS)
+def test_border_theta_falls_back_to_the_reference(small, path):
+    """A theta that puts a group's points exactly on a pixel border is counted by reference, and still right,
+    also among trusted thetas in one call."""
+    with counting(path):
+        objective = PixelMismatch(small)
     layout = objective.layout
-    # b such that frac(row_0) + b g_r of group 0 is the next integer: its points sit on a row border.
-    b = (1.0 - float(layout.frac_low[0, 0])) / float(layout.gain[0, 0])
+    # b such that frac(row_0) + b g_r of the last group is the next integer: its points sit on a row border.
+    b = (1.0 - float(layout.frac_low[-1, 0])) / float(layout.gain[-1, 0])
     theta = (0.3, b)
     assert layout.rendered_ids(theta) is None
     assert objective(theta) == objective.reference(theta)
     assert objective.fallbacks == 1
+    others = random_thetas(3, seed=2, spread=0.3)
+    assert objective.many([others[0], theta, *others[1:]]) == [
+        straightforward_count(small, t) for t in (others[0], theta, *others[1:])]
+    assert objective.fallbacks == 2 and objective.evaluations == 5
+
+
+def test_compiled_count_wipes_its_stamps_before_they_wrap(small):
+    """The compiled count marks pixels with 32-bit stamps that it wipes before they run out: still exact after."""
+    with counting("compiled"):
+        objective = PixelMismatch(small)
+    thetas = random_thetas(6, seed=31, spread=0.3)
+    expected = [straightforward_count(small, theta) for theta in thetas]
+    stamp = objective.layout.stamp
+    stamp[-1] = -2 - len(small) * 2  # uint32 2**32 - 2 - 2 N: the next call of 6 needs a wipe, a call of 2 does not
+    assert objective.many(thetas[:2]) == expected[:2]
+    assert int(stamp[-1]) == -2  # stamps 2**32 - 2 N - 1 .. 2**32 - 2 used, none wrapped to 0
+    assert objective.many(thetas) == expected
+    assert 0 < int(stamp[-1]) <= len(small) * len(thetas)  # wiped, then counted up from 0
+
+
+def test_compiled_and_torch_counts_agree_on_a_search(small):
+    """The whole search on either path: the same candidates, counts and result (Table 3's cmaes rows)."""
+    pytest.importorskip("cma")
+    noisy = small.with_targets(noisy_targets(small.targets, 2, seed=6))
+    results = {}
+    for path in PATHS:
+        with counting(path):
+            results[path] = fit(noisy, CMAESSettings(budget=60), seed=4)
+    assert results["compiled"].theta == results["torch"].theta
+    assert results["compiled"].history == results["torch"].history
+    assert results["compiled"].evaluations == results["torch"].evaluations
 
 
 def test_reference_is_the_straightforward_count(small):
@@ -101,17 +159,19 @@ def test_reference_is_the_straightforward_count(small):
 class ReferenceOnly(PixelMismatch):
     """Every evaluation by the reference count (the objective as it was before the fast count)."""
 
-    def __call__(self, theta) -> int:
-        self.evaluations += 1
-        return self.reference(theta)
+    def many(self, thetas) -> list[int]:
+        self.evaluations += len(thetas)
+        return [self.reference(theta) for theta in thetas]
 
 
-def test_fit_is_the_search_on_the_reference_count(small):
+@pytest.mark.parametrize("path", PATHS)
+def test_fit_is_the_search_on_the_reference_count(small, path):
     """Same candidates, same counts, same ranking: the fast count changes no CMA-ES decision."""
     pytest.importorskip("cma")
     noisy = small.with_targets(noisy_targets(small.targets, 1, seed=8))
     settings = CMAESSettings(budget=60)
-    fast = fit(noisy, settings, seed=3)
+    with counting(path):
+        fast = fit(noisy, settings, seed=3)
     slow = cmaes._search(ReferenceOnly(noisy), settings, 3, (0.0, 0.0))
     assert fast.theta == slow.theta
     assert fast.history == slow.history

@@ -5,6 +5,7 @@ import os
 import subprocess
 import sys
 import textwrap
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -91,6 +92,13 @@ def test_non_contiguous_inputs_give_the_same_result():
                                      native=False))
 
 
+def assert_same_runs(compiled, reference_theta, reference_loss):
+    """Theta histories to the bit; the loss (summed in another order) to 1e-12 relative."""
+    assert torch.equal(compiled.theta, reference_theta)
+    assert compiled.loss.shape == reference_loss.shape
+    assert float((compiled.loss - reference_loss).abs().max()) <= 1e-12 * float(reference_loss.abs().max())
+
+
 def test_training_with_the_kernel_equals_training_without():
     data = configuration_set(64, seed=8)
     settings = TrainSettings(lr=3e-4, n_epoch=1, batch_size=16, seed=3)
@@ -102,9 +110,76 @@ def test_training_with_the_kernel_equals_training_without():
         runs_without = train_runs(data, [data.targets, data.targets],
                                   [settings, TrainSettings(lr=3e-4, n_epoch=1, seed=4)])
     assert native.enabled()
-    assert torch.equal(with_kernel.theta, without.theta) and torch.equal(with_kernel.loss, without.loss)
-    assert torch.equal(runs_with.theta, runs_without.theta) and torch.equal(runs_with.loss, runs_without.loss)
+    assert_same_runs(with_kernel, without.theta, without.loss)
+    assert_same_runs(runs_with, runs_without.theta, runs_without.loss)
     assert not torch.equal(with_kernel.theta[0], with_kernel.theta[-1])  # it trained
+
+
+@pytest.fixture
+def compiled_calls(monkeypatch):
+    """Counts the calls of the compiled engine (so a test knows the whole run was compiled)."""
+    calls = []
+    original = native.train_program
+
+    def spy(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(native, "train_program", spy)
+    return calls
+
+
+@pytest.mark.parametrize("flow", ["paper", "closed_centred_r1"])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+@pytest.mark.parametrize("s,zoom,n_epoch", [(4, 0, 1), (3, 1, 2)])
+def test_the_compiled_run_equals_the_reference_loop_bit_for_bit(flow, seed, s, zoom, n_epoch, compiled_calls):
+    """One C call per program: R = 1 (train) and R = 3 (own noise, seeds, starts) against tests/train_reference.py."""
+    from sdm.experiments import noisy_targets
+    from train_reference import reference_train
+
+    data = configuration_set(80, seed=10 + seed)
+    base = TrainSettings(lr=3e-4, n_epoch=n_epoch, s=s, zoom=zoom, flow=flow)
+    settings = [replace(base, seed=seed + k) for k in (0, 5, 9)]
+    targets = [data.targets, noisy_targets(data.targets, 2, seed), noisy_targets(data.targets, 1, seed + 1)]
+    starts = [(0.0, 0.0), (0.45, 0.2), (0.7, 0.5)]
+    reference = [reference_train(data.with_targets(t), one, theta0=start)
+                 for t, one, start in zip(targets, settings, starts)]
+    alone = train(data.with_targets(targets[1]), settings[1], progress=False, theta0=starts[1])
+    assert_same_runs(alone, *reference[1])
+    together = train_runs(data, targets, settings, theta0=starts)
+    assert len(compiled_calls) == 2
+    for run, (theta, loss) in enumerate(reference):
+        assert torch.equal(together.theta[:, run], theta), run
+        assert float((together.loss[:, run] - loss).abs().max()) <= 1e-12 * float(loss.abs().max()), run
+    assert not torch.equal(together.theta[0], together.theta[-1])
+
+
+def test_the_compiled_run_on_real_sized_data(compiled_calls):
+    """512 configurations of the test scenes, Table 2's schedule (n_epoch 2, lr 1e-4), noisy targets, both rules."""
+    from sdm.experiments import noisy_targets
+    from train_reference import reference_train
+
+    data = configuration_set(512, seed=2024)
+    targets = [noisy_targets(data.targets, 2, 3), noisy_targets(data.targets, 4, 4)]
+    finals = {}
+    for flow in ("paper", "closed_centred_r1"):
+        settings = [TrainSettings(lr=1e-4, n_epoch=2, seed=seed, flow=flow) for seed in (6, 7)]
+        compiled = train_runs(data, targets, settings)
+        for run in range(2):
+            theta, loss = reference_train(data.with_targets(targets[run]), settings[run])
+            assert torch.equal(compiled.theta[:, run], theta), (flow, run)
+            assert float((compiled.loss[:, run] - loss).abs().max()) <= 1e-12 * float(loss.abs().max())
+        finals[flow] = compiled.theta[-1]
+    assert len(compiled_calls) == 2
+    assert not torch.equal(finals["paper"], finals["closed_centred_r1"])  # the rules differ at zoom 0
+
+
+def test_other_training_settings_take_the_torch_path(compiled_calls):
+    data = configuration_set(32, seed=12)
+    for settings in (TrainSettings(flow="closed", s=2), TrainSettings(fit_depth=True, s=2)):
+        train(data, settings, progress=False)
+    train(data, TrainSettings(s=2, zoom=2), progress=False, method="dense")
+    assert compiled_calls == []
 
 
 def test_without_a_compiler_the_layer_warns_once_and_runs_the_torch_path(tmp_path):

@@ -1,3 +1,4 @@
+import contextlib
 import math
 from dataclasses import replace
 
@@ -112,12 +113,85 @@ def test_runs_trained_together_follow_their_own_histories(sky768):
     settings = [replace(base, seed=seed) for seed in (4, 9, 4)]
     targets = [small.targets, noisy_targets(small.targets, 2, 1), noisy_targets(small.targets, 1, 5)]
     together = train_runs(small, targets, settings)
-    assert together.theta.shape == (len(together.loss) + 1, 3, 2)
+    assert together.theta.shape == (len(together.loss) + 1, 3, 2) and together.loss.shape == (len(together.lr), 3)
     for run, (one, run_targets) in enumerate(zip(settings, targets)):
         alone = train(small.with_targets(run_targets), one, progress=False)
         assert torch.equal(together.theta[:, run], alone.theta), run
+        assert torch.equal(together.loss[:, run], alone.loss), run  # the same engine: each run's own loss
     assert not torch.equal(together.theta[:, 0], together.theta[:, 2])  # same seed, other noise: other run
     assert torch.equal(together.lr, alone.lr) and torch.equal(together.level, alone.level)
+
+
+@pytest.mark.parametrize("flow", ["paper", "closed_centred_r1", "closed"])
+def test_the_torch_path_equals_the_reference_loop(sky768, flow):
+    """The engine's torch path (what CUDA, other rules and a missing kernel run) against tests/train_reference.py.
+
+    R = 1 (train) and R = 3 (noise, seeds and starts of their own): theta histories and each run's loss to the bit.
+    """
+    from sdm.experiments import noisy_targets
+    from sdm.mapping import native
+    from sdm.train import train_runs
+    from train_reference import reference_train
+
+    train_set, _ = sky768
+    small = train_set.subset(range(64))
+    base = TrainSettings(lr=2e-4, n_epoch=1, s=3, flow=flow)
+    settings = [replace(base, seed=seed) for seed in (1, 7, 12)]
+    targets = [noisy_targets(small.targets, level, seed) for level, seed in ((0, 0), (2, 3), (1, 8))]
+    starts = [(0.0, 0.0), (0.4, 0.1), (-0.3, 0.6)]
+    with native.disabled():
+        alone = train(small.with_targets(targets[1]), settings[1], progress=False, theta0=starts[1])
+        together = train_runs(small, targets, settings, theta0=starts)
+    reference = [reference_train(small.with_targets(t), one, theta0=start)
+                 for t, one, start in zip(targets, settings, starts)]
+    assert torch.equal(alone.theta, reference[1][0]) and torch.equal(alone.loss, reference[1][1])
+    for run, (theta, loss) in enumerate(reference):
+        assert torch.equal(together.theta[:, run], theta), run
+        assert torch.equal(together.loss[:, run], loss), run
+    assert not torch.equal(reference[0][0], reference[2][0])
+
+
+def test_non_finite_theta_names_the_run_and_the_step(sky768):
+    """Run 1 blows up at its first step (huge lr); run 0 has all-active targets, is never pulled, stays finite."""
+    from sdm.mapping import native
+    from sdm.train import train_runs
+
+    train_set, _ = sky768
+    small = train_set.subset(range(32))
+    settings = [TrainSettings(lr=1e308, s=2, seed=seed) for seed in (0, 1)]
+    targets = [torch.ones_like(small.targets), small.targets]
+    for compiled in (True, False):
+        with contextlib.ExitStack() as stack:
+            if not compiled:
+                stack.enter_context(native.disabled())
+            with pytest.raises(SDMInputError, match=r"theta of run 1 became non-finite at step 1 \(lr 1e\+308"):
+                train_runs(small, targets, settings)
+            with pytest.raises(SDMInputError, match="run 0 became non-finite at step 1"):
+                train(small, settings[0], progress=False)
+
+
+def test_an_unusable_device_is_an_input_error(sky768):
+    """Issue 19: device="cuda" on a CPU-only torch names ``device`` (torch itself raises an AssertionError)."""
+    if torch.cuda.is_available():
+        pytest.skip("CUDA is available here")
+    train_set, _ = sky768
+    with pytest.raises(SDMInputError, match="device 'cuda'"):
+        train(train_set.subset(range(16)), device="cuda", progress=False)
+    with pytest.raises(SDMInputError, match="device 'nonsense'"):
+        train(train_set.subset(range(16)), device="nonsense", progress=False)
+
+
+def test_bad_starts(sky768):
+    from sdm.train import train_runs
+
+    train_set, _ = sky768
+    small = train_set.subset(range(16))
+    with pytest.raises(SDMInputError, match="one start per run"):
+        train_runs(small, [small.targets] * 2, [TrainSettings()] * 2, theta0=[(0.0, 0.0)])
+    with pytest.raises(SDMInputError, match=r"theta0\[1\] must be 2 finite numbers"):
+        train_runs(small, [small.targets] * 2, [TrainSettings()] * 2, theta0=[(0.0, 0.0), (1.0, math.inf)])
+    with pytest.raises(SDMInputError, match="one run at a time"):
+        train_runs(small, [small.targets] * 2, [TrainSettings()] * 2, method="dense")
 
 
 @pytest.mark.parametrize("flow", ["paper", "closed_centred_r1", "normalised"])

@@ -182,9 +182,11 @@ def paired_runs(clean_targets: torch.Tensor, level: int, runs: Sequence[int], se
 
 
 def train_group(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], settings: TrainSettings,
-                seeds: Sequence[int], camera: Camera | None = None, device: torch.device | str | None = None):
+                seeds: Sequence[int], camera: Camera | None = None, device: torch.device | str | None = None,
+                theta0=None):
     """SDM's fit of a group of paired runs: run ``r`` is ``settings`` with seed ``seeds[r]`` (its shuffling)
-    on the points of ``train_set`` and the targets ``targets[r]``, all as one :func:`sdm.train.train_runs`.
+    on the points of ``train_set`` and the targets ``targets[r]``, all as one :func:`sdm.train.train_runs`
+    (``theta0``: as there, ``None`` for every run from ``(0, 0)``).
 
     Table 2's, 4's and 5's runs (through :func:`paired_runs`) and SDM's rows of Table 3
     (:func:`sdm.baselines.sdm_layer.fit_runs`) all train here.
@@ -193,7 +195,7 @@ def train_group(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
         :class:`sdm.train.RunsHistory` (on the CPU).
     """
     return train_runs(train_set, targets, [replace(settings, seed=int(seed)) for seed in seeds], camera=camera,
-                      device=device)
+                      device=device, theta0=theta0)
 
 
 def shift_record(theta: Sequence[float], shift: Sequence[float]) -> dict:

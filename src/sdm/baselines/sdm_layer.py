@@ -56,29 +56,25 @@ def fit_runs(train_sets: Sequence[ConfigurationSet], settings: TrainSettings = T
         settings: shared; ``seeds[r]`` replaces ``settings.seed`` for run ``r``.
         seeds: ``R`` seeds (mini-batch shuffling).
         camera: default the sets' camera.
-        theta0: every run's start ``(a, b)``, metres; one other than ``(0, 0)`` falls back to one
-            :func:`fit` per run.
+        theta0: every run's start ``(a, b)``, metres.
 
     Returns:
         One :class:`~sdm.baselines.common.FitResult` per run; ``seconds`` is the batched fit's wall
-        time divided by ``R``; ``history["loss"]`` is NaN (``train_runs`` records only the loss
-        summed over the runs).
+        time divided by ``R``; ``history["loss"]`` is the run's own loss per step.
     """
     check_runs(train_sets, seeds)
-    if tuple(float(v) for v in theta0) != (0.0, 0.0):
-        # TODO(merge): theta0 -- pass it to train_runs(theta0=...) once helper A's keyword-only start is merged.
-        return [fit(train_set, settings, seed, camera, theta0) for train_set, seed in zip(train_sets, seeds)]
+    start = [tuple(float(v) for v in theta0)] * len(train_sets)
 
     def run() -> list[FitResult]:
-        history = train_group(train_sets[0], [train_set.targets for train_set in train_sets], settings, seeds, camera)
+        history = train_group(train_sets[0], [train_set.targets for train_set in train_sets], settings, seeds, camera,
+                              theta0=start)
         levels = history.level.tolist()
         results = []
         for run_index in range(len(train_sets)):
             a, b = history.theta[1:, run_index, :2].unbind(-1)
-            # TODO(merge): the run's own loss, once RunsHistory.loss is per run (steps, R).
             results.append(FitResult(
                 tuple(history.theta[-1, run_index].tolist()), 0.0, len(levels),
-                {"stage": levels, "loss": [float("nan")] * len(levels), "a": a.tolist(), "b": b.tolist()},
+                {"stage": levels, "loss": history.loss[:, run_index].tolist(), "a": a.tolist(), "b": b.tolist()},
             ))
         return results
 

@@ -82,13 +82,6 @@ def runs_per_splat(level: int) -> int:
     return max(1, 4**level // 2)
 
 
-def window_offsets(sigma: float, device=None) -> torch.Tensor:
-    """``(n, 2)`` int64 block offsets within ``R = ceil(3 sigma)`` in each direction (a square window)."""
-    reach = max(1, math.ceil(3.0 * sigma))
-    steps = torch.arange(-reach, reach + 1, device=device)
-    return torch.cartesian_prod(steps, steps)
-
-
 def soft_silhouette(screen: torch.Tensor, config: torch.Tensor, n_configs: int, level: int, sigma: float,
                     shape: tuple[int, int]) -> torch.Tensor:
     """Soft silhouettes of a batch of point sets at zoom level ``level``.
@@ -111,15 +104,22 @@ def soft_silhouette(screen: torch.Tensor, config: torch.Tensor, n_configs: int, 
     height, width = shape[0] // block, shape[1] // block
     position = screen / block  # (P, 2) in blocks
     nearest = torch.floor(position.detach()).to(torch.int64)
-    offsets = window_offsets(sigma, device=screen.device)  # (n, 2)
-    cells = nearest.unsqueeze(1) + offsets  # (P, n, 2)
-    keep = (cells[..., 0] >= 0) & (cells[..., 0] < height) & (cells[..., 1] >= 0) & (cells[..., 1] < width)
+    n_points = nearest.shape[0]
+    # The window: the n = m x m blocks within R = ceil(3 sigma) in each direction (rows outer, columns
+    # inner). Its integer parts are built per row and per column, (P, m) each, and combined to
+    # (P, m, m) = (P, n) only at the end: the same cells as offsets of all n, at a fraction of the passes.
+    reach = max(1, math.ceil(3.0 * sigma))
+    steps = torch.arange(-reach, reach + 1, device=screen.device)
+    rows, cols = nearest[:, :1] + steps, nearest[:, 1:] + steps  # (P, m) block rows and columns of the window
+    keep = ((rows >= 0) & (rows < height)).unsqueeze(2) & ((cols >= 0) & (cols < width)).unsqueeze(1)
+    keep = keep.view(n_points, -1)  # (P, n)
     # Cells off the grid are clamped onto it and contribute log(1 - 0) = 0: dense ops, no boolean
     # indexing (which costs more than the splat itself).
-    row = cells[..., 0].clamp(0, height - 1)
-    col = cells[..., 1].clamp(0, width - 1)
-    flat = (config.unsqueeze(1) * height + row) * width + col  # (P, n)
-    delta = cells.to(screen.dtype) + 0.5 - position.unsqueeze(1)  # (P, n, 2)
+    row_start = (config.unsqueeze(1) * height + rows.clamp(0, height - 1)) * width  # (P, m)
+    flat = (row_start.unsqueeze(2) + cols.clamp(0, width - 1).unsqueeze(1)).view(n_points, -1)  # (P, n)
+    centres = torch.stack(torch.broadcast_tensors(rows.to(screen.dtype).unsqueeze(2) + 0.5,
+                                                  cols.to(screen.dtype).unsqueeze(1) + 0.5), -1)  # (P, m, m, 2)
+    delta = centres.view(n_points, -1, 2) - position.unsqueeze(1)  # (P, n, 2)
     weight = torch.exp((delta * delta).sum(-1) * (-0.5 / (sigma * sigma))) * keep
     # log(1 - w), with w kept below 1 so that a point sitting exactly on a cell centre stays finite.
     log_empty = torch.log1p(-weight.clamp(max=1.0 - 1e-6))

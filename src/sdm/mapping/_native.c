@@ -1,15 +1,20 @@
-/* The SDM layer's CPU hot path in one pass per level: see sdm/mapping/native.py.
+/* The SDM layer's CPU hot path in one pass per level, and whole training runs: see sdm/mapping/native.py.
  *
- * Two functions, each the exact counterpart of a torch formulation in this package:
+ * Three functions, each the exact counterpart of a torch formulation in this package:
  *   sdm_chain        <-> the level loop of sdm.mapping.fast.fast_mapping
  *   sdm_paper_flow   <-> sdm.mapping.flow.dynamic_flow (the paper's eq. 19)
- * They do the same integer arithmetic and, for the few floating-point values, the same
- * operations in the same order, so their results equal the torch path's bit for bit
- * (tests/test_native.py holds it). Built with -ffp-contract=off: no fused multiply-adds.
+ *   sdm_train        <-> sdm.train.train_runs on the torch path (projection, chain, flow, SGD), for the
+ *                        paper's rule and "closed_centred_r1" (sdm.mapping.rules)
+ * They do the same integer arithmetic and, for the floating-point values, the same operations in
+ * the same order, so their results equal the torch path's bit for bit (tests/test_native.py holds
+ * it); only sdm_train's loss is summed in another order (see there). Built with -ffp-contract=off:
+ * no fused multiply-adds.
  *
  * All arrays are C-contiguous; int64 for integers, uint8 (0/1) for bool, double for floats.
  */
+#include <math.h>
 #include <stdint.h>
+#include <stdlib.h>
 
 static inline int64_t clamp_unit(int64_t value) { return value < -1 ? -1 : (value > 1 ? 1 : value); }
 
@@ -17,10 +22,13 @@ static inline int on_grid(int64_t row, int64_t col, int64_t height, int64_t widt
     return row >= 0 && row < height && col >= 0 && col < width;
 }
 
-/* Levels steps..zoom of the zoom chain for points lo..hi-1, which no other point shares a configuration with. */
+/* Levels steps..zoom of the zoom chain for points lo..hi-1, which no other point shares a configuration with.
+ * config NULL: all of them are one configuration. Points off the grid or dropped compete in cell `sentinel`
+ * of cell_min (past every configuration's cells), so the rmin loops need no branch. */
 static void chain_range(int64_t lo, int64_t hi, const int64_t *projected, const int64_t *pixels,
                         const int64_t *config, const int64_t *rank, int64_t height, int64_t width, int64_t steps,
-                        int64_t zoom, int64_t *cell_min, int64_t no_rank, int64_t *out_pixels, uint8_t *entered,
+                        int64_t zoom, int64_t *cell_min, int64_t sentinel, int64_t no_rank, int64_t *out_pixels,
+                        uint8_t *entered,
                         uint8_t *landed, int64_t *block_out, int64_t *landing_out, int64_t *current, int64_t *cell,
                         uint8_t *alive) {
     const int64_t cells_per_config = height * width;
@@ -49,14 +57,14 @@ static void chain_range(int64_t lo, int64_t hi, const int64_t *projected, const 
             const int candidate = alive[i] && on_grid(row, col, height, width);
             if (level == zoom) landed[i] = (uint8_t)candidate;
             alive[i] = (uint8_t)candidate;
-            cell[i] = candidate ? config[i] * cells_per_config + row * width + col : -1;
-            if (candidate && rank[i] < cell_min[cell[i]]) cell_min[cell[i]] = rank[i];
+            const int64_t own = candidate ? (config ? config[i] * cells_per_config : 0) + row * width + col : sentinel;
+            cell[i] = own;
+            const int64_t least = cell_min[own];
+            cell_min[own] = rank[i] < least ? rank[i] : least;
         }
         /* rmin: a point survives where its rank is the lowest that landed in its cell */
-        for (int64_t i = lo; i < hi; ++i)
-            if (alive[i]) alive[i] = cell_min[cell[i]] == rank[i];
-        for (int64_t i = lo; i < hi; ++i)
-            if (cell[i] >= 0) cell_min[cell[i]] = no_rank;
+        for (int64_t i = lo; i < hi; ++i) alive[i] = alive[i] & (cell_min[cell[i]] == rank[i]);
+        for (int64_t i = lo; i < hi; ++i) cell_min[cell[i]] = no_rank;
     }
     for (int64_t i = lo; i < hi; ++i) {
         out_pixels[2 * i] = alive[i] ? current[2 * i] : -1;
@@ -85,7 +93,11 @@ void sdm_chain(int64_t n_points, const int64_t *projected, const int64_t *pixels
                int64_t no_rank, int64_t *out_pixels, uint8_t *entered, uint8_t *landed, int64_t *block_out,
                int64_t *landing_out, int64_t *current, int64_t *cell, uint8_t *alive) {
     int sorted = 1;
-    for (int64_t i = 1; i < n_points && sorted; ++i) sorted = config[i] >= config[i - 1];
+    int64_t last = 0; /* the highest configuration: cell_min has (last + 1) * height * width + 1 entries at least */
+    for (int64_t i = 0; i < n_points; ++i) {
+        if (i && config[i] < config[i - 1]) sorted = 0;
+        if (config[i] > last) last = config[i];
+    }
     int64_t lo = 0;
     while (lo < n_points) {
         int64_t hi = n_points;
@@ -93,13 +105,69 @@ void sdm_chain(int64_t n_points, const int64_t *projected, const int64_t *pixels
             hi = lo + CHUNK_POINTS < n_points ? lo + CHUNK_POINTS : n_points;
             while (hi < n_points && config[hi] == config[hi - 1]) ++hi; /* end on a configuration boundary */
         }
-        chain_range(lo, hi, projected, pixels, config, rank, height, width, steps, zoom, cell_min, no_rank,
+        chain_range(lo, hi, projected, pixels, config, rank, height, width, steps, zoom, cell_min,
+                    (last + 1) * height * width, no_rank,
                     out_pixels, entered, landed, block_out, landing_out, current, cell, alive);
         lo = hi;
     }
 }
 
+/* floor(x) as int64, as torch.floor(x).long() gives it: without a call to libm's floor where x is in range. */
+static inline int64_t floor_to_int(double x) {
+    if (!(x > -9.2e18 && x < 9.2e18)) return (int64_t)floor(x); /* NaN and beyond int64: as the torch path */
+    const int64_t truncated = (int64_t)x;
+    return truncated - ((double)truncated > x);
+}
+
 static inline double sign_of(double value) { return (double)((value > 0.0) - (value < 0.0)); }
+
+/* The 3x3 window of one pulled point: the one formulation of "which blocks pull, and how".
+ *
+ * The window is centred on block (centre_row, centre_col) of a grid_h x grid_w target (one
+ * configuration's, 0/1); its block at window index `skip` (row-major, 0..8: the landing block)
+ * does not pull. A block pulls when it is on the grid, active and not skipped. Writes
+ * pull (row, col): the summed sign(p - T_q) of the point at screen (row, col) over the pulling
+ * blocks T_q (centres in screen pixels, blocks of block_size pixels), and l1 (row, col): the
+ * summed |p - T_q|, one term at a time in row-major order (as sdm.mapping.flow._window_l1).
+ * The paper's flow centres it on the input block (skip: the landing block's index); the
+ * closed_centred_r1 rule at zoom 0 on the landing block (skip 4).
+ */
+static inline void window_pull(double screen_row, double screen_col, int64_t centre_row, int64_t centre_col,
+                               int64_t skip, const uint8_t *target, int64_t grid_h, int64_t grid_w,
+                               double block_size, double pull[2], double l1[2]) {
+    double offset_row[3], offset_col[3], weight[3][3];
+    int row_ok[3], col_ok[3];
+    for (int k = 0; k < 3; ++k) {
+        offset_row[k] = screen_row - (((double)centre_row + (double)(k - 1)) + 0.5) * block_size;
+        offset_col[k] = screen_col - (((double)centre_col + (double)(k - 1)) + 0.5) * block_size;
+        row_ok[k] = centre_row + k - 1 >= 0 && centre_row + k - 1 < grid_h;
+        col_ok[k] = centre_col + k - 1 >= 0 && centre_col + k - 1 < grid_w;
+    }
+    for (int k = 0; k < 3; ++k)
+        for (int l = 0; l < 3; ++l) {
+            const int in_grid = row_ok[k] && col_ok[l];
+            weight[k][l] = (in_grid && target[(centre_row + k - 1) * grid_w + (centre_col + l - 1)] && 3 * k + l != skip)
+                               ? 1.0 : 0.0;
+        }
+    double per_row[3], per_col[3];
+    for (int k = 0; k < 3; ++k) {
+        per_row[k] = weight[k][0] + weight[k][1] + weight[k][2];
+        per_col[k] = weight[0][k] + weight[1][k] + weight[2][k];
+    }
+    /* integers: exact in any order */
+    pull[0] = sign_of(offset_row[0]) * per_row[0] + sign_of(offset_row[1]) * per_row[1] +
+              sign_of(offset_row[2]) * per_row[2];
+    pull[1] = sign_of(offset_col[0]) * per_col[0] + sign_of(offset_col[1]) * per_col[1] +
+              sign_of(offset_col[2]) * per_col[2];
+    double total_row = 0.0, total_col = 0.0;
+    for (int k = 0; k < 3; ++k)
+        for (int l = 0; l < 3; ++l) {
+            total_row = total_row + __builtin_fabs(offset_row[k]) * weight[k][l];
+            total_col = total_col + __builtin_fabs(offset_col[l]) * weight[k][l];
+        }
+    l1[0] = total_row;
+    l1[1] = total_col;
+}
 
 /* The paper's dynamic gradient flow at the loss level.
  *
@@ -122,47 +190,241 @@ int64_t sdm_paper_flow(int64_t n_points, const double *screen, const int64_t *co
             matched[i] = 0;
             continue;
         }
-        const int64_t base = config[i] * cells_per_config;
+        const uint8_t *own = target + config[i] * cells_per_config;
         const int64_t block_row = block[2 * i], block_col = block[2 * i + 1];
-        matched[i] = target[base + landing[2 * i] * grid_w + landing[2 * i + 1]];
+        matched[i] = own[landing[2 * i] * grid_w + landing[2 * i + 1]];
         if (matched[i]) continue;
         const int64_t landing_index = (landing[2 * i] - block_row) * 3 + (landing[2 * i + 1] - block_col) + 4;
-        double offset_row[3], offset_col[3], weight[3][3];
-        int row_ok[3], col_ok[3];
-        for (int k = 0; k < 3; ++k) {
-            offset_row[k] = screen[2 * i] - (((double)block_row + (double)(k - 1)) + 0.5) * block_size;
-            offset_col[k] = screen[2 * i + 1] - (((double)block_col + (double)(k - 1)) + 0.5) * block_size;
-            row_ok[k] = block_row + k - 1 >= 0 && block_row + k - 1 < grid_h;
-            col_ok[k] = block_col + k - 1 >= 0 && block_col + k - 1 < grid_w;
-        }
-        for (int k = 0; k < 3; ++k)
-            for (int l = 0; l < 3; ++l) {
-                const int in_grid = row_ok[k] && col_ok[l];
-                const int64_t window_cell = base + (block_row + k - 1) * grid_w + (block_col + l - 1);
-                weight[k][l] = (in_grid && target[window_cell] && 3 * k + l != landing_index) ? 1.0 : 0.0;
-            }
-        double per_row[3], per_col[3];
-        for (int k = 0; k < 3; ++k) {
-            per_row[k] = weight[k][0] + weight[k][1] + weight[k][2];
-            per_col[k] = weight[0][k] + weight[1][k] + weight[2][k];
-        }
-        const double pull_row = sign_of(offset_row[0]) * per_row[0] + sign_of(offset_row[1]) * per_row[1] +
-                                sign_of(offset_row[2]) * per_row[2];
-        const double pull_col = sign_of(offset_col[0]) * per_col[0] + sign_of(offset_col[1]) * per_col[1] +
-                                sign_of(offset_col[2]) * per_col[2];
-        flow[2 * i] = pull_col; /* (row, col) -> (x, y) */
-        flow[2 * i + 1] = pull_row;
-        /* one term at a time in the window's row-major order, as sdm.mapping.flow._window_l1 adds them */
-        double total_row = 0.0, total_col = 0.0;
-        for (int k = 0; k < 3; ++k)
-            for (int l = 0; l < 3; ++l) {
-                total_row = total_row + __builtin_fabs(offset_row[k]) * weight[k][l];
-                total_col = total_col + __builtin_fabs(offset_col[l]) * weight[k][l];
-            }
+        double pull[2], l1[2];
+        window_pull(screen[2 * i], screen[2 * i + 1], block_row, block_col, landing_index, own, grid_h, grid_w,
+                    block_size, pull, l1);
+        flow[2 * i] = pull[1]; /* (row, col) -> (x, y) */
+        flow[2 * i + 1] = pull[0];
         pulled[n_pulled] = i;
-        window_l1[2 * n_pulled] = total_row;
-        window_l1[2 * n_pulled + 1] = total_col;
+        window_l1[2 * n_pulled] = l1[0];
+        window_l1[2 * n_pulled + 1] = l1[1];
         ++n_pulled;
     }
     return n_pulled;
+}
+
+/* Neumaier's compensated sum: the loss adds thousands of positive terms per step. */
+typedef struct {
+    double sum, compensation;
+} exact_sum;
+
+static inline void sum_add(exact_sum *acc, double value) {
+    const double total = acc->sum + value;
+    if (__builtin_fabs(acc->sum) >= __builtin_fabs(value))
+        acc->compensation += (acc->sum - total) + value;
+    else
+        acc->compensation += (value - total) + acc->sum;
+    acc->sum = total;
+}
+
+/* R whole training runs (sdm.train.train_runs): every level, epoch, mini-batch, chain, flow, loss and
+ * SGD step, run after run (runs never interact, so each keeps its own targets hot in the cache).
+ *
+ * Data, shared by the runs (the packed ConfigurationSet, C-contiguous):
+ *   offsets (N + 1,) row offsets; points (P, 3) q in metres; pixels (P, 2); rank (P,) rmin priority
+ * camera:  fx, fy, cx, cy, rows_per_image_pixel, cols_per_image_pixel, fy * rows_per_image_pixel,
+ *          fx * cols_per_image_pixel (the last two: metres per screen pixel are depth / them)
+ * Levels:  n_levels loss levels steps, steps - 1, ...; rates (n_levels,) the learning rate of each;
+ *          centred (n_levels,) 1 where the level uses the closed_centred_r1 window (centred on the
+ *          landing block; its target already closed by the caller), 0 for the paper's flow
+ * orders:  (n_levels * n_epoch, R, N) each epoch's shuffling of each run
+ * targets: (R, n_levels) addresses of run r's (N, H >> level, W >> level) 0/1 target at each level
+ * theta0:  (R, 2) starts (a, b), metres
+ * Outputs: thetas (total + 1, R, 2) theta before the first step and after each; losses (total, R);
+ *          failed (R,) the step (0-based) at which run r's theta became non-finite (the run stops
+ *          there; later entries unwritten), -1 where it did not.
+ *
+ * A step of run r: point = q + (a, b, 0); the projection as sdm.camera.Camera.project evaluates it
+ * (same operations, same order); the chain of sdm_chain per configuration; the flow by
+ * window_pull; grad = the summed flow (integers: exact in any order); theta = theta - rate * grad
+ * (two roundings, as torch's theta -= rate * theta.grad). A batch without points pulls nothing.
+ * The loss is the sum over the pulled points of l1_row * (z / k_row) + l1_col * (z / k_col), the
+ * products as sdm.mapping.flow.pull_loss forms them, the sum compensated in point order (torch's
+ * .sum() adds in its own order, which is not reproduced: the two agree to the last bits,
+ * tests/test_native.py holds them to 1e-12 relative). Theta never depends on the loss.
+ * Returns 0, or -1 where no memory could be had.
+ */
+int64_t sdm_train(int64_t n_runs, int64_t n_configs, const int64_t *offsets, const double *points,
+                  const int64_t *pixels, const int64_t *rank, int64_t height, int64_t width, const double *camera,
+                  int64_t steps, int64_t n_levels, int64_t n_epoch, int64_t batch_size, const double *rates,
+                  const uint8_t *centred, const int64_t *orders, const int64_t *targets, int64_t no_rank,
+                  const double *theta0, double *thetas, double *losses, int64_t *failed) {
+    const double fx = camera[0], fy = camera[1], cx = camera[2], cy = camera[3];
+    const double rows_per_pixel = camera[4], cols_per_pixel = camera[5], k_row = camera[6], k_col = camera[7];
+    const double screen_height = (double)height;
+    const int64_t batches = n_configs / batch_size;
+    int64_t largest = 1;
+    for (int64_t c = 0; c < n_configs; ++c)
+        if (offsets[c + 1] - offsets[c] > largest) largest = offsets[c + 1] - offsets[c];
+    /* one configuration's working rows and rmin cells (configurations never interact) */
+    int64_t *rows = malloc(sizeof(int64_t) * (size_t)largest * 11);
+    int64_t *cell_min = malloc(sizeof(int64_t) * (size_t)(height * width + 1));
+    double *screen = malloc(sizeof(double) * (size_t)largest * 2);
+    uint8_t *flags = malloc((size_t)largest * 3);
+    if (!rows || !cell_min || !screen || !flags) {
+        free(rows), free(cell_min), free(screen), free(flags);
+        return -1;
+    }
+    int64_t *projected = rows, *out_pixels = rows + 2 * largest, *block = rows + 4 * largest;
+    int64_t *landing = rows + 6 * largest, *current = rows + 8 * largest, *cell = rows + 10 * largest;
+    uint8_t *entered = flags, *landed = flags + largest, *alive = flags + 2 * largest;
+    for (int64_t i = 0; i < height * width + 1; ++i) cell_min[i] = no_rank;
+
+    for (int64_t run = 0; run < n_runs; ++run) {
+        double a = theta0[2 * run], b = theta0[2 * run + 1];
+        thetas[2 * run] = a;
+        thetas[2 * run + 1] = b;
+        failed[run] = -1;
+        int64_t step = 0;
+        for (int64_t li = 0; li < n_levels && failed[run] < 0; ++li) {
+            const int64_t level = steps - li, grid_h = height >> level, grid_w = width >> level;
+            const uint8_t *target = (const uint8_t *)(intptr_t)targets[run * n_levels + li];
+            const double rate = rates[li], block_size = (double)((int64_t)1 << level);
+            for (int64_t epoch = 0; epoch < n_epoch && failed[run] < 0; ++epoch) {
+                const int64_t *order = orders + ((li * n_epoch + epoch) * n_runs + run) * n_configs;
+                for (int64_t batch = 0; batch < batches; ++batch) {
+                    double grad_a = 0.0, grad_b = 0.0;
+                    exact_sum loss = {0.0, 0.0};
+                    for (int64_t j = 0; j < batch_size; ++j) {
+                        const int64_t c = order[batch * batch_size + j];
+                        const int64_t lo = offsets[c], n = offsets[c + 1] - lo;
+                        const double *q = points + 3 * lo;
+                        const uint8_t *own = target + c * grid_h * grid_w;
+                        for (int64_t i = 0; i < n; ++i) {
+                            const double x = q[3 * i] + a, y = q[3 * i + 1] + b, z = q[3 * i + 2] + 0.0;
+                            const double u = fx * x / z + cx, v = fy * y / z + cy;
+                            screen[2 * i] = v * rows_per_pixel - screen_height;
+                            screen[2 * i + 1] = u * cols_per_pixel;
+                            projected[2 * i] = floor_to_int(screen[2 * i]);
+                            projected[2 * i + 1] = floor_to_int(screen[2 * i + 1]);
+                            /* the target block it will most likely land in: fetched while the chain runs */
+                            const int64_t near_row = projected[2 * i] >> level, near_col = projected[2 * i + 1] >> level;
+                            if (on_grid(near_row, near_col, grid_h, grid_w))
+                                __builtin_prefetch(own + near_row * grid_w + near_col);
+                        }
+                        chain_range(0, n, projected, pixels + 2 * lo, 0, rank + lo, height, width, steps, level,
+                                    cell_min, height * width, no_rank, out_pixels, entered, landed, block, landing,
+                                    current, cell, alive);
+                        for (int64_t i = 0; i < n; ++i) {
+                            if (!landed[i] || own[landing[2 * i] * grid_w + landing[2 * i + 1]]) continue;
+                            const int64_t centre_row = centred[li] ? landing[2 * i] : block[2 * i];
+                            const int64_t centre_col = centred[li] ? landing[2 * i + 1] : block[2 * i + 1];
+                            const int64_t skip = centred[li] ? 4 : (landing[2 * i] - block[2 * i]) * 3 +
+                                                                       (landing[2 * i + 1] - block[2 * i + 1]) + 4;
+                            double pull[2], l1[2];
+                            window_pull(screen[2 * i], screen[2 * i + 1], centre_row, centre_col, skip, own, grid_h,
+                                        grid_w, block_size, pull, l1);
+                            grad_a += pull[1]; /* (row, col) -> (x, y) */
+                            grad_b += pull[0];
+                            const double z = q[3 * i + 2] + 0.0;
+                            sum_add(&loss, l1[0] * (z / k_row));
+                            sum_add(&loss, l1[1] * (z / k_col));
+                        }
+                    }
+                    const double move_a = rate * grad_a, move_b = rate * grad_b;
+                    a = a - move_a;
+                    b = b - move_b;
+                    losses[step * n_runs + run] = loss.sum + loss.compensation;
+                    thetas[((step + 1) * n_runs + run) * 2] = a;
+                    thetas[((step + 1) * n_runs + run) * 2 + 1] = b;
+                    if (!isfinite(a) || !isfinite(b)) {
+                        failed[run] = step;
+                        break;
+                    }
+                    ++step;
+                }
+            }
+        }
+    }
+    free(rows), free(cell_min), free(screen), free(flags);
+    return 0;
+}
+
+/* ---- CMA-ES baseline: the exact zoom-0 pixel mismatch for many thetas (sdm/baselines/cmaes.py) ----
+ *
+ * sdm_pixel_mismatch <-> sdm.baselines.cmaes.ShiftLayout.rendered_ids + PixelMismatch's count: the same
+ * float operations decide each group's whole shift and whether it can be trusted (one multiply, one
+ * add and a floor per bound, as torch computes them elementwise), then an integer count. A candidate
+ * whose shift cannot be trusted gets -1 and is counted by the torch reference (the caller's job).
+ *
+ * theta:        (K, 2) candidates (a, b), metres
+ * gain:         (G, 2) pixels per metre (row per b, col per a) of each group
+ * frac_bounds:  (2, G, 2) the group's lowest and highest sub-pixel offset, widened by the margin
+ * shift_low, shift_high: (G, 2) clamp range of the group's whole shift (stays in the padded screen)
+ * group_start:  (G + 1,) first point of each group (groups configuration by configuration)
+ * config_group: (N + 1,) first group of each configuration
+ * cells:        (P,) int32 each point's padded pixel at theta = 0, within its configuration
+ * table:        (N * cells_per_config,) int8 per padded pixel its weight + 1 (0 on target, 2 on
+ *               screen off target, 1 in the margin)
+ * limits:       (3,) the largest |gain| (row, col) and the range up to which shifts are trusted
+ * offsets:      (K * G,) int64 scratch; stamp: (cells_per_config + 1,) uint32 scratch, its last entry
+ *               the last stamp used (all zero at first, then only ever written here)
+ * counts:       (K,) out, false positives + false negatives, or -1
+ */
+void sdm_pixel_mismatch(int64_t n_candidates, const double *theta, int64_t n_groups, int64_t n_configs,
+                        const double *gain, const double *frac_bounds, const double *shift_low,
+                        const double *shift_high, const int64_t *group_start, const int64_t *config_group,
+                        const int32_t *cells, const int8_t *table, int64_t cells_per_config, int64_t padded_width,
+                        const double *limits, int64_t n_target, int64_t *offsets, uint32_t *stamp,
+                        int64_t *counts) {
+    const double *frac_high = frac_bounds + 2 * n_groups;
+    const double max_gain_row = limits[0], max_gain_col = limits[1], exact_range = limits[2];
+    for (int64_t k = 0; k < n_candidates; ++k) {
+        const double a = theta[2 * k], b = theta[2 * k + 1];
+        counts[k] = -1;
+        /* as ShiftLayout.rendered_ids: non-finite or too far, then every group's bounds */
+        if (!(a - a == 0.0 && b - b == 0.0) || __builtin_fabs(b) * max_gain_row > exact_range ||
+            __builtin_fabs(a) * max_gain_col > exact_range)
+            continue;
+        int64_t *offset = offsets + k * n_groups;
+        int trusted = 1;
+        for (int64_t g = 0; g < n_groups && trusted; ++g) {
+            const double shift_row = gain[2 * g] * b, shift_col = gain[2 * g + 1] * a;
+            const double low_row = __builtin_floor(frac_bounds[2 * g] + shift_row);
+            const double low_col = __builtin_floor(frac_bounds[2 * g + 1] + shift_col);
+            trusted = low_row == __builtin_floor(frac_high[2 * g] + shift_row) &&
+                      low_col == __builtin_floor(frac_high[2 * g + 1] + shift_col);
+            /* torch.clamp(x, low, high) = min(max(x, low), high) */
+            double row = low_row < shift_low[2 * g] ? shift_low[2 * g] : low_row;
+            double col = low_col < shift_low[2 * g + 1] ? shift_low[2 * g + 1] : low_col;
+            row = row > shift_high[2 * g] ? shift_high[2 * g] : row;
+            col = col > shift_high[2 * g + 1] ? shift_high[2 * g + 1] : col;
+            offset[g] = (int64_t)row * padded_width + (int64_t)col;
+        }
+        if (trusted) counts[k] = n_target; /* plus FP - TP so far: never below 0 while it adds up */
+    }
+    /* Stamps tell which padded pixels a candidate has rendered in the current configuration: one per
+     * (configuration, candidate), never reused before the array is wiped, so nothing is cleared per pass. */
+    uint32_t last = stamp[cells_per_config];
+    if ((uint64_t)last + (uint64_t)(n_configs * n_candidates) >= (uint64_t)UINT32_MAX) {
+        for (int64_t i = 0; i <= cells_per_config; ++i) stamp[i] = 0;
+        last = 0;
+    }
+    /* Configuration by configuration, every candidate: its pixels stay in cache across the candidates. */
+    for (int64_t c = 0; c < n_configs; ++c) {
+        const int8_t *weights = table + c * cells_per_config;
+        for (int64_t k = 0; k < n_candidates; ++k) {
+            if (counts[k] < 0) continue;
+            const uint32_t mark = ++last;
+            const int64_t *offset = offsets + k * n_groups;
+            int64_t sum = 0;
+            for (int64_t g = config_group[c]; g < config_group[c + 1]; ++g) {
+                const int64_t shift = offset[g];
+                for (int64_t p = group_start[g]; p < group_start[g + 1]; ++p) {
+                    const int64_t id = (int64_t)cells[p] + shift;
+                    if (stamp[id] != mark) { /* a pixel covered twice counts once (rare: well predicted) */
+                        stamp[id] = mark;
+                        sum += (int64_t)weights[id] - 1;
+                    }
+                }
+            }
+            counts[k] += sum;
+        }
+    }
+    stamp[cells_per_config] = last;
 }

@@ -1,4 +1,4 @@
-"""A compiled CPU kernel for the SDM chain and the paper's flow, with the torch path as fallback.
+"""A compiled CPU kernel for the SDM chain, the paper's flow and whole training runs, with the torch path as fallback.
 
 On the CPU the fast path's cost is not the arithmetic but the passes over memory:
 every level runs some twenty torch operations over all points, each a full pass
@@ -38,6 +38,15 @@ without a warning. It serves CPU tensors (non-contiguous ones are copied); CUDA
 tensors take the torch path. The chain runs in the kernel for
 any gradient rule and point dtype; the flow only for the paper's rule on float64
 points (other rules and float32 points get torch's flow).
+
+It serves two callers. The layer (:func:`~sdm.mapping.fast.fast_mapping`) calls
+:func:`chain` and :func:`paper_flow` once per forward pass. The trainer
+(:func:`sdm.train.train_runs`) calls :func:`train_program` once per program of
+``R`` runs: every level, epoch, mini-batch, projection, chain, flow (the paper's,
+or ``closed_centred_r1``'s, :data:`TRAINED_RULES`), loss and SGD step in C, the
+per-step Python work gone; theta histories equal the torch path's to the bit
+(the loss to 1e-12 relative: its sum is compensated, not in torch's order). The
+paper's flow and the centred closed rule share one window function in C.
 """
 from __future__ import annotations
 
@@ -81,6 +90,10 @@ SIGNATURES: dict[str, tuple[object, list]] = {
                          _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR]),
     "sdm_paper_flow": (_I64, [_I64, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _I64,
                               _PTR, _PTR, _PTR, _PTR]),
+    "sdm_train": (_I64, [_I64, _I64, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _PTR, _I64, _I64, _I64, _I64,
+                         _PTR, _PTR, _PTR, _PTR, _I64, _PTR, _PTR, _PTR, _PTR]),
+    # the CMA-ES baseline's count (pixel_mismatch below)
+    "sdm_pixel_mismatch": (None, [_I64, _PTR, _I64, _I64, *[_PTR] * 8, _I64, _I64, _PTR, _I64, *[_PTR] * 3]),
 }
 
 
@@ -385,3 +398,88 @@ def paper_flow(screen: torch.Tensor, config: torch.Tensor, landed: torch.Tensor,
                                          zoom, matched.data_ptr(), flow.data_ptr(), pulled.data_ptr(),
                                          window_l1.data_ptr())
     return flow, matched, pulled[:n_pulled], window_l1[:n_pulled]
+
+
+#: The gradient rules whose whole training run the kernel does (:func:`train_program`).
+TRAINED_RULES = ("paper", "closed_centred_r1")
+
+
+def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor, offsets: torch.Tensor,
+                  camera, steps: int, levels: list[int], n_epoch: int, batch_size: int, rates: list[float],
+                  centred: list[bool], orders: torch.Tensor, targets: list[list[torch.Tensor]],
+                  theta0: torch.Tensor):
+    """``R`` whole SGD runs in one call (``sdm_train``): the compiled path of :func:`sdm.train.train_runs`.
+
+    Args:
+        points: ``(P, 3)`` float64 points ``Q`` (metres), ``pixels`` ``(P, 2)`` int64, ``rank`` ``(P,)`` int64,
+            ``offsets`` ``(N + 1,)`` int64: the packed set (:class:`~sdm.batch.ConfigurationSet`).
+        camera: :class:`~sdm.camera.Camera` (intrinsics and screen ``(H, W)``).
+        steps: the chain's coarsest level ``s``; ``levels``: the loss levels ``s, s - 1, ...``, one after another.
+        n_epoch, batch_size: epochs per level, configurations per mini-batch (the last incomplete one dropped).
+        rates: the learning rate at each of ``levels``.
+        centred: per level, whether it takes ``closed_centred_r1``'s window (centred on the landing block,
+            on a target the caller closed) instead of the paper's flow.
+        orders: ``(len(levels) * n_epoch, R, N)`` int64, each epoch's shuffling of each run.
+        targets: ``R`` lists, one ``(N, H >> level, W >> level)`` bool target per level of ``levels``.
+        theta0: ``(R, 2)`` float64 starts ``(a, b)``, metres.
+
+    All tensors on the CPU (non-contiguous ones are copied); the results too.
+
+    Returns:
+        ``(thetas, losses, failed)``: ``(steps_total + 1, R, 2)`` float64 theta before the first step and after
+        each, ``(steps_total, R)`` float64 loss of each step (metres), ``(R,)`` int64 the 0-based step at which
+        the run's theta became non-finite (its later entries are not written), ``-1`` where it did not.
+    """
+    points, pixels, rank, offsets, orders, theta0 = (
+        t.contiguous() for t in (points, pixels, rank, offsets, orders, theta0))
+    targets = [[level.contiguous() for level in run] for run in targets]
+    n_runs, n_configs = orders.shape[1], orders.shape[2]
+    device = points.device
+    total = len(levels) * n_epoch * (n_configs // batch_size)
+    constants = torch.tensor([camera.fx, camera.fy, camera.cx, camera.cy, camera.rows_per_image_pixel,
+                              camera.cols_per_image_pixel, camera.fy * camera.rows_per_image_pixel,
+                              camera.fx * camera.cols_per_image_pixel], dtype=torch.float64, device=device)
+    rates_t = torch.tensor(rates, dtype=torch.float64, device=device)
+    centred_t = torch.tensor(centred, dtype=torch.uint8, device=device)
+    addresses = torch.tensor([[level.data_ptr() for level in run] for run in targets], dtype=torch.int64,
+                             device=device)
+    thetas = torch.empty(total + 1, n_runs, 2, dtype=torch.float64, device=device)
+    losses = torch.zeros(total, n_runs, dtype=torch.float64, device=device)
+    failed = torch.empty(n_runs, dtype=torch.int64, device=device)
+    height, width = camera.screen_shape
+    code = _library().sdm_train(
+        n_runs, n_configs, offsets.data_ptr(), points.data_ptr(), pixels.data_ptr(), rank.data_ptr(), height, width,
+        constants.data_ptr(), steps, len(levels), n_epoch, batch_size, rates_t.data_ptr(), centred_t.data_ptr(),
+        orders.data_ptr(), addresses.data_ptr(), NO_RANK, theta0.data_ptr(), thetas.data_ptr(), losses.data_ptr(),
+        failed.data_ptr())
+    if code != 0:
+        raise MemoryError("sdm_train: no memory for one configuration's working rows")
+    return thetas, losses, failed
+
+@_eager_under_compile
+def pixel_mismatch(thetas: torch.Tensor, layout, table: torch.Tensor, n_target: int) -> torch.Tensor:
+    """The CMA-ES baseline's exact zoom-0 pixel mismatch for ``K`` candidates in one pass over the points.
+
+    Args:
+        thetas: ``(K, 2)`` float64 candidates ``(a, b)``, metres, on the CPU.
+        layout: a usable :class:`sdm.baselines.cmaes.ShiftLayout` on the CPU (its grouping and scratch).
+        table: ``(N * Hp * Wp,)`` int8 weight + 1 per padded pixel (:meth:`ShiftLayout.table` with ``compact``).
+        n_target: active target pixels of the run.
+
+    Returns:
+        ``(K,)`` int64 counts (false positives + false negatives), ``-1`` for a candidate whose group
+        shifts cannot be trusted (the caller counts it by the torch reference).
+    """
+    thetas = thetas.to(torch.float64).contiguous()
+    n_candidates = thetas.shape[0]
+    n_groups = layout.gain.shape[0]
+    offsets = layout.native_offsets(n_candidates)
+    counts = torch.empty(n_candidates, dtype=torch.int64, device=thetas.device)
+    _library().sdm_pixel_mismatch(
+        n_candidates, thetas.data_ptr(), n_groups, layout.config_group.shape[0] - 1, layout.gain.data_ptr(),
+        layout.frac_bounds.data_ptr(), layout.shift_low.data_ptr(), layout.shift_high.data_ptr(),
+        layout.group_start.data_ptr(), layout.config_group.data_ptr(), layout.cells.data_ptr(), table.data_ptr(),
+        layout.padded_shape[0] * layout.padded_shape[1], layout.padded_shape[1], layout.limits.data_ptr(),
+        int(n_target), offsets.data_ptr(), layout.stamp.data_ptr(), counts.data_ptr())
+    return counts
+

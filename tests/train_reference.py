@@ -1,0 +1,83 @@
+"""The single-run SGD loop that ``sdm.train.train`` ran before one engine trained every run: the reference.
+
+``sdm.train.train_runs`` (torch path and compiled engine alike) must give each run this loop's theta
+history to the bit (``test_train.py``, ``test_native.py``); with ``fit_depth`` to 1e-12 m
+(``test_depth.py``). Kept as it was: one layer call per mini-batch, autograd, ``theta -= rate * grad``.
+"""
+from __future__ import annotations
+
+import torch
+
+from sdm.batch import ConfigurationSet, PointBatch
+from sdm.mapping import SpatialDomainMapping
+from sdm.sky import shift_vector
+from sdm.train import TrainSettings
+
+
+def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera=None, method: str = "fast",
+                    theta0=(0.0, 0.0)) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(theta (steps + 1, n_params), loss (steps,))`` float64 CPU of one run (the set's own targets)."""
+    camera = camera or train_set.camera
+    device = train_set.device
+    layers = {level: SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method, flow=settings.flow,
+                                          fit_depth=settings.fit_depth)
+              for level in range(settings.s, settings.zoom - 1, -1)}
+    n_configs = len(train_set)
+    start = torch.as_tensor(theta0, dtype=torch.float64, device=device)
+    if settings.fit_depth and start.shape == (2,):
+        start = torch.nn.functional.pad(start, (0, 1))
+    theta = start.clone().requires_grad_(True)
+    generator = torch.Generator(device="cpu").manual_seed(settings.seed)
+    pyramid = train_set.pyramid(settings.s)
+    levels = range(settings.s, settings.zoom - 1, -1)
+    batch_size = settings.batch_size
+    batches_per_epoch = n_configs // batch_size
+    total = len(levels) * settings.n_epoch * batches_per_epoch
+    thetas = torch.empty(total + 1, start.numel(), dtype=torch.float64, device=device)
+    thetas[0] = theta.detach()
+    losses = torch.zeros(total, dtype=torch.float64, device=device)
+    step, rate = 0, settings.lr
+    for level in levels:
+        layer = layers[level]
+        rate_scale = settings.rate_scale(level, start) if settings.fit_depth else None
+        for _ in range(settings.n_epoch):
+            order = torch.randperm(n_configs, generator=generator, device="cpu").to(device)
+            epoch = _EpochLayout(train_set, order, batch_size)
+            for index in range(batches_per_epoch):
+                batch, configs = epoch.batch(index)
+                if batch.points.shape[0]:
+                    out = layer(
+                        batch.points + shift_vector(theta, batch.points), batch.pixels,
+                        pyramid[level].index_select(0, configs), batch.config, batch.rank, target_is_zoomed=True,
+                        validate=False,
+                    )
+                    out.loss.backward()
+                    with torch.no_grad():
+                        theta -= rate * theta.grad if not settings.fit_depth else rate * rate_scale * theta.grad
+                    theta.grad = None
+                    losses[step] = out.loss.detach()
+                thetas[step + 1] = theta.detach()
+                step += 1
+        rate *= settings.lr_decay
+    return thetas.cpu(), losses.cpu()
+
+
+class _EpochLayout:
+    """One epoch's shuffled configurations, their points laid out batch after batch."""
+
+    def __init__(self, data: ConfigurationSet, order: torch.Tensor, batch_size: int) -> None:
+        self.batch_size = batch_size
+        self.configs = order[: (len(order) // batch_size) * batch_size]
+        rows, _ = data.rows(self.configs)
+        self.points = data.points.index_select(0, rows)
+        self.pixels = data.pixels.index_select(0, rows)
+        self.rank = data.rank.index_select(0, rows)
+        counts = data.counts.index_select(0, self.configs)
+        self.local = torch.repeat_interleave(torch.arange(len(self.configs), device=order.device) % batch_size, counts)
+        self.bounds = [0] + counts.view(-1, batch_size).sum(1).cumsum(0).tolist()
+
+    def batch(self, index: int) -> tuple[PointBatch, torch.Tensor]:
+        lo, hi = self.bounds[index], self.bounds[index + 1]
+        configs = self.configs[index * self.batch_size : (index + 1) * self.batch_size]
+        rows = slice(lo, hi)
+        return PointBatch(self.points[rows], self.pixels[rows], self.local[rows], self.rank[rows], None), configs
