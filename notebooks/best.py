@@ -14,7 +14,9 @@
 # # Stage 6: choose the best cell
 #
 # Table 1 of the paper: the dev loss of every (n_epoch, learning rate) cell. The cell with the lowest dev
-# loss gives the settings of the noise experiments (the paper picks n_epoch = 1, lr = 3e-4).
+# loss gives the settings of the noise experiments (the paper picks n_epoch = 1, lr = 3e-4). Cells tied on the
+# lowest dev loss (the same count of pixels) are told apart by their train loss, the same measure on the
+# training configurations, then by grid order; Table 1 marks them (`sdm.report.tables.best_index`).
 
 # %% tags=["parameters"]
 cells = []  # input: one JSON per cell
@@ -39,7 +41,10 @@ choice = best_cell(records)
 chosen = next(i for i, r in enumerate(results) if r["n_epoch"] == choice["n_epoch"] and r["lr"] == choice["lr"])
 write_json(best, results[chosen])
 write_text(best_history, Path(histories[chosen]).read_text())
-table1_frame(records)
+table = table1_frame(records)
+table
 
 # %%
-print(f"best: n_epoch {choice['n_epoch']}, lr {choice['lr']:g}, dev loss {choice['dev_loss']:.3f}")
+tied = int(table["tied"].sum()) if "tied" in table else 1
+print(f"best: n_epoch {choice['n_epoch']}, lr {choice['lr']:g}, dev loss {choice['dev_loss']:.3f}"
+      + (f", tied with {tied - 1} other cell(s) (broken by the train loss, then grid order)" if tied > 1 else ""))

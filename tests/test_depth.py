@@ -10,7 +10,6 @@ from sdm.batch import ConfigurationSet
 from sdm.camera import APOLLO_CAMERA_5
 from sdm.depth import depth_flow, depth_targets
 from sdm.mapping import SpatialDomainMapping
-from sdm.sky import build_configuration
 from train_reference import reference_train
 
 CAM = APOLLO_CAMERA_5
@@ -47,17 +46,21 @@ def test_depth_flow_vanishes_on_the_optical_axis_and_has_the_derived_form():
     assert depth_flow(points, flow).tolist() == [0.0, -(2.0 * 1.0 + (-1.0) * 2.0) / 10.0]
 
 
-def test_build_configuration_with_depth_matches_depth_targets():
+def test_depth_targets_are_the_points_moved_in_depth():
+    """depth_targets with c = 0 gives build_configuration's own targets; with c it is floor(P(Q + (a, b, c)))."""
     data = ConfigurationSet.from_configurations(configurations(3, 2))
-    generator = torch.Generator().manual_seed(2)
-    from scenes import road_centres
+    assert torch.equal(depth_targets(data, (0.517, 0.303, 0.0)), data.targets)
+    deep = depth_targets(data, (0.517, 0.303, 1.0))
+    assert not torch.equal(deep, data.targets)
+    moved = data.points + torch.tensor([0.517, 0.303, 1.0], dtype=torch.float64)
+    pixels = data.camera.project(moved).floor().long()
+    config = torch.repeat_interleave(torch.arange(len(data)), data.counts)
+    height, width = data.camera.screen_shape
+    on = (pixels[:, 0] >= 0) & (pixels[:, 0] < height) & (pixels[:, 1] >= 0) & (pixels[:, 1] < width)
+    reference = torch.zeros_like(data.targets)
+    reference[config[on], pixels[on, 0], pixels[on, 1]] = True
+    assert torch.equal(deep, reference)
 
-    centres = road_centres(generator, 8)
-    flat = build_configuration(centres, (0.517, 0.303))
-    deep = build_configuration(centres, (0.517, 0.303, 1.0))
-    assert torch.equal(flat.pixels, deep.pixels) and not torch.equal(flat.target, deep.target)
-    targets = depth_targets(data, (0.517, 0.303, 0.0))
-    assert torch.equal(targets, data.targets)
 
 
 def test_training_recovers_a_depth_shift():

@@ -121,6 +121,30 @@ class ConfigurationSet:
         """``(N,)`` int64 number of points per configuration."""
         return self.offsets[1:] - self.offsets[:-1]
 
+    def check_indices(self, indices: Sequence[int] | torch.Tensor, name: str = "indices") -> torch.Tensor:
+        """Configuration indices checked: ``(n,)`` int64 on the set's device.
+
+        Negative indices are refused, not counted from the end (a negative offset in the CSR layout
+        would gather another configuration's rows); so are floats and booleans (``0.5`` would be
+        truncated, ``True`` read as 1).
+
+        Raises:
+            SDMInputError: naming ``name``, unless ``indices`` is a 1-D sequence of integers in ``[0, N)``.
+        """
+        try:
+            values = torch.as_tensor(indices, device=self.device)
+        except (TypeError, ValueError, RuntimeError):
+            raise SDMInputError(f"{name} must be a 1-D sequence of integers, got {indices!r}") from None
+        if values.numel() == 0:
+            values = values.to(torch.int64)
+        if values.ndim != 1 or values.dtype.is_floating_point or values.dtype.is_complex or values.dtype == torch.bool:
+            raise SDMInputError(f"{name} must be a 1-D sequence of integers, got {indices!r}")
+        values = values.to(torch.int64)
+        if values.numel() and (int(values.min()) < 0 or int(values.max()) >= len(self)):
+            raise SDMInputError(f"{name} must lie in [0, {len(self)}) (the set's configurations), "
+                                f"got {int(values.min())}..{int(values.max())}")
+        return values
+
     def rows(self, indices: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Rows of the given configurations: ``(row index (p,), batch-local config (p,))``."""
         starts = self.offsets[indices]
@@ -131,8 +155,12 @@ class ConfigurationSet:
         return rows, local
 
     def batch(self, indices: Sequence[int] | torch.Tensor) -> PointBatch:
-        """Gather configurations ``indices`` into a :class:`PointBatch`."""
-        indices = torch.as_tensor(indices, dtype=torch.int64, device=self.device)
+        """Gather configurations ``indices`` (integers in ``[0, N)``, repeats allowed) into a :class:`PointBatch`.
+
+        Raises:
+            SDMInputError: ``indices`` not a 1-D sequence of integers in ``[0, N)``.
+        """
+        indices = self.check_indices(indices)
         rows, local = self.rows(indices)
         return PointBatch(
             self.points.index_select(0, rows),
@@ -162,10 +190,8 @@ class ConfigurationSet:
         return self._pyramids[steps]
 
     def subset(self, indices: Sequence[int]) -> "ConfigurationSet":
-        """A new set with configurations ``indices``, in that order."""
-        indices = torch.as_tensor(indices, dtype=torch.int64, device=self.device)
-        if indices.numel() and (int(indices.min()) < 0 or int(indices.max()) >= len(self)):
-            raise SDMInputError(f"subset indices must lie in [0, {len(self)}), got {indices.min()}..{indices.max()}")
+        """A new set with configurations ``indices`` (integers in ``[0, N)``), in that order."""
+        indices = self.check_indices(indices)
         rows, _ = self.rows(indices)
         return ConfigurationSet(
             self.points[rows], self.pixels[rows], _offsets(self.counts[indices]), self.targets[indices], self.camera,

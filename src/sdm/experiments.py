@@ -102,13 +102,16 @@ def tune_cell(train_set, dev_set, settings, shift: Sequence[float] = SKY_SHIFT, 
 
     Returns:
         ``(record, history)``: the record holds the settings, ``dev_loss`` (mean false-positive
-        pixels per dev configuration), the final ``a``, ``b`` and ``distance`` (metres);
+        pixels per dev configuration), ``train_loss`` (the same measure on the training
+        configurations, at the same final theta: Table 1's tie-break, :func:`sdm.report.tables.best_index`),
+        the final ``a``, ``b`` and ``distance`` (metres; reported, not used to choose);
         ``history`` is the training's :meth:`~sdm.train.History.to_frame`.
     """
     history = train(train_set, settings, camera=camera, progress=False)
     theta = history.final_theta
     record = asdict(settings) | {
         "dev_loss": float(dev_loss(dev_set, theta, s=settings.s, camera=camera)),
+        "train_loss": float(dev_loss(train_set, theta, s=settings.s, camera=camera)),
         "a": float(theta[0]),
         "b": float(theta[1]),
         "distance": float(distance(theta, tuple(shift))),

@@ -153,7 +153,10 @@ def build_configuration(
 
     Args:
         centres: ``(M, 3)`` car centres in metres, camera frame (``M`` may be 0).
-        shift: the true shift ``(a, b)`` in metres, or ``(a, b, c)`` with depth (:mod:`sdm.depth`).
+        shift: the true shift ``(a, b)`` in metres: two finite numbers. A Sky configuration is the
+            paper's 2-parameter construction, and nothing in it records the shift (a Sky file stores
+            ``(a, b)``), so the depth shift ``(a, b, c)`` is refused here: build the set with ``(a, b)``
+            and give it the depth targets of :func:`sdm.depth.depth_targets` (as Table 5 does).
         camera: camera and screen.
         image_id: name of the source image, kept for provenance.
 
@@ -161,7 +164,17 @@ def build_configuration(
         The configuration. An image with no car on screen gives an *empty*
         configuration (no points, empty target); trainers skip its gradient
         naturally (it contributes nothing) and metrics count it as 0 pixels.
+
+    Raises:
+        SDMInputError: naming ``shift`` unless it is two finite numbers; bad ``centres``.
     """
+    size = shift.numel() if isinstance(shift, torch.Tensor) else len(shift) if isinstance(shift, (tuple, list)) else 0
+    if size == 3:
+        raise SDMInputError(
+            f"shift must be (a, b): a Sky configuration is the paper's 2-parameter construction; for the depth "
+            f"shift (a, b, c) build the set with (a, b) and use sdm.depth.depth_targets(set, (a, b, c)), got {shift!r}"
+        )
+    shift = check_shift(shift)
     centre_image = render_centres(centres, camera).to(torch.float64)
     circles = draw_circles(centre_image)
     pixels = circles.nonzero()

@@ -70,6 +70,20 @@ class TrainSettings:
     depth_zoom: int = 1
 
     def __post_init__(self) -> None:
+        from numbers import Integral, Real
+
+        # Every field's type first, by name: a string would fail inside math.isfinite with a TypeError
+        # naming no field, and a bool would pass as the number 0 or 1 (bool is an int subclass).
+        for name in ("lr", "lr_decay", "depth_lr_scale"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, Real):
+                raise SDMInputError(f"{name} must be a number, got {value!r} ({type(value).__name__})")
+        for name in ("n_epoch", "batch_size", "s", "zoom", "seed", "depth_zoom"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, Integral):  # 2.0 is refused: an epoch count is exact
+                raise SDMInputError(f"{name} must be an integer, got {value!r} ({type(value).__name__})")
+        if not isinstance(self.fit_depth, bool):
+            raise SDMInputError(f"fit_depth must be True or False, got {self.fit_depth!r}")
         if not (math.isfinite(self.lr) and self.lr > 0):
             raise SDMInputError(f"lr must be a positive finite number, got {self.lr!r}")
         for name in ("n_epoch", "batch_size"):

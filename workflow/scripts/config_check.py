@@ -13,6 +13,8 @@ installed (a cluster's login node).
 """
 from __future__ import annotations
 
+import copy
+import functools
 import math
 from pathlib import Path
 from typing import Any, Mapping
@@ -54,16 +56,21 @@ def load_config(path: str | Path, schema: str | Path = SCHEMA_PATH) -> dict:
 
 def validate_schema(config: dict, schema: str | Path = SCHEMA_PATH) -> None:
     """Validate ``config`` against a JSON Schema written in YAML, filling in its defaults; the error names the key."""
-    import jsonschema
-
-    schema_data = yaml.safe_load(Path(schema).read_text())
-    validator = jsonschema.Draft202012Validator(schema_data)
+    schema_data, validator = _validator(str(Path(schema).resolve()))
     errors = sorted(validator.iter_errors(config), key=lambda e: list(e.absolute_path))
     if errors:
         error = errors[0]
-        key = ".".join(str(part) for part in error.absolute_path) or "<top level>"
-        raise ConfigError(f"config key '{key}': {error.message}")
+        raise ConfigError(f"config key '{_dotted(error.absolute_path) or '<top level>'}': {error.message}")
     _fill_defaults(config, schema_data)
+
+
+@functools.lru_cache(maxsize=None)
+def _validator(schema: str):
+    """The parsed schema and its validator, once per process (the tests validate hundreds of configs)."""
+    import jsonschema
+
+    schema_data = yaml.safe_load(Path(schema).read_text())
+    return schema_data, jsonschema.Draft202012Validator(schema_data)
 
 
 def _fill_defaults(value: Any, schema: Mapping) -> None:
@@ -72,7 +79,7 @@ def _fill_defaults(value: Any, schema: Mapping) -> None:
         return
     for key, sub in schema.get("properties", {}).items():
         if key not in value and "default" in sub:
-            value[key] = sub["default"]
+            value[key] = copy.deepcopy(sub["default"])  # a copy: the parsed schema is cached and shared
         if key in value:
             _fill_defaults(value[key], sub)
 
@@ -86,7 +93,8 @@ def check_config(config: Mapping[str, Any]) -> None:
     - ``noise.chunk_size <= noise.runs``; ``baselines.runs <= noise.runs``; the shift is finite (YAML's ``.inf`` is a number);
     - ``research.rules.runs <= noise.runs``, no ``paper`` among ``research.rules.names``, finite
       ``research.depth.shifts_c`` (when each part is enabled);
-    - the data path for the chosen source is set.
+    - the data path for the chosen source is set;
+    - every number is finite (:func:`check_finite`), first of all.
 
     What depends on the data (``sky.n_images`` against the number of real annotated images) is
     checked where the data is known: :func:`check_against_annotations` at parse time for a
@@ -97,6 +105,7 @@ def check_config(config: Mapping[str, Any]) -> None:
     """
     if not isinstance(config, Mapping) or not config:
         raise ConfigError("the configuration is empty: pass a config file (config.yaml) with every section")
+    check_finite(config)
     data, sky, split = _section(config, "data"), _section(config, "sky"), _section(config, "split")
     noise, figures = _section(config, "noise"), _section(config, "figures")
 
@@ -148,6 +157,34 @@ def check_config(config: Mapping[str, Any]) -> None:
             raise ConfigError(f"config key 'baselines.runs': the runs are paired with Table 2's, so at most "
                               f"noise.runs = {runs}, got {paired}")
     _check_research(config, runs)
+
+
+def check_finite(value: Any, key: str = "") -> None:
+    """Every number anywhere in ``value`` (mappings and lists included) is finite.
+
+    JSON Schema cannot refuse YAML's ``.nan``: every comparison with NaN is false, so a NaN passes
+    ``type: number`` and any ``minimum``/``maximum``; ``.inf`` passes a bound on one side. A NaN
+    learning rate would otherwise surface as a missing ``cell_1_nan.json``, a NaN ``train.lr_decay``
+    or baseline setting as NaN results. Integers are exact and always finite; ``bool`` is not a number
+    here.
+
+    Raises:
+        ConfigError: ``config key 'tuning.lr[0]': must be a finite number, got nan`` (the dotted key,
+            list positions in brackets).
+    """
+    if isinstance(value, float) and not math.isfinite(value):
+        raise ConfigError(f"config key '{key}': must be a finite number, got {value!r}")
+    if isinstance(value, Mapping):
+        for name, item in value.items():
+            check_finite(item, _dotted([key, name]) if key else str(name))
+    elif isinstance(value, (list, tuple)):
+        for index, item in enumerate(value):
+            check_finite(item, _dotted([key, index]))
+
+
+def _dotted(path) -> str:
+    """A key path as the messages name it: ``tuning.lr[0]`` for ``["tuning", "lr", 0]``."""
+    return "".join(f"[{part}]" if isinstance(part, int) else f".{part}" for part in path).lstrip(".")
 
 
 def _check_research(config: Mapping[str, Any], noise_runs: int) -> None:

@@ -305,11 +305,12 @@ def _gaps_section(results: Sequence[Check], table1, table2, distances, sky_stats
         pick = table1[table1["paper_best"]]
         if len(pick):
             theirs = pick.iloc[0]
-            ties = table1[table1["dev_loss"] == best["dev_loss"]]
+            tied = int(table1["tied"].sum()) if "tied" in table1 else 1
             lines.append(
                 f"- **Table 1 picks another cell**: ours is n_epoch {int(best['n_epoch'])}, lr {best['lr']:.0e} "
                 f"(dev loss {best['dev_loss']:.3f}"
-                + (f", tied with {len(ties) - 1} other cell(s); the first in grid order wins" if len(ties) > 1 else "")
+                + (f", tied with {tied - 1} other cell(s), the lowest train loss among them"
+                   f" ({best['train_loss']:.3f}; grid order among equal ones)" if tied > 1 else "")
                 + f"); at the paper's pick ours is {theirs['dev_loss']:.3f}"
                 + (f", its run ending {theirs['distance_mm']:.3f}e-3 m from theta*" if "distance_mm" in table1 else "")
                 + ". The dev loss counts the false-positive pixels of the zoom-0 output, which at theta* are none "

@@ -31,16 +31,54 @@ def paper_table1_value(n_epoch: int, lr: float) -> float:
     return math.nan
 
 
+#: Two dev (or train) losses this close, relative to max(1, the lowest), are one value: "tied". Each loss is
+#: an integer count of pixels over the number of configurations n, so two different counts differ by at
+#: least 1/n (1e-6 for a million configurations), while the same count read back from a cell's JSON and
+#: from grid.csv may differ in the last bit; exact float equality would make the tie depend on the file.
+TIE_TOLERANCE = 1e-9
+
+
+def lowest(values: pd.Series) -> pd.Series:
+    """Which of ``values`` (counts over configurations, e.g. dev losses) tie with the lowest (:data:`TIE_TOLERANCE`)."""
+    low = float(values.min())
+    return (values.astype(float) - low).abs() <= TIE_TOLERANCE * max(1.0, abs(low))
+
+
+def best_index(grid: pd.DataFrame):
+    """The label of the best row of a tuning grid: the lowest ``dev_loss``; among cells tied on it, the
+    lowest ``train_loss``; among cells tied on both, the first row (the grid order: fewer epochs, then the
+    smaller learning rate, when ``grid`` is sorted by ``n_epoch`` then ``lr``).
+
+    Why the train loss: it is the dev loss's own measure (false-positive pixels at zoom 0 at the cell's
+    final theta) on the training configurations, more evidence about the same final theta from the
+    other part of the data, and it needs no theta*. The alternatives were weaker: the mini-batch losses of
+    the run's last steps are the loss along the way over part of the set, not at the final theta; more SGD
+    steps is a budget, not a measure of fit.
+
+    Raises:
+        SDMInputError: cells tie on ``dev_loss`` and the grid has no ``train_loss`` column.
+    """
+    candidates = grid[lowest(grid["dev_loss"])]
+    if len(candidates) > 1:
+        if "train_loss" not in grid:
+            raise SDMInputError(f"tuning grid: {len(candidates)} cells tie on the dev loss and the grid has no "
+                                f"train_loss column to tell them apart (sdm.experiments.tune_cell writes it)")
+        candidates = candidates[lowest(candidates["train_loss"])]
+    return candidates.index[0]
+
+
 def table1_frame(grid: pd.DataFrame) -> pd.DataFrame:
     """Table 1: our dev loss per grid cell beside the paper's.
 
     Args:
         grid: one row per cell with columns ``n_epoch``, ``lr``, ``dev_loss`` (and optionally
-            ``distance``, metres, of the cell's final theta).
+            ``train_loss``, the tie-break, and ``distance``, metres, of the cell's final theta).
 
     Returns:
         Columns ``n_epoch, lr, dev_loss, paper_dev_loss, best, paper_best`` (+ ``distance_mm``),
-        sorted by ``n_epoch`` then ``lr``; ``best`` marks our lowest dev loss (first on ties).
+        sorted by ``n_epoch`` then ``lr``; ``best`` marks our pick (:func:`best_index`). Only when
+        cells tie on the lowest dev loss, also ``tied`` (those cells) and ``train_loss``: a
+        tie-free table is what it was before ties were marked.
     """
     _require(grid, ("n_epoch", "lr", "dev_loss"), "tuning grid")
     if grid.empty:
@@ -54,17 +92,22 @@ def table1_frame(grid: pd.DataFrame) -> pd.DataFrame:
         }
     )
     out["paper_dev_loss"] = [paper_table1_value(n, lr) for n, lr in zip(out["n_epoch"], out["lr"])]
+    train_loss = frame["train_loss"].astype(float) if "train_loss" in frame else None
     out["best"] = False
-    out.loc[int(out["dev_loss"].idxmin()), "best"] = True
+    out.loc[best_index(out if train_loss is None else out.assign(train_loss=train_loss)), "best"] = True
     best_n, best_lr = paper.TABLE1_BEST
     out["paper_best"] = [(n == best_n and math.isclose(lr, best_lr)) for n, lr in zip(out["n_epoch"], out["lr"])]
     if "distance" in frame:
         out["distance_mm"] = 1000.0 * frame["distance"].astype(float)
+    tied = lowest(out["dev_loss"])
+    if tied.sum() > 1:  # only then: a tie-free table keeps its columns (and its files their bytes)
+        out["tied"] = tied
+        out["train_loss"] = train_loss
     return out
 
 
 def best_cell(grid: pd.DataFrame) -> dict:
-    """The grid cell with the lowest dev loss (the first in n_epoch, lr order on ties)."""
+    """The grid cell Table 1 marks best (:func:`best_index`: the lowest dev loss, ties broken by the train loss)."""
     table = table1_frame(grid)
     row = table[table["best"]].iloc[0]
     return {"n_epoch": int(row["n_epoch"]), "lr": float(row["lr"]), "dev_loss": float(row["dev_loss"])}
@@ -128,6 +171,7 @@ class TableFormat:
         caption: caption (LaTeX) / title line (Markdown).
         label: LaTeX label.
         notes: lines printed under the table.
+        column_notes: column -> a line printed under the table only when the frame has that column.
     """
 
     columns: Sequence[str]
@@ -136,6 +180,11 @@ class TableFormat:
     caption: str = ""
     label: str = ""
     notes: Sequence[str] = ()
+    column_notes: dict[str, str] = field(default_factory=dict)
+
+    def notes_for(self, frame: pd.DataFrame) -> list[str]:
+        """The lines under ``frame``'s table: :attr:`notes`, then the notes of the columns it has."""
+        return list(self.notes) + [note for column, note in self.column_notes.items() if column in frame]
 
     def cell(self, column: str, value) -> str:
         if isinstance(value, (bool, np.bool_)):
@@ -147,7 +196,7 @@ class TableFormat:
 
 
 TABLE1_FORMAT = TableFormat(
-    columns=("n_epoch", "lr", "dev_loss", "paper_dev_loss", "best", "paper_best", "distance_mm"),
+    columns=("n_epoch", "lr", "dev_loss", "paper_dev_loss", "best", "paper_best", "distance_mm", "tied", "train_loss"),
     headers={
         "n_epoch": "n_epoch",
         "lr": "learning rate",
@@ -156,11 +205,19 @@ TABLE1_FORMAT = TableFormat(
         "best": "best (ours)",
         "paper_best": "best (paper)",
         "distance_mm": "distance (ours, 1e-3 m)",
+        "tied": "tied (ours)",
+        "train_loss": "train loss (ours)",
     },
-    formats={"lr": ".0e", "dev_loss": ".3f", "paper_dev_loss": ".3f", "distance_mm": ".3f"},
+    formats={"lr": ".0e", "dev_loss": ".3f", "paper_dev_loss": ".3f", "distance_mm": ".3f", "train_loss": ".3f"},
     caption="Table 1: dev loss (mean false-positive pixels per dev configuration) over the tuning grid",
     label="tab:table1",
     notes=("The distance column is ||theta~ - theta*|| of the cell's run (no counterpart in the paper).",),
+    column_notes={"tied": (
+        "Tied: the cell's dev loss equals the lowest (the same count of pixels). Among tied cells the best is "
+        "the one with the lowest train loss, the dev loss's measure on the training configurations at the "
+        "cell's final theta; cells tied on that too go by grid order (fewer epochs, then the smaller learning "
+        "rate). Neither uses theta*."
+    )},
 )
 
 TABLE2_FORMAT = TableFormat(
@@ -196,8 +253,9 @@ def to_markdown(frame: pd.DataFrame, style: TableFormat) -> str:
     lines.append("|" + "|".join("---:" if numeric[c] else ":---:" for c in columns) + "|")
     for row in _rows(frame, columns):
         lines.append("| " + " | ".join(_md_escape(style.cell(c, v)) for c, v in zip(columns, row)) + " |")
-    if style.notes:
-        lines += [""] + list(style.notes)
+    notes = style.notes_for(frame)
+    if notes:
+        lines += [""] + notes
     return "\n".join(lines) + "\n"
 
 
@@ -217,7 +275,7 @@ def to_latex(frame: pd.DataFrame, style: TableFormat) -> str:
     for row in _rows(frame, columns):
         lines.append(" & ".join(_tex_escape(style.cell(c, v)) for c, v in zip(columns, row)) + r" \\")
     lines += [r"\hline", r"\end{tabular}"]
-    lines += [rf"\par\smallskip {{\footnotesize {_tex_escape(note)}}}" for note in style.notes]
+    lines += [rf"\par\smallskip {{\footnotesize {_tex_escape(note)}}}" for note in style.notes_for(frame)]
     lines.append(r"\end{table}")
     return "\n".join(line for line in lines if line) + "\n"
 
