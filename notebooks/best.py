@@ -16,7 +16,7 @@
 # Table 1 of the paper: the dev loss of every (n_epoch, learning rate) cell. The cell with the lowest dev
 # loss gives the settings of the noise experiments (the paper picks n_epoch = 1, lr = 3e-4). Cells tied on the
 # lowest dev loss (the same count of pixels) are told apart by their train loss, the same measure on the
-# training configurations, then by grid order; Table 1 marks them (`sdm.report.tables.best_index`).
+# training configurations, then by the most epochs (SGD steps) and the smaller learning rate; Table 1 marks them (`sdm.report.tables.best_index`).
 
 # %% tags=["parameters"]
 cells = []  # input: one JSON per cell
@@ -47,4 +47,4 @@ table
 # %%
 tied = int(table["tied"].sum()) if "tied" in table else 1
 print(f"best: n_epoch {choice['n_epoch']}, lr {choice['lr']:g}, dev loss {choice['dev_loss']:.3f}"
-      + (f", tied with {tied - 1} other cell(s) (broken by the train loss, then grid order)" if tied > 1 else ""))
+      + (f", tied with {tied - 1} other cell(s) (broken by the train loss, then the most epochs and the smaller lr)" if tied > 1 else ""))

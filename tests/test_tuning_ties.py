@@ -27,22 +27,22 @@ TIED = grid([(32, 1e-3, 0.0, 0.0), (8, 1e-4, 11.5625, 11.9), (8, 1e-3, 0.0, 0.02
 
 def test_tied_cells_are_marked_and_the_train_loss_breaks_the_tie():
     """Four cells tie at 0: the first of them in grid order (8, 1e-3) loses to the lower train losses; of the two
-    at train loss 0, the grid order (fewer epochs) picks (16, 1e-3)."""
+    at train loss 0, the most epochs picks (32, 1e-3), not the least-trained (16, 1e-3)."""
     table = table1_frame(TIED.sample(frac=1, random_state=1))
-    assert table.loc[table["best"], ["n_epoch", "lr"]].values.tolist() == [[16, 1e-3]]
+    assert table.loc[table["best"], ["n_epoch", "lr"]].values.tolist() == [[32, 1e-3]]
     assert table.loc[table["tied"], ["n_epoch", "lr"]].values.tolist() == [[8, 1e-3], [16, 3e-4], [16, 1e-3],
                                                                             [32, 1e-3]]
     shown = dict(zip(zip(table["n_epoch"], table["lr"]), table["train_loss"]))
     assert shown == dict(zip(zip(TIED["n_epoch"], TIED["lr"]), TIED["train_loss"]))
-    assert best_cell(TIED) == {"n_epoch": 16, "lr": 1e-3, "dev_loss": 0.0}
+    assert best_cell(TIED) == {"n_epoch": 32, "lr": 1e-3, "dev_loss": 0.0}
 
 
 def test_the_tables_say_which_cells_tied_and_how_the_tie_was_broken(tmp_path):
     table = table1_frame(TIED)
     markdown, latex = to_markdown(table, TABLE1_FORMAT), to_latex(table, TABLE1_FORMAT)
     assert "tied (ours)" in markdown and "train loss (ours)" in markdown
-    assert "| 16 | 1e-03 | 0.000 | - | yes |  |" in markdown  # best, then paper's best, ...
-    assert markdown.count("| yes |") >= 4 and "lowest train loss" in markdown and "grid order" in markdown
+    assert "| 32 | 1e-03 | 0.000 | - | yes |  |" in markdown  # best, then paper's best, ...
+    assert markdown.count("| yes |") >= 4 and "lowest train loss" in markdown and "most epochs" in markdown
     assert "lowest train loss" in latex
     csv = write_table(table, tmp_path / "table1", TABLE1_FORMAT)[0]
     assert pd.read_csv(csv)["tied"].sum() == 4
@@ -66,10 +66,13 @@ def test_tied_means_the_same_count_not_the_same_bits():
     assert lowest(pd.Series([1000.0, 1000.0 + 1e-4])).tolist() == [True, False]
 
 
-def test_ties_on_both_losses_go_by_grid_order_fewer_epochs_then_smaller_lr():
-    both = grid([(2, 1e-4, 0.5, 0.25), (1, 1e-3, 0.5, 0.25), (1, 3e-4, 0.5, 0.25), (1, 1e-4, 0.75, 0.0)])
-    assert best_cell(both) == {"n_epoch": 1, "lr": 3e-4, "dev_loss": 0.5}
-    assert table1_frame(both)["tied"].sum() == 3
+def test_ties_on_both_losses_go_to_the_most_epochs_then_the_smaller_lr():
+    """Not the least-trained tied cell (the grid's first): the most epochs, then the smaller learning rate."""
+    both = grid([(2, 1e-3, 0.5, 0.25), (1, 1e-3, 0.5, 0.25), (2, 3e-4, 0.5, 0.25), (1, 3e-4, 0.5, 0.25),
+                 (4, 1e-4, 0.75, 0.0)])
+    assert best_cell(both) == {"n_epoch": 2, "lr": 3e-4, "dev_loss": 0.5}
+    assert best_cell(both.iloc[[1, 3]]) == {"n_epoch": 1, "lr": 3e-4, "dev_loss": 0.5}
+    assert table1_frame(both)["tied"].sum() == 4
 
 
 def test_a_tie_without_train_losses_is_refused_naming_the_column():
@@ -103,5 +106,5 @@ def test_the_reproduction_report_says_how_a_tied_pick_was_made(tmp_path):
     table1 = pd.read_csv(write_table(table1_frame(paper_grid), tmp_path / "table1", TABLE1_FORMAT)[0])
     assert table1.loc[table1["best"], ["n_epoch", "lr"]].values.tolist() == [[2, 1e-4]]
     text = build_report(table1, table2_frame(runs, {}), runs, {"target_mean_depth": 50.0}, {}, CONFIG)
-    assert "tied with 2 other cell(s), the lowest train loss among them (0.125; grid order among equal ones)" in text
+    assert "tied with 2 other cell(s), the lowest train loss among them (0.125; then the most epochs, the smaller lr)" in text
     assert "the lowest train loss, the dev loss's measure on the training configurations" in text

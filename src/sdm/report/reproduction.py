@@ -310,7 +310,7 @@ def _gaps_section(results: Sequence[Check], table1, table2, distances, sky_stats
                 f"- **Table 1 picks another cell**: ours is n_epoch {int(best['n_epoch'])}, lr {best['lr']:.0e} "
                 f"(dev loss {best['dev_loss']:.3f}"
                 + (f", tied with {tied - 1} other cell(s), the lowest train loss among them"
-                   f" ({best['train_loss']:.3f}; grid order among equal ones)" if tied > 1 else "")
+                   f" ({best['train_loss']:.3f}; then the most epochs, the smaller lr)" if tied > 1 else "")
                 + f"); at the paper's pick ours is {theirs['dev_loss']:.3f}"
                 + (f", its run ending {theirs['distance_mm']:.3f}e-3 m from theta*" if "distance_mm" in table1 else "")
                 + ". The dev loss counts the false-positive pixels of the zoom-0 output, which at theta* are none "

@@ -46,14 +46,17 @@ def lowest(values: pd.Series) -> pd.Series:
 
 def best_index(grid: pd.DataFrame):
     """The label of the best row of a tuning grid: the lowest ``dev_loss``; among cells tied on it, the
-    lowest ``train_loss``; among cells tied on both, the first row (the grid order: fewer epochs, then the
-    smaller learning rate, when ``grid`` is sorted by ``n_epoch`` then ``lr``).
+    lowest ``train_loss``; among cells tied on both, the most epochs (the most SGD steps), then the smaller
+    learning rate.
 
     Why the train loss: it is the dev loss's own measure (false-positive pixels at zoom 0 at the cell's
     final theta) on the training configurations, more evidence about the same final theta from the
     other part of the data, and it needs no theta*. The alternatives were weaker: the mini-batch losses of
-    the run's last steps are the loss along the way over part of the set, not at the final theta; more SGD
-    steps is a budget, not a measure of fit.
+    the run's last steps are the loss along the way over part of the set, not at the final theta.
+    Why the most-trained cell last (a choice, not a measurement): cells tied on both losses fit every dev and
+    training configuration equally, so the data cannot tell them apart; the grid order used to pick the
+    least-trained of them. More epochs at a smaller rate end on smaller steps (the rate halves per level),
+    so the run has had the most chance to settle; it too needs no theta*.
 
     Raises:
         SDMInputError: cells tie on ``dev_loss`` and the grid has no ``train_loss`` column.
@@ -64,7 +67,8 @@ def best_index(grid: pd.DataFrame):
             raise SDMInputError(f"tuning grid: {len(candidates)} cells tie on the dev loss and the grid has no "
                                 f"train_loss column to tell them apart (sdm.experiments.tune_cell writes it)")
         candidates = candidates[lowest(candidates["train_loss"])]
-    return candidates.index[0]
+    # Stable sort: rows equal on both keys keep the grid's order.
+    return candidates.sort_values(["n_epoch", "lr"], ascending=[False, True], kind="stable").index[0]
 
 
 def table1_frame(grid: pd.DataFrame) -> pd.DataFrame:
@@ -215,8 +219,8 @@ TABLE1_FORMAT = TableFormat(
     column_notes={"tied": (
         "Tied: the cell's dev loss equals the lowest (the same count of pixels). Among tied cells the best is "
         "the one with the lowest train loss, the dev loss's measure on the training configurations at the "
-        "cell's final theta; cells tied on that too go by grid order (fewer epochs, then the smaller learning "
-        "rate). Neither uses theta*."
+        "cell's final theta; among cells tied on that too, the most epochs (SGD steps), then the smaller "
+        "learning rate. None of these uses theta*."
     )},
 )
 
