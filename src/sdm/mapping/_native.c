@@ -22,50 +22,69 @@ static inline int on_grid(int64_t row, int64_t col, int64_t height, int64_t widt
     return row >= 0 && row < height && col >= 0 && col < width;
 }
 
+/* One level of the zoom chain for points lo..hi-1: each alive point steps towards its projection (at most one
+ * block per axis), and every candidate (alive, on the grid) enters its cell's rmin: cell_min keeps the lowest
+ * rank. Points off the grid or dropped compete in cell `sentinel` (past every configuration's cells), so the
+ * loop has no branch on them. `last` (the loss level: constant where inlined, so the stores vanish elsewhere)
+ * writes the loss-level outputs. */
+static inline __attribute__((always_inline)) void chain_level(
+    int64_t lo, int64_t hi, int64_t level, int last, const int64_t *projected, const int64_t *config,
+    const int64_t *rank, int64_t height, int64_t width, int64_t *cell_min, int64_t sentinel, int64_t no_rank,
+    uint8_t *entered, uint8_t *landed, int64_t *block_out, int64_t *landing_out, int64_t *current, int64_t *cell, uint8_t *alive) {
+    const int64_t size = (int64_t)1 << level, cells_per_config = height * width;
+    for (int64_t i = lo; i < hi; ++i) {
+        const int64_t block_row = current[2 * i] >> level, block_col = current[2 * i + 1] >> level;
+        /* landing block - input block, limited to the 3x3 kernel */
+        const int64_t step_row = clamp_unit((projected[2 * i] >> level) - block_row);
+        const int64_t step_col = clamp_unit((projected[2 * i + 1] >> level) - block_col);
+        if (last) {
+            entered[i] = alive[i];
+            block_out[2 * i] = block_row;
+            block_out[2 * i + 1] = block_col;
+            landing_out[2 * i] = block_row + step_row;
+            landing_out[2 * i + 1] = block_col + step_col;
+        }
+        const int64_t row = current[2 * i] + step_row * size, col = current[2 * i + 1] + step_col * size;
+        current[2 * i] = row;
+        current[2 * i + 1] = col;
+        const int candidate = alive[i] & on_grid(row, col, height, width);
+        if (last) landed[i] = (uint8_t)candidate;
+        alive[i] = (uint8_t)candidate;
+        const int64_t own = candidate ? (config ? config[i] * cells_per_config : 0) + row * width + col : sentinel;
+        cell[i] = own;
+        const int64_t least = cell_min[own];
+        cell_min[own] = rank[i] < least ? rank[i] : least;
+    }
+    /* rmin: a point survives where its rank is the lowest that landed in its cell (ranks are distinct within
+     * a cell). The one that holds its cell's minimum resets the cell to no_rank in the same pass: points
+     * after it read no_rank (not their rank: they lose, as they should), and every touched cell, the
+     * sentinel too, has exactly one such point, so all of cell_min is no_rank again afterwards. */
+    for (int64_t i = lo; i < hi; ++i) {
+        const int64_t own = cell[i], least = cell_min[own];
+        const int won = least == rank[i];
+        alive[i] = alive[i] & (uint8_t)won;
+        cell_min[own] = won ? no_rank : least;
+    }
+}
+
 /* Levels steps..zoom of the zoom chain for points lo..hi-1, which no other point shares a configuration with.
- * config NULL: all of them are one configuration. Points off the grid or dropped compete in cell `sentinel`
- * of cell_min (past every configuration's cells), so the rmin loops need no branch. */
-static void chain_range(int64_t lo, int64_t hi, const int64_t *projected, const int64_t *pixels,
-                        const int64_t *config, const int64_t *rank, int64_t height, int64_t width, int64_t steps,
-                        int64_t zoom, int64_t *cell_min, int64_t sentinel, int64_t no_rank, int64_t *out_pixels,
-                        uint8_t *entered,
-                        uint8_t *landed, int64_t *block_out, int64_t *landing_out, int64_t *current, int64_t *cell,
-                        uint8_t *alive) {
-    const int64_t cells_per_config = height * width;
+ * config NULL: all of them are one configuration. Inlined into each caller (sdm_train's copy is specialised
+ * to config NULL). */
+static inline __attribute__((always_inline)) void chain_range(
+    int64_t lo, int64_t hi, const int64_t *projected, const int64_t *pixels, const int64_t *config,
+    const int64_t *rank, int64_t height, int64_t width, int64_t steps, int64_t zoom, int64_t *cell_min,
+    int64_t sentinel, int64_t no_rank, int64_t *out_pixels, uint8_t *entered, uint8_t *landed, int64_t *block_out,
+    int64_t *landing_out, int64_t *current, int64_t *cell, uint8_t *alive) {
     for (int64_t i = lo; i < hi; ++i) {
         current[2 * i] = pixels[2 * i];
         current[2 * i + 1] = pixels[2 * i + 1];
         alive[i] = 1;
     }
-    for (int64_t level = steps; level >= zoom; --level) {
-        const int64_t size = (int64_t)1 << level;
-        for (int64_t i = lo; i < hi; ++i) {
-            const int64_t block_row = current[2 * i] >> level, block_col = current[2 * i + 1] >> level;
-            /* landing block - input block, limited to the 3x3 kernel */
-            const int64_t step_row = clamp_unit((projected[2 * i] >> level) - block_row);
-            const int64_t step_col = clamp_unit((projected[2 * i + 1] >> level) - block_col);
-            if (level == zoom) {
-                entered[i] = alive[i];
-                block_out[2 * i] = block_row;
-                block_out[2 * i + 1] = block_col;
-                landing_out[2 * i] = block_row + step_row;
-                landing_out[2 * i + 1] = block_col + step_col;
-            }
-            const int64_t row = current[2 * i] + step_row * size, col = current[2 * i + 1] + step_col * size;
-            current[2 * i] = row;
-            current[2 * i + 1] = col;
-            const int candidate = alive[i] && on_grid(row, col, height, width);
-            if (level == zoom) landed[i] = (uint8_t)candidate;
-            alive[i] = (uint8_t)candidate;
-            const int64_t own = candidate ? (config ? config[i] * cells_per_config : 0) + row * width + col : sentinel;
-            cell[i] = own;
-            const int64_t least = cell_min[own];
-            cell_min[own] = rank[i] < least ? rank[i] : least;
-        }
-        /* rmin: a point survives where its rank is the lowest that landed in its cell */
-        for (int64_t i = lo; i < hi; ++i) alive[i] = alive[i] & (cell_min[cell[i]] == rank[i]);
-        for (int64_t i = lo; i < hi; ++i) cell_min[cell[i]] = no_rank;
-    }
+    for (int64_t level = steps; level > zoom; --level)
+        chain_level(lo, hi, level, 0, projected, config, rank, height, width, cell_min, sentinel, no_rank, entered, landed,
+                    block_out, landing_out, current, cell, alive);
+    chain_level(lo, hi, zoom, 1, projected, config, rank, height, width, cell_min, sentinel, no_rank, entered, landed,
+                block_out, landing_out, current, cell, alive);
     for (int64_t i = lo; i < hi; ++i) {
         out_pixels[2 * i] = alive[i] ? current[2 * i] : -1;
         out_pixels[2 * i + 1] = alive[i] ? current[2 * i + 1] : -1;
@@ -106,8 +125,7 @@ void sdm_chain(int64_t n_points, const int64_t *projected, const int64_t *pixels
             while (hi < n_points && config[hi] == config[hi - 1]) ++hi; /* end on a configuration boundary */
         }
         chain_range(lo, hi, projected, pixels, config, rank, height, width, steps, zoom, cell_min,
-                    (last + 1) * height * width, no_rank,
-                    out_pixels, entered, landed, block_out, landing_out, current, cell, alive);
+                    (last + 1) * height * width, no_rank, out_pixels, entered, landed, block_out, landing_out, current, cell, alive);
         lo = hi;
     }
 }
@@ -208,6 +226,16 @@ int64_t sdm_paper_flow(int64_t n_points, const double *screen, const int64_t *co
     return n_pulled;
 }
 
+/* Two doubles as one SSE2 register: elementwise IEEE operations, each lane rounding as its scalar twin. */
+typedef double pair __attribute__((vector_size(16)));
+
+/* Fetch `bytes` from `start` into the cache ahead of use: the configurations of an epoch come in shuffled
+ * order, so the hardware prefetcher cannot see the next one's rows coming (their first touch was a fifth
+ * of the chain's time). */
+static inline void prefetch_bytes(const void *start, int64_t bytes) {
+    for (int64_t k = 0; k < bytes; k += 64) __builtin_prefetch((const char *)start + k);
+}
+
 /* Neumaier's compensated sum: the loss adds thousands of positive terms per step. */
 typedef struct {
     double sum, compensation;
@@ -295,11 +323,23 @@ int64_t sdm_train(int64_t n_runs, int64_t n_configs, const int64_t *offsets, con
                         const int64_t lo = offsets[c], n = offsets[c + 1] - lo;
                         const double *q = points + 3 * lo;
                         const uint8_t *own = target + c * grid_h * grid_w;
+                        const int64_t position = batch * batch_size + j;
+                        if (position + 1 < batches * batch_size) {
+                            const int64_t next = order[position + 1], first = offsets[next];
+                            const int64_t count = offsets[next + 1] - first;
+                            prefetch_bytes(points + 3 * first, count * 3 * (int64_t)sizeof(double));
+                            prefetch_bytes(pixels + 2 * first, count * 2 * (int64_t)sizeof(int64_t));
+                            prefetch_bytes(rank + first, count * (int64_t)sizeof(int64_t));
+                        }
                         for (int64_t i = 0; i < n; ++i) {
                             const double x = q[3 * i] + a, y = q[3 * i + 1] + b, z = q[3 * i + 2] + 0.0;
-                            const double u = fx * x / z + cx, v = fy * y / z + cy;
-                            screen[2 * i] = v * rows_per_pixel - screen_height;
-                            screen[2 * i + 1] = u * cols_per_pixel;
+                            /* (v, u) = (fy * y / z + cy, fx * x / z + cx): both lanes as the scalar
+                             * operations round, one division instruction for the two */
+                            const pair uv = (pair){fy * y, fx * x} / (pair){z, z} + (pair){cy, cx};
+                            /* (row, col) = (v * rows_per_pixel - H, u * cols_per_pixel - 0): x - 0.0 is x */
+                            const pair on_screen = uv * (pair){rows_per_pixel, cols_per_pixel} - (pair){screen_height, 0.0};
+                            screen[2 * i] = on_screen[0];
+                            screen[2 * i + 1] = on_screen[1];
                             projected[2 * i] = floor_to_int(screen[2 * i]);
                             projected[2 * i + 1] = floor_to_int(screen[2 * i + 1]);
                             /* the target block it will most likely land in: fetched while the chain runs */
