@@ -174,11 +174,13 @@ static inline void window_pull(double screen_row, double screen_col, int64_t cen
         row_ok[k] = centre_row + k - 1 >= 0 && centre_row + k - 1 < grid_h;
         col_ok[k] = centre_col + k - 1 >= 0 && centre_col + k - 1 < grid_w;
     }
+    /* Without branches (the target's blocks are as good as random to a predictor): a block off the grid
+     * reads block 0, always there, and is masked out. */
     for (int k = 0; k < 3; ++k)
         for (int l = 0; l < 3; ++l) {
-            const int in_grid = row_ok[k] && col_ok[l];
-            weight[k][l] = (in_grid && target[(centre_row + k - 1) * grid_w + (centre_col + l - 1)] && 3 * k + l != skip)
-                               ? 1.0 : 0.0;
+            const int in_grid = row_ok[k] & col_ok[l];
+            const int64_t index = in_grid ? (centre_row + k - 1) * grid_w + (centre_col + l - 1) : 0;
+            weight[k][l] = (double)(in_grid & (target[index] != 0) & (3 * k + l != skip));
         }
     double per_row[3], per_col[3];
     for (int k = 0; k < 3; ++k) {
