@@ -38,23 +38,26 @@ static inline int rmin_survives(int64_t *table, int64_t own, int64_t rank, int64
  * then, if alive, steps towards its projection (at most one block per axis) and, if on the grid, enters its
  * cell's rmin in table `entering` (the lowest rank is kept). The two tables alternate between levels, so a
  * level's entries are never mixed with the one before's. Points off the grid or dropped enter cell
- * `sentinel` (past every configuration's cells): no branch on them. `last` (the loss level) writes the
+ * `sentinel` (past every configuration's cells): no branch on them, and a point is alive exactly where its
+ * cell is not the sentinel and it wins that cell (no separate alive row to store and load at every level).
+ * `last` (the loss level) writes the
  * loss-level outputs; `first` and `last` are constants where this is inlined. */
 static inline __attribute__((always_inline)) void chain_level(
     int64_t lo, int64_t hi, int64_t level, int first, int last, const int64_t *projected, const int64_t *pixels,
     const int64_t *config, const int64_t *rank, int64_t height, int64_t width, int64_t *decided,
     int64_t *entering, int64_t sentinel, int64_t no_rank, uint8_t *entered, uint8_t *landed, int64_t *block_out,
-    int64_t *landing_out, int64_t *current, int64_t *cell, uint8_t *alive) {
+    int64_t *landing_out, int64_t *current, int64_t *cell) {
     const int64_t size = (int64_t)1 << level, cells_per_config = height * width;
     const int64_t *from = first ? pixels : current;
     for (int64_t i = lo; i < hi; ++i) {
-        const uint8_t was_alive = first ? 1 : alive[i] & (uint8_t)rmin_survives(decided, cell[i], rank[i], no_rank);
+        /* alive after the level before: it entered a real cell (not the sentinel) and won it */
+        const int was_alive = first ? 1 : (cell[i] != sentinel) & rmin_survives(decided, cell[i], rank[i], no_rank);
         const int64_t block_row = from[2 * i] >> level, block_col = from[2 * i + 1] >> level;
         /* landing block - input block, limited to the 3x3 kernel */
         const int64_t step_row = clamp_unit((projected[2 * i] >> level) - block_row);
         const int64_t step_col = clamp_unit((projected[2 * i + 1] >> level) - block_col);
         if (last) {
-            entered[i] = was_alive;
+            entered[i] = (uint8_t)was_alive;
             block_out[2 * i] = block_row;
             block_out[2 * i + 1] = block_col;
             landing_out[2 * i] = block_row + step_row;
@@ -65,7 +68,6 @@ static inline __attribute__((always_inline)) void chain_level(
         current[2 * i + 1] = col;
         const int candidate = was_alive & on_grid(row, col, height, width);
         if (last) landed[i] = (uint8_t)candidate;
-        alive[i] = (uint8_t)candidate;
         const int64_t own = candidate ? (config ? config[i] * cells_per_config : 0) + row * width + col : sentinel;
         cell[i] = own;
         const int64_t least = entering[own];
@@ -85,7 +87,7 @@ static inline __attribute__((always_inline)) void chain_range(
     int64_t *table[2] = {cell_min, cell_min + sentinel + 1};
 #define LEVEL(level, first, last, decided, entering)                                                              \
     chain_level(lo, hi, level, first, last, projected, pixels, config, rank, height, width, decided, entering,      \
-                sentinel, no_rank, entered, landed, block_out, landing_out, current, cell, alive)
+                sentinel, no_rank, entered, landed, block_out, landing_out, current, cell)
     if (steps == zoom) {
         LEVEL(zoom, 1, 1, NULL, table[0]);
     } else {
@@ -97,7 +99,7 @@ static inline __attribute__((always_inline)) void chain_range(
 #undef LEVEL
     int64_t *decided = table[(steps - zoom) & 1];
     for (int64_t i = lo; i < hi; ++i) {
-        alive[i] = alive[i] & (uint8_t)rmin_survives(decided, cell[i], rank[i], no_rank);
+        alive[i] = (uint8_t)((cell[i] != sentinel) & rmin_survives(decided, cell[i], rank[i], no_rank));
         out_pixels[2 * i] = alive[i] ? current[2 * i] : -1;
         out_pixels[2 * i + 1] = alive[i] ? current[2 * i + 1] : -1;
     }
