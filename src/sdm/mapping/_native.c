@@ -22,51 +22,84 @@ static inline int on_grid(int64_t row, int64_t col, int64_t height, int64_t widt
     return row >= 0 && row < height && col >= 0 && col < width;
 }
 
-/* Levels steps..zoom of the zoom chain for points lo..hi-1, which no other point shares a configuration with.
- * config NULL: all of them are one configuration. Points off the grid or dropped compete in cell `sentinel`
- * of cell_min (past every configuration's cells), so the rmin loops need no branch. */
-static void chain_range(int64_t lo, int64_t hi, const int64_t *projected, const int64_t *pixels,
-                        const int64_t *config, const int64_t *rank, int64_t height, int64_t width, int64_t steps,
-                        int64_t zoom, int64_t *cell_min, int64_t sentinel, int64_t no_rank, int64_t *out_pixels,
-                        uint8_t *entered,
-                        uint8_t *landed, int64_t *block_out, int64_t *landing_out, int64_t *current, int64_t *cell,
-                        uint8_t *alive) {
-    const int64_t cells_per_config = height * width;
+/* A point's rmin at the level before: it survives where its rank is the lowest that entered its cell (ranks
+ * are distinct within a cell). The one that holds its cell's minimum resets the cell to no_rank as it reads
+ * it: points after it read no_rank (not their rank: they lose, as they should), and every touched cell, the
+ * sentinel too, has exactly one such point, so the table is all no_rank again once every point has read. */
+static inline int rmin_survives(int64_t *table, int64_t own, int64_t rank, int64_t no_rank) {
+    const int64_t least = table[own];
+    const int won = least == rank;
+    table[own] = won ? no_rank : least;
+    return won;
+}
+
+/* One level of the zoom chain for points lo..hi-1, in one pass: each point first takes its rmin of the level
+ * before from table `decided` (NULL at the first level, where every point is alive and starts at its pixel),
+ * then, if alive, steps towards its projection (at most one block per axis) and, if on the grid, enters its
+ * cell's rmin in table `entering` (the lowest rank is kept). The two tables alternate between levels, so a
+ * level's entries are never mixed with the one before's. Points off the grid or dropped enter cell
+ * `sentinel` (past every configuration's cells): no branch on them, and a point is alive exactly where its
+ * cell is not the sentinel and it wins that cell (no separate alive row to store and load at every level).
+ * `last` (the loss level) writes the
+ * loss-level outputs; `first` and `last` are constants where this is inlined. */
+static inline __attribute__((always_inline)) void chain_level(
+    int64_t lo, int64_t hi, int64_t level, int first, int last, const int64_t *projected, const int64_t *pixels,
+    const int64_t *config, const int64_t *rank, int64_t height, int64_t width, int64_t *decided,
+    int64_t *entering, int64_t sentinel, int64_t no_rank, uint8_t *entered, uint8_t *landed, int64_t *block_out,
+    int64_t *landing_out, int64_t *current, int64_t *cell) {
+    const int64_t size = (int64_t)1 << level, cells_per_config = height * width;
+    const int64_t *from = first ? pixels : current;
     for (int64_t i = lo; i < hi; ++i) {
-        current[2 * i] = pixels[2 * i];
-        current[2 * i + 1] = pixels[2 * i + 1];
-        alive[i] = 1;
-    }
-    for (int64_t level = steps; level >= zoom; --level) {
-        const int64_t size = (int64_t)1 << level;
-        for (int64_t i = lo; i < hi; ++i) {
-            const int64_t block_row = current[2 * i] >> level, block_col = current[2 * i + 1] >> level;
-            /* landing block - input block, limited to the 3x3 kernel */
-            const int64_t step_row = clamp_unit((projected[2 * i] >> level) - block_row);
-            const int64_t step_col = clamp_unit((projected[2 * i + 1] >> level) - block_col);
-            if (level == zoom) {
-                entered[i] = alive[i];
-                block_out[2 * i] = block_row;
-                block_out[2 * i + 1] = block_col;
-                landing_out[2 * i] = block_row + step_row;
-                landing_out[2 * i + 1] = block_col + step_col;
-            }
-            const int64_t row = current[2 * i] + step_row * size, col = current[2 * i + 1] + step_col * size;
-            current[2 * i] = row;
-            current[2 * i + 1] = col;
-            const int candidate = alive[i] && on_grid(row, col, height, width);
-            if (level == zoom) landed[i] = (uint8_t)candidate;
-            alive[i] = (uint8_t)candidate;
-            const int64_t own = candidate ? (config ? config[i] * cells_per_config : 0) + row * width + col : sentinel;
-            cell[i] = own;
-            const int64_t least = cell_min[own];
-            cell_min[own] = rank[i] < least ? rank[i] : least;
+        /* alive after the level before: it entered a real cell (not the sentinel) and won it */
+        const int was_alive = first ? 1 : (cell[i] != sentinel) & rmin_survives(decided, cell[i], rank[i], no_rank);
+        const int64_t block_row = from[2 * i] >> level, block_col = from[2 * i + 1] >> level;
+        /* landing block - input block, limited to the 3x3 kernel */
+        const int64_t step_row = clamp_unit((projected[2 * i] >> level) - block_row);
+        const int64_t step_col = clamp_unit((projected[2 * i + 1] >> level) - block_col);
+        if (last) {
+            entered[i] = (uint8_t)was_alive;
+            block_out[2 * i] = block_row;
+            block_out[2 * i + 1] = block_col;
+            landing_out[2 * i] = block_row + step_row;
+            landing_out[2 * i + 1] = block_col + step_col;
         }
-        /* rmin: a point survives where its rank is the lowest that landed in its cell */
-        for (int64_t i = lo; i < hi; ++i) alive[i] = alive[i] & (cell_min[cell[i]] == rank[i]);
-        for (int64_t i = lo; i < hi; ++i) cell_min[cell[i]] = no_rank;
+        const int64_t row = from[2 * i] + step_row * size, col = from[2 * i + 1] + step_col * size;
+        current[2 * i] = row;
+        current[2 * i + 1] = col;
+        const int candidate = was_alive & on_grid(row, col, height, width);
+        if (last) landed[i] = (uint8_t)candidate;
+        const int64_t own = candidate ? (config ? config[i] * cells_per_config : 0) + row * width + col : sentinel;
+        cell[i] = own;
+        const int64_t least = entering[own];
+        entering[own] = rank[i] < least ? rank[i] : least;
     }
+}
+
+/* Levels steps..zoom of the zoom chain for points lo..hi-1, which no other point shares a configuration with.
+ * config NULL: all of them are one configuration. cell_min holds two tables of sentinel + 1 cells, used
+ * level by level in turn (chain_level). Inlined into each caller (sdm_train's copy is specialised to
+ * config NULL). */
+static inline __attribute__((always_inline)) void chain_range(
+    int64_t lo, int64_t hi, const int64_t *projected, const int64_t *pixels, const int64_t *config,
+    const int64_t *rank, int64_t height, int64_t width, int64_t steps, int64_t zoom, int64_t *cell_min,
+    int64_t sentinel, int64_t no_rank, int64_t *out_pixels, uint8_t *entered, uint8_t *landed, int64_t *block_out,
+    int64_t *landing_out, int64_t *current, int64_t *cell, uint8_t *alive) {
+    int64_t *table[2] = {cell_min, cell_min + sentinel + 1};
+#define LEVEL(level, first, last, decided, entering)                                                              \
+    chain_level(lo, hi, level, first, last, projected, pixels, config, rank, height, width, decided, entering,      \
+                sentinel, no_rank, entered, landed, block_out, landing_out, current, cell)
+    if (steps == zoom) {
+        LEVEL(zoom, 1, 1, NULL, table[0]);
+    } else {
+        LEVEL(steps, 1, 0, NULL, table[0]);
+        for (int64_t level = steps - 1; level > zoom; --level)
+            LEVEL(level, 0, 0, table[(steps - level - 1) & 1], table[(steps - level) & 1]);
+        LEVEL(zoom, 0, 1, table[(steps - zoom - 1) & 1], table[(steps - zoom) & 1]);
+    }
+#undef LEVEL
+    int64_t *decided = table[(steps - zoom) & 1];
     for (int64_t i = lo; i < hi; ++i) {
+        alive[i] = (uint8_t)((cell[i] != sentinel) & rmin_survives(decided, cell[i], rank[i], no_rank));
         out_pixels[2 * i] = alive[i] ? current[2 * i] : -1;
         out_pixels[2 * i + 1] = alive[i] ? current[2 * i + 1] : -1;
     }
@@ -80,7 +113,8 @@ static void chain_range(int64_t lo, int64_t hi, const int64_t *projected, const 
  * projected: (P, 2) floor of each point's projection, screen pixels (row, col)
  * pixels:    (P, 2) each point's pixel in I~ at the start
  * config:    (P,)   configuration index; rank: (P,) rmin priority (lower wins)
- * cell_min:  (n_cells + 1,) scratch, every entry NO_RANK on entry and on return
+ * cell_min:  (2 * (n_cells + 1),) scratch (two tables, see chain_range), every entry NO_RANK on entry and on
+ *            return
  * Outputs, all (P, ...): out_pixels (-1 where dropped), entered, landed, block and landing
  * at the loss level (written for every point, as the torch path computes them).
  *
@@ -93,7 +127,7 @@ void sdm_chain(int64_t n_points, const int64_t *projected, const int64_t *pixels
                int64_t no_rank, int64_t *out_pixels, uint8_t *entered, uint8_t *landed, int64_t *block_out,
                int64_t *landing_out, int64_t *current, int64_t *cell, uint8_t *alive) {
     int sorted = 1;
-    int64_t last = 0; /* the highest configuration: cell_min has (last + 1) * height * width + 1 entries at least */
+    int64_t last = 0; /* the highest configuration: cell_min has 2 * ((last + 1) * height * width + 1) entries at least */
     for (int64_t i = 0; i < n_points; ++i) {
         if (i && config[i] < config[i - 1]) sorted = 0;
         if (config[i] > last) last = config[i];
@@ -106,8 +140,7 @@ void sdm_chain(int64_t n_points, const int64_t *projected, const int64_t *pixels
             while (hi < n_points && config[hi] == config[hi - 1]) ++hi; /* end on a configuration boundary */
         }
         chain_range(lo, hi, projected, pixels, config, rank, height, width, steps, zoom, cell_min,
-                    (last + 1) * height * width, no_rank,
-                    out_pixels, entered, landed, block_out, landing_out, current, cell, alive);
+                    (last + 1) * height * width, no_rank, out_pixels, entered, landed, block_out, landing_out, current, cell, alive);
         lo = hi;
     }
 }
@@ -143,11 +176,13 @@ static inline void window_pull(double screen_row, double screen_col, int64_t cen
         row_ok[k] = centre_row + k - 1 >= 0 && centre_row + k - 1 < grid_h;
         col_ok[k] = centre_col + k - 1 >= 0 && centre_col + k - 1 < grid_w;
     }
+    /* Without branches (the target's blocks are as good as random to a predictor): a block off the grid
+     * reads block 0, always there, and is masked out. */
     for (int k = 0; k < 3; ++k)
         for (int l = 0; l < 3; ++l) {
-            const int in_grid = row_ok[k] && col_ok[l];
-            weight[k][l] = (in_grid && target[(centre_row + k - 1) * grid_w + (centre_col + l - 1)] && 3 * k + l != skip)
-                               ? 1.0 : 0.0;
+            const int in_grid = row_ok[k] & col_ok[l];
+            const int64_t index = in_grid ? (centre_row + k - 1) * grid_w + (centre_col + l - 1) : 0;
+            weight[k][l] = (double)(in_grid & (target[index] != 0) & (3 * k + l != skip));
         }
     double per_row[3], per_col[3];
     for (int k = 0; k < 3; ++k) {
@@ -208,6 +243,16 @@ int64_t sdm_paper_flow(int64_t n_points, const double *screen, const int64_t *co
     return n_pulled;
 }
 
+/* Two doubles as one SSE2 register: elementwise IEEE operations, each lane rounding as its scalar twin. */
+typedef double pair __attribute__((vector_size(16)));
+
+/* Fetch `bytes` from `start` into the cache ahead of use: the configurations of an epoch come in shuffled
+ * order, so the hardware prefetcher cannot see the next one's rows coming (their first touch was a fifth
+ * of the chain's time). */
+static inline void prefetch_bytes(const void *start, int64_t bytes) {
+    for (int64_t k = 0; k < bytes; k += 64) __builtin_prefetch((const char *)start + k);
+}
+
 /* Neumaier's compensated sum: the loss adds thousands of positive terms per step. */
 typedef struct {
     double sum, compensation;
@@ -263,7 +308,7 @@ int64_t sdm_train(int64_t n_runs, int64_t n_configs, const int64_t *offsets, con
         if (offsets[c + 1] - offsets[c] > largest) largest = offsets[c + 1] - offsets[c];
     /* one configuration's working rows and rmin cells (configurations never interact) */
     int64_t *rows = malloc(sizeof(int64_t) * (size_t)largest * 11);
-    int64_t *cell_min = malloc(sizeof(int64_t) * (size_t)(height * width + 1));
+    int64_t *cell_min = malloc(sizeof(int64_t) * (size_t)(2 * (height * width + 1))); /* chain_range's two tables */
     double *screen = malloc(sizeof(double) * (size_t)largest * 2);
     uint8_t *flags = malloc((size_t)largest * 3);
     if (!rows || !cell_min || !screen || !flags) {
@@ -273,7 +318,7 @@ int64_t sdm_train(int64_t n_runs, int64_t n_configs, const int64_t *offsets, con
     int64_t *projected = rows, *out_pixels = rows + 2 * largest, *block = rows + 4 * largest;
     int64_t *landing = rows + 6 * largest, *current = rows + 8 * largest, *cell = rows + 10 * largest;
     uint8_t *entered = flags, *landed = flags + largest, *alive = flags + 2 * largest;
-    for (int64_t i = 0; i < height * width + 1; ++i) cell_min[i] = no_rank;
+    for (int64_t i = 0; i < 2 * (height * width + 1); ++i) cell_min[i] = no_rank;
 
     for (int64_t run = 0; run < n_runs; ++run) {
         double a = theta0[2 * run], b = theta0[2 * run + 1];
@@ -295,11 +340,23 @@ int64_t sdm_train(int64_t n_runs, int64_t n_configs, const int64_t *offsets, con
                         const int64_t lo = offsets[c], n = offsets[c + 1] - lo;
                         const double *q = points + 3 * lo;
                         const uint8_t *own = target + c * grid_h * grid_w;
+                        const int64_t position = batch * batch_size + j;
+                        if (position + 1 < batches * batch_size) {
+                            const int64_t next = order[position + 1], first = offsets[next];
+                            const int64_t count = offsets[next + 1] - first;
+                            prefetch_bytes(points + 3 * first, count * 3 * (int64_t)sizeof(double));
+                            prefetch_bytes(pixels + 2 * first, count * 2 * (int64_t)sizeof(int64_t));
+                            prefetch_bytes(rank + first, count * (int64_t)sizeof(int64_t));
+                        }
                         for (int64_t i = 0; i < n; ++i) {
                             const double x = q[3 * i] + a, y = q[3 * i + 1] + b, z = q[3 * i + 2] + 0.0;
-                            const double u = fx * x / z + cx, v = fy * y / z + cy;
-                            screen[2 * i] = v * rows_per_pixel - screen_height;
-                            screen[2 * i + 1] = u * cols_per_pixel;
+                            /* (v, u) = (fy * y / z + cy, fx * x / z + cx): both lanes as the scalar
+                             * operations round, one division instruction for the two */
+                            const pair uv = (pair){fy * y, fx * x} / (pair){z, z} + (pair){cy, cx};
+                            /* (row, col) = (v * rows_per_pixel - H, u * cols_per_pixel - 0): x - 0.0 is x */
+                            const pair on_screen = uv * (pair){rows_per_pixel, cols_per_pixel} - (pair){screen_height, 0.0};
+                            screen[2 * i] = on_screen[0];
+                            screen[2 * i + 1] = on_screen[1];
                             projected[2 * i] = floor_to_int(screen[2 * i]);
                             projected[2 * i + 1] = floor_to_int(screen[2 * i + 1]);
                             /* the target block it will most likely land in: fetched while the chain runs */

@@ -99,7 +99,7 @@ def fast_mapping(
     # floor(P(p) / 2^k) == floor(P(p)) >> k for every level k: one floor for the whole chain.
     projected_pixel = torch.floor(screen).long()
     if native is not False and native_kernel.serves(projected_pixel, pixels, config, rank, target):
-        scratch = _SCRATCH.buffer(points.device, n_cells)
+        scratch = _SCRATCH.buffer(points.device, 2 * n_cells + 1)  # the kernel's two rmin tables
         out_pixels, entered, landed, block, landing = native_kernel.chain(
             projected_pixel, pixels, config, rank, scratch, height, width, steps, zoom)
         if flow_rule is dynamic_flow and screen.dtype == torch.float64:

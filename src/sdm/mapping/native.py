@@ -331,8 +331,8 @@ def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, r
         projected: ``(P, 2)`` int64 ``floor(P(p))``, screen pixels ``(row, col)``.
         pixels: ``(P, 2)`` int64 pixel of each point in ``I~``.
         config: ``(P,)`` int64 configuration of each point; ``rank``: ``(P,)`` int64 ``rmin`` priority.
-        scratch: ``(>= n * H * W + 1,)`` int64, every entry :data:`~sdm.representation.NO_RANK`
-            (and so again on return).
+        scratch: ``(>= 2 * (n * H * W + 1),)`` int64 (the kernel's two alternating rmin tables), every entry
+            :data:`~sdm.representation.NO_RANK` (and so again on return).
         height, width: the screen; steps, zoom: the levels.
 
     All tensors on the CPU (see :func:`serves`; non-contiguous ones are copied); the results too.
