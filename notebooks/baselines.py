@@ -177,7 +177,7 @@ if part in ("table", "all"):
 
 # %%
 if part in ("table", "all"):
-    answer = table3_summary(table3)
+    answer = table3_summary(table3, table2_runs=int(pd.read_csv(table2_distances).groupby("level").size().min()))
     write_text(summary, answer)
     display(Markdown(answer))
 

@@ -317,6 +317,11 @@ def test_table3_statistics(tmp_path):
     verdict = "SDM wins" if sdm2["mean_m"] < chamfer2["mean_m"] else "SDM loses"
     assert f"noise level 2 (6 paired runs): {verdict}" in summary
     assert "2D Chamfer 0.30 s (3.0x)" in summary
+    assert "- runs:" not in summary and "- runs:" not in table3_summary(table, table2_runs=6)
+    # Fewer paired runs than Table 2 holds: the summary says so, with the measured cost behind it.
+    fewer = table3_summary(table, table2_runs=60)
+    assert ("- runs: Table 3 pairs runs 0-5 of Table 2's 60 per level (config key 'baselines.runs')" in fewer
+            and "a baseline run costs 0.30 s on average (the line above), 3 times SDM's" in fewer)
 
     with pytest.raises(SDMInputError, match="twice"):
         table3_frame(pd.concat([runs, runs.head(1)]))

@@ -296,12 +296,13 @@ def baselines_figure(table: pd.DataFrame, runs: pd.DataFrame | None = None, shif
 # -- plain words ------------------------------------------------------------------------------------
 
 
-def table3_summary(table: pd.DataFrame, reference: str = "sdm") -> str:
+def table3_summary(table: pd.DataFrame, reference: str = "sdm", table2_runs: int | None = None) -> str:
     """The answer to the paper's claim, in plain words from the measured Table 3 (Markdown).
 
     Per noise level: the best method by mean distance and how SDM compares with the best baseline
     (ratio of means, share of paired runs won); then each method's time per run relative to SDM's.
-    Every number in the text comes from ``table``.
+    Where Table 3 pairs fewer runs per level than Table 2 holds (``table2_runs``), a line says so and
+    why. Every number in the text comes from ``table`` (and ``table2_runs``).
     """
     if reference not in set(table["method"]):
         raise SDMInputError(f"Table 3 has no {reference!r} rows to compare with")
@@ -334,4 +335,12 @@ def table3_summary(table: pd.DataFrame, reference: str = "sdm") -> str:
     if math.isnan(ref_seconds):
         timing += " (SDM's rows come from Table 2, and no timing of its runs was given)"
     lines.append(f"- time per run (mean over levels, one thread; in brackets: relative to SDM): {timing}.")
+    paired = int(table["runs"].max())
+    if table2_runs is not None and paired < table2_runs:
+        others = seconds.drop(reference).dropna()
+        cost = (f": a baseline run costs {others.mean():.2f} s on average (the line above), "
+                f"{others.mean() / ref_seconds:.0f} times SDM's" if len(others) and ref_seconds > 0 else "")
+        lines.append(f"- runs: Table 3 pairs runs 0-{paired - 1} of Table 2's {table2_runs} per level (config key "
+                     f"'baselines.runs'), fewer than Table 2 so that the default run stays within its time "
+                     f"budget{cost}; set it to {table2_runs} to pair all of them.")
     return "\n".join(lines) + "\n"
