@@ -78,3 +78,18 @@ def uncovered_pull(screen, depth, config, landed, landing, target, zoom, camera)
     configs, landings = config.tolist(), landing.tolist()
     pulled = [(i, configs[i], landings[i]) for i, is_landed in enumerate(landed.tolist()) if is_landed]
     return _pull(screen, depth, landing, _Blocks(target, covered), zoom, camera, pulled)
+
+
+def closing_by_max_pools(target, size: int):
+    """The morphological closing as two max pools over float32 images (the formulation the product replaced).
+
+    ``(n, h, w)`` bool in and out; dilation pads with -inf (nothing beyond the grid), erosion with 1 (beyond the
+    grid counts as active).
+    """
+    import torch.nn.functional as F
+
+    pad = size // 2
+    image = target[:, None].to(torch.float32)
+    dilated = F.max_pool2d(image, size, stride=1, padding=pad)
+    eroded = -F.max_pool2d(-F.pad(dilated, (pad, pad, pad, pad), value=1.0), size, stride=1)
+    return eroded[:, 0] > 0.5

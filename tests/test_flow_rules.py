@@ -219,3 +219,18 @@ def test_the_two_sided_rule_pulls_a_matched_point_towards_an_uncovered_target_bl
     flow, loss, matched = RULES["two_sided"](screen, depth, config, landed, block, landing, target, 0, CAM)
     assert bool(matched[0]) and flow[0].tolist() == [0.0, -1.0] and float(loss) > 0
     assert not bool(RULES["paper"](screen, depth, config, landed, block, landing, target, 0, CAM)[0].any())
+
+
+@pytest.mark.parametrize("size", [3, 5, 7])
+@pytest.mark.parametrize("shape", [(4, 16, 32), (3, 2, 5), (2, 1, 1), (5, 64, 128)])
+def test_the_closing_equals_the_max_pool_formulation(size, shape):
+    """The separable bool closing is exactly the two max pools over float images, borders and tiny grids included."""
+    from flow_reference import closing_by_max_pools
+
+    generator = torch.Generator().manual_seed(size * 100 + shape[1])
+    for density in (0.05, 0.3, 0.7):
+        target = torch.rand(shape, generator=generator) < density
+        closed = closing(size)(target, 0)
+        assert closed.dtype == torch.bool and closed.shape == target.shape
+        assert torch.equal(closed, closing_by_max_pools(target, size))
+        assert bool((closed | ~target).all())  # closing only adds blocks

@@ -29,7 +29,6 @@ from __future__ import annotations
 from typing import Callable
 
 import torch
-import torch.nn.functional as F
 
 from ..camera import Camera
 from ..errors import SDMInputError
@@ -107,20 +106,33 @@ def closing(size: int):
     """Morphological closing of the zoomed target with a ``size x size`` square: fills the holes noise leaves.
 
     ``(n, h, w)`` bool in, ``(n, h, w)`` bool out, on the target's device. Dilation
-    then erosion (max pools over float32 images ``(n, 1, h, w)``); beyond the grid
-    the erosion sees active blocks, so closing never removes a block at the border.
-    Closing only adds blocks, so a point matched at theta* stays matched: without
-    noise theta* stays an exact fixed point (``tests/test_flow_rules.py``).
+    (a block becomes active where any block of its square is; beyond the grid there is
+    none) then erosion (it stays active where every block of its square is; beyond the
+    grid the erosion sees active blocks, so closing never removes a block at the
+    border). Both are separable: rows, then columns, each an OR (AND) of shifted
+    bool views, exact and about 10x cheaper than max pools over float images (which
+    ``tests/test_flow_rules.py`` holds it equal to). Closing only adds blocks, so a
+    point matched at theta* stays matched: without noise theta* stays an exact fixed
+    point.
     """
-    pad = size // 2
+    radius = size // 2
 
     def close(target, zoom):
-        image = target[:, None].to(torch.float32)
-        dilated = F.max_pool2d(image, size, stride=1, padding=pad)
-        eroded = -F.max_pool2d(-F.pad(dilated, (pad, pad, pad, pad), value=1.0), size, stride=1)
-        return eroded[:, 0] > 0.5
+        return _spread(_spread(target, radius, torch.Tensor.logical_or_), radius, torch.Tensor.logical_and_)
 
     return close
+
+
+def _spread(image: torch.Tensor, radius: int, combine) -> torch.Tensor:
+    """``(n, h, w)`` bool: each cell combined (``combine_``: OR or AND, in place) with its neighbours up to
+    ``radius`` cells away along rows, then along columns; neighbours beyond the grid are left out."""
+    for axis in (1, 2):
+        source, image = image, image.clone()
+        size = image.shape[axis]
+        for shift in range(1, min(radius, size - 1) + 1):
+            combine(image.narrow(axis, shift, size - shift), source.narrow(axis, 0, size - shift))
+            combine(image.narrow(axis, 0, size - shift), source.narrow(axis, shift, size - shift))
+    return image
 
 
 #: The gradient rules a configuration or table uses, by name. ``"paper"`` is eq. 19
