@@ -154,10 +154,62 @@ def _edited(path: Path, text: str):
     return Edit()
 
 
-@pytest.mark.parametrize("library_file", _library_files())
-def test_each_library_file_reruns_the_stages_that_run_it(touched_project, expected_plans, library_file):
+def _reaching_notebooks(project: Path) -> dict[str, tuple[str, ...]]:
+    """Library file -> the stage notebooks that run it (modulefinder), for the project at ``project``."""
+    notebooks = sorted(path.relative_to(project).as_posix() for path in (project / "notebooks").glob("*.py"))
+    reached = {notebook: _modulefinder_files(project, notebook) for notebook in notebooks}
+    return {file: tuple(n for n in notebooks if file in reached[n]) for file in _library_files()}
+
+
+def _one_file_per_reach() -> list[str]:
+    """A library file for each distinct set of notebooks that run it, and every non-Python file (hashed as bytes):
+    the files whose edits Snakemake is asked to plan. Every file's own edit is checked against the stages'
+    fingerprints by test_each_library_file_edit_changes_the_fingerprints_of_the_stages_that_run_it."""
+    chosen = {}
+    for file, notebooks in _reaching_notebooks(ROOT).items():
+        chosen.setdefault(notebooks, file)
+    return sorted(set(chosen.values()) | {f for f in _library_files() if not f.endswith(".py")})
+
+
+def test_each_library_file_edit_changes_the_fingerprints_of_the_stages_that_run_it(tmp_path):
+    """For every library file: a code edit changes the code fingerprint (code_deps, the stage param) of exactly the
+    notebooks that run it by modulefinder's reckoning, and a comment leaves every fingerprint as it was. In one
+    process, on a copy of the library, so that all files are checked in seconds (Snakemake itself plans from
+    these fingerprints: test_a_library_edit_reruns_the_stages_that_run_it, one file per distinct set)."""
+    import importlib.util
+
+    for part in ("src", "notebooks", "workflow"):
+        shutil.copytree(ROOT / part, tmp_path / part, ignore=shutil.ignore_patterns("__pycache__", "*.egg-info"))
+    shutil.copy2(ROOT / "Snakefile", tmp_path / "Snakefile")
+    spec = importlib.util.spec_from_file_location("code_deps_copy", tmp_path / "workflow" / "scripts" / "code_deps.py")
+    deps = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(deps)
+    assert deps.ROOT == tmp_path
+    notebooks = sorted(path.stem for path in (tmp_path / "notebooks").glob("*.py"))
+
+    def fingerprints() -> dict[str, str]:
+        for cached in (deps.module_file, deps._parsed, deps.imported, deps.reached, deps.file_digest, deps.fingerprint):
+            cached.cache_clear()
+        return {notebook: deps.fingerprint(notebook) for notebook in notebooks}
+
+    before = fingerprints()
+    reaching = _reaching_notebooks(tmp_path)
+    for library_file, expected in reaching.items():
+        code = "\n/* rerun probe */\n" if library_file.endswith(".c") else "\n_rerun_probe = 1\n"
+        with _edited(tmp_path / library_file, code):
+            changed = {notebook for notebook, value in fingerprints().items() if value != before[notebook]}
+        assert changed == {Path(notebook).stem for notebook in expected}, library_file
+        if library_file.endswith(".py"):
+            with _edited(tmp_path / library_file, "\n# a comment\n"):
+                assert fingerprints() == before, library_file
+
+
+@pytest.mark.parametrize("library_file", _one_file_per_reach())
+def test_a_library_edit_reruns_the_stages_that_run_it(touched_project, expected_plans, library_file):
     """A code edit of one library file plans exactly the jobs that `--forcerun` of the stages whose notebook
-    runs it (modulefinder) plans: those stages and everything after them; nothing else."""
+    runs it (modulefinder) plans: those stages and everything after them; nothing else. One file per distinct
+    set of notebooks (the Snakemake side is the same for files of one set; every file's own fingerprint is
+    checked above)."""
     project, _ = touched_project
     expected = expected_plans(library_file)
     probe = "\n/* rerun probe */\n" if library_file.endswith(".c") else "\n_rerun_probe = 1\n"
