@@ -28,7 +28,7 @@ from .camera import Camera
 from .errors import SDMInputError
 from .mapping import SpatialDomainMapping, native
 from .mapping.layer import METHODS
-from .mapping.rules import closing, flow_rule, rule_by_name
+from .mapping.rules import flow_rule, kernel_form, rule_by_name
 from .sky import shift_vector
 from .zoom import check_divisible, target_pyramid
 
@@ -307,12 +307,12 @@ def train_runs(
     step_rates = torch.tensor(rates, dtype=torch.float64, device="cpu").repeat_interleave(steps_per_level)
 
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
-        if (method == "fast" and not common.fit_depth and common.flow in native.TRAINED_RULES
+        forms = [kernel_form(common.flow, level) for level in levels]
+        if (method == "fast" and not common.fit_depth and None not in forms
                 and device.type == "cpu" and train_set.points.dtype == torch.float64 and native.enabled()):
-            # closed_centred_r1 at zoom 0: the 3x3 closing of the target, the window centred on the landing block.
-            centred = [common.flow == "closed_centred_r1" and level == 0 for level in levels]
-            run_levels = [[_CLOSE_3(pyramid[level], level) if centre else pyramid[level]
-                           for level, centre in zip(levels, centred)] for pyramid in pyramids]
+            centred = [centre for centre, _ in forms]
+            run_levels = [[prepare(pyramid[level], level) if prepare is not None else pyramid[level]
+                           for level, (_, prepare) in zip(levels, forms)] for pyramid in pyramids]
             thetas, losses, failed = native.train_program(
                 train_set.points, train_set.pixels, train_set.rank, train_set.offsets, camera, common.s, levels,
                 common.n_epoch, batch_size, rates, centred, orders, run_levels, starts)
@@ -326,10 +326,6 @@ def train_runs(
             thetas, losses = _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders,
                                           starts, bar)
     return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings)
-
-
-#: closed_centred_r1's closing at zoom 0 (sdm.mapping.rules): ``(target, zoom) -> target``.
-_CLOSE_3 = closing(3)
 
 
 def _usable_device(device: torch.device | str) -> torch.device:

@@ -43,7 +43,7 @@ It serves two callers. The layer (:func:`~sdm.mapping.fast.fast_mapping`) calls
 :func:`chain` and :func:`paper_flow` once per forward pass. The trainer
 (:func:`sdm.train.train_runs`) calls :func:`train_program` once per program of
 ``R`` runs: every level, epoch, mini-batch, projection, chain, flow (the paper's,
-or ``closed_centred_r1``'s, :data:`TRAINED_RULES`), loss and SGD step in C, the
+or ``closed_centred_r1``'s: :func:`sdm.mapping.rules.kernel_form`), loss and SGD step in C, the
 per-step Python work gone; theta histories equal the torch path's to the bit
 (the loss to 1e-12 relative: its sum is compensated, not in torch's order). The
 paper's flow and the centred closed rule share one window function in C.
@@ -401,9 +401,6 @@ def paper_flow(screen: torch.Tensor, config: torch.Tensor, landed: torch.Tensor,
 
 
 #: The gradient rules whose whole training run the kernel does (:func:`train_program`).
-TRAINED_RULES = ("paper", "closed_centred_r1")
-
-
 def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor, offsets: torch.Tensor,
                   camera, steps: int, levels: list[int], n_epoch: int, batch_size: int, rates: list[float],
                   centred: list[bool], orders: torch.Tensor, targets: list[list[torch.Tensor]],

@@ -135,13 +135,34 @@ def _spread(image: torch.Tensor, radius: int, combine) -> torch.Tensor:
     return image
 
 
+#: closed_centred_r1: the 3x3 closing and the centred window below this loss level, eq. 19 from it on.
+_CLOSE_3 = closing(3)
+_R1_FINEST_COARSE = 1
+
 #: The gradient rules a configuration or table uses, by name. ``"paper"`` is eq. 19
 #: (:func:`~sdm.mapping.flow.dynamic_flow`), the default.
 FLOW_RULES: dict[str, FlowRule] = {
     "paper": dynamic_flow,
     # 3x3 closing and the window centred on the landing block at zoom 0, eq. 19 at the coarser levels.
-    "closed_centred_r1": by_zoom(window_rule(prepare=closing(3), centred=True), dynamic_flow),
+    "closed_centred_r1": by_zoom(window_rule(prepare=_CLOSE_3, centred=True), dynamic_flow,
+                                 finest_coarse=_R1_FINEST_COARSE),
 }
+
+
+def kernel_form(name: str, level: int):
+    """How the compiled trainer (:func:`sdm.mapping.native.train_program`) runs rule ``name`` at loss ``level``.
+
+    Returns:
+        ``None`` where the rule has no compiled form (the trainer then takes the torch path);
+        ``(centred, prepare)`` otherwise: ``centred`` the window on the landing block (else eq. 19's on
+        the input block), on the target ``prepare(target, level)`` (``None``: the target as it is).
+        Read from the same constants that build :data:`FLOW_RULES`, so the two cannot drift.
+    """
+    if name == "paper":
+        return False, None
+    if name == "closed_centred_r1":
+        return (False, None) if level >= _R1_FINEST_COARSE else (True, _CLOSE_3)
+    return None
 
 
 def rule_by_name(name: str) -> FlowRule:
