@@ -29,4 +29,4 @@ report: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/snakemake --profile profiles/default --report report.html
 
 clean:
-	rm -rf results logs benchmarks/*.tsv report.html .snakemake
+	rm -rf results logs benchmarks/*.tsv benchmarks/calibration report.html .snakemake

@@ -30,7 +30,8 @@ best = "results/tuning/best.json"  # input: the tuned settings
 chunk_file = "results/noise/level0_chunk0.csv"  # output: one row per run
 timing_file = "results/noise/level0_chunk0_seconds.json"  # output: wall seconds of the chunk's runs
 level = 0
-run_indices = [0, 1]
+first_run = 0  # the chunk's runs: first_run .. first_run + runs - 1
+runs = 2
 s = 4
 batch_size = 16
 lr_decay = 0.5
@@ -41,18 +42,17 @@ threads = 1
 # %%
 import time
 
-from sdm.experiments import load_split, noise_runs, settings_for, single_thread
+from sdm.experiments import noise_runs, single_thread, tuned_training
 from sdm.report.io import read_json, write_csv, write_json
 
 single_thread(threads)
-tuned = read_json(best)
-train_set, _, camera = load_split(sky, read_json(split))
-settings = settings_for(tuned["n_epoch"], tuned["lr"], s, batch_size, lr_decay, seed)
+run_indices = list(range(first_run, first_run + runs))
+train_set, camera, settings = tuned_training(sky, read_json(split), read_json(best), s, batch_size, lr_decay, seed)
 print(f"level {level}, runs {run_indices[0]}..{run_indices[-1]}, n_epoch {settings.n_epoch}, lr {settings.lr:g}")
 started = time.perf_counter()
-runs = noise_runs(train_set, level, run_indices, settings, shift=shift, camera=camera)
+results = noise_runs(train_set, level, run_indices, settings, shift=shift, camera=camera)
 seconds = time.perf_counter() - started
-write_csv(chunk_file, runs)
+write_csv(chunk_file, results)
 # The runs are trained together as one program (sdm.experiments.noise_runs), so a run's share is
 # the chunk's wall time over its runs.
 write_json(timing_file, {"level": level, "runs": len(run_indices), "seconds": seconds,
@@ -60,4 +60,4 @@ write_json(timing_file, {"level": level, "runs": len(run_indices), "seconds": se
 print(f"{len(run_indices)} runs in {seconds:.2f} s ({seconds / len(run_indices):.3f} s per run, {threads} thread(s))")
 
 # %%
-runs.assign(distance_mm=1000 * runs["distance"]).describe()
+results.assign(distance_mm=1000 * results["distance"]).describe()

@@ -17,12 +17,12 @@ def test_readme_library_example_runs():
 
 
 def test_calibration_notebook_runs(tmp_path, apollo_sample):
-    """The calibration notebook (not a workflow stage) executes top to bottom on a small synthetic set."""
+    """The calibration notebook (an analysis beside the benchmarks, not a workflow stage) executes top to bottom on a small synthetic set."""
     import os
     import subprocess
     import sys
 
-    source = (ROOT / "notebooks" / "calibration.py").read_text()
+    source = (ROOT / "benchmarks" / "calibration.py").read_text()
     marker = '# %% tags=["parameters"]\n'
     head, rest = source.split(marker, 1)
     overrides = (f"apollo_sample = {str(apollo_sample)!r}\nn_images = 300\nn_sample = 200\n"

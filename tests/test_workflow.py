@@ -9,6 +9,7 @@ two cores); the tests that need a completed run share it.
 """
 from __future__ import annotations
 
+import ast
 import copy
 import json
 import os
@@ -121,6 +122,25 @@ def test_dag_jobs_finds_a_changed_param_and_nothing_else(tmp_path):
     assert changed.returncode == 1 and changed.stdout.splitlines()[-1] == "DIFFERENT"
     differing = {line.split()[0] for line in changed.stdout.splitlines() if line and not line.startswith(" ")}
     assert differing == {"split", "DIFFERENT"}, changed.stdout
+
+
+def test_parameter_cells_are_short(tmp_path):
+    """No stage gets a long list as a param: papermill's injected cell shows a list one value a line (black's
+    layout), so run indices go as a count (and a first index), never as the list of 20-60 indices."""
+    config = default_config()
+    config["research"]["depth"]["enabled"] = True  # every stage planned
+    workdir(tmp_path, config)
+    dumped = subprocess.run([sys.executable, str(ROOT / "workflow" / "scripts" / "dag_jobs.py"), "dump", "jobs.jsonl",
+                             "--snakefile", str(ROOT / "Snakefile")], cwd=tmp_path, capture_output=True, text=True,
+                            timeout=300)
+    assert dumped.returncode == 0, dumped.stdout + dumped.stderr
+    long_lists = set()
+    for line in (tmp_path / "jobs.jsonl").read_text().splitlines():
+        job = json.loads(line)
+        for name, value in job["params"].items():
+            if name != "stage" and value.startswith("[") and len(ast.literal_eval(value)) > 10:
+                long_lists.add((job["rule"], name))
+    assert not long_lists, sorted(long_lists)
 
 
 def test_dry_run_works_with_torch_and_sdm_unimportable(tmp_path):
@@ -399,7 +419,7 @@ def _rendered_images(html: Path) -> int:
 
 
 @pytest.mark.parametrize("stage, page", [("data", "data"), ("sky", "sky"), ("tune", "tune_*"), ("figures", "figures"),
-                                         ("baselines", "table3")])
+                                         ("table3", "table3"), ("table4", "table4"), ("table5", "table5")])
 def test_notebooks_that_plot_show_their_plots(completed_run, stage, page):
     """The stages that draw show each plot inline in their rendered HTML."""
     pages = sorted((completed_run / "results" / "notebooks").glob(f"{page}.html"))

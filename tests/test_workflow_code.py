@@ -270,6 +270,14 @@ def test_a_runner_code_edit_reruns_every_stage(touched_project, script):
     assert jobs == planned(in_project(project, "-n", "--quiet", "rules", "--forceall"))
 
 
+def test_one_notebook_per_stage():
+    """Each stage runs its own notebook, and every notebook in notebooks/ is one stage's: none serves several
+    stages by a switch, and no analysis that no rule runs (nor writes what Snakemake does not know) sits there."""
+    stages = code_deps.stage_notebooks()
+    assert sorted(path.stem for path in (ROOT / "notebooks").glob("*.py")) == sorted(stages)
+    assert sorted(stages) == sorted(STAGES)
+
+
 def test_code_deps_agrees_with_modulefinder():
     """The rules' ast reading of the imports reaches the files modulefinder's bytecode scan finds, per notebook."""
     for notebook in sorted(set(code_deps.stage_notebooks().values())):

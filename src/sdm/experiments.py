@@ -97,6 +97,14 @@ def settings_for(n_epoch: int, lr: float, s: int, batch_size: int, lr_decay: flo
                          lr_decay=float(lr_decay), seed=int(seed))
 
 
+def tuned_training(sky_path: str | Path, split: dict, best: dict, s: int, batch_size: int, lr_decay: float, seed: int):
+    """What Table 2's runs (and Tables 4-5's) train on and with: ``(train_set, camera, settings)``, the split's
+    training configurations of the Sky file (:func:`load_split`) and Table 1's chosen cell (``best``, the best
+    stage's JSON: ``n_epoch``, ``lr``) with the config's other training values (:func:`settings_for`)."""
+    train_set, _, camera = load_split(sky_path, split)
+    return train_set, camera, settings_for(best["n_epoch"], best["lr"], s, batch_size, lr_decay, seed)
+
+
 def tune_cell(train_set, dev_set, settings, shift: Sequence[float] = SKY_SHIFT, camera: Camera = APOLLO_CAMERA_5):
     """Train one cell of the tuning grid and score it on the dev set.
 

@@ -151,7 +151,7 @@ BASELINES = {
     name: dict(sorted(config["baselines"].get(name, {}).items()))
     for name in (config["baselines"]["methods"] if config["baselines"]["enabled"] else [])
 }
-BASELINE_RUNS = list(range(int(config["baselines"]["runs"])))
+BASELINE_RUNS = int(config["baselines"]["runs"])  # a count: the stages run 0..BASELINE_RUNS-1
 
 # Beyond the paper (config section research). Table 4: the rules beside the paper's, each run at every
 # noise level with Table 2's runs 0..runs-1. Table 5: c* label -> its value, in config order.
@@ -159,10 +159,10 @@ RESEARCH = config.get("research", {})
 RESEARCH_RULES = RESEARCH.get("rules", {"enabled": False})
 RESEARCH_DEPTH = RESEARCH.get("depth", {"enabled": False})
 RULE_NAMES = list(RESEARCH_RULES["names"]) if RESEARCH_RULES["enabled"] else []
-RULE_RUNS = list(range(int(RESEARCH_RULES.get("runs", 1))))
+RULE_RUNS = int(RESEARCH_RULES.get("runs", 1))  # counts, as BASELINE_RUNS
 DEPTH_SHIFTS = {c_label(c): float(c) for c in RESEARCH_DEPTH["shifts_c"]} if RESEARCH_DEPTH["enabled"] else {}
 DEPTH_LEVELS = [int(level) for level in RESEARCH_DEPTH.get("levels", [])]
-DEPTH_RUNS = list(range(int(RESEARCH_DEPTH.get("runs", 1))))
+DEPTH_RUNS = int(RESEARCH_DEPTH.get("runs", 1))
 
 
 # Every stage's jobs, as their wildcards (filled in by notebook_stage, in include order): a stage without
@@ -192,10 +192,14 @@ def wildcard(name, convert=str):
     return lambda wildcards: convert(wildcards[name])
 
 
-def chunk_runs(wildcards):
-    """Run indices of a noise chunk: chunk k holds runs k*chunk_size .. (k+1)*chunk_size - 1."""
-    chunk = int(wildcards.chunk)
-    return list(range(chunk * CHUNK_SIZE, min((chunk + 1) * CHUNK_SIZE, N_RUNS)))
+def chunk_runs():
+    """The params first_run and runs of a noise chunk: chunk k holds runs k*chunk_size .. (k+1)*chunk_size - 1
+    (a first index and a count rather than the list, which the notebook's parameter cell would show one a line)."""
+
+    def first(wildcards):
+        return int(wildcards.chunk) * CHUNK_SIZE
+
+    return dict(first_run=first, runs=lambda wildcards: min(CHUNK_SIZE, N_RUNS - first(wildcards)))
 
 
 def training(seed):

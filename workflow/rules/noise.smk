@@ -12,6 +12,6 @@ notebook_stage(
         chunk_file=result("noise/level{level}_chunk{chunk}.csv"),
         timing_file=result("noise/level{level}_chunk{chunk}_seconds.json"),
     ),
-    params=dict(**training(seed=config["noise"]["seed"]), level=wildcard("level", int), run_indices=chunk_runs),
+    params=dict(**training(seed=config["noise"]["seed"]), level=wildcard("level", int), **chunk_runs()),
     runtime=15,
 )

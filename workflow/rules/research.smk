@@ -1,22 +1,21 @@
 # Beyond the paper (issue 12; config section research). Table 4: Table 2 again with other gradient
 # rules, one job per (rule, noise level), on Table 2's noise draws (the same run seeds: paired).
 # Table 5: the shift (a, b, c) with depth, one job per (c*, noise level). Each has its gathering stage;
+# every stage runs its own notebook, notebooks/<stage>.py;
 # the report states both in plain words when they are enabled.
 
 notebook_stage(
     "rule_runs",
     "One rule's runs at one noise level: Table 2's noisy targets and shuffling, the rule's flow.",
     jobs=[{"flow": name, "level": level} for name in RULE_NAMES for level in LEVELS],
-    notebook="research",
     job="research_rules_{flow}_level{level}",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE, best=BEST_FILE),
     output=dict(runs_file=result("research/rules/{flow}_level{level}.csv")),
     params=dict(
         **training(seed=config["noise"]["seed"]),
-        part="rules",
         flow=wildcard("flow"),
         level=wildcard("level", int),
-        run_indices=RULE_RUNS,
+        runs=RULE_RUNS,
     ),
     runtime=20,
 )
@@ -25,18 +24,16 @@ notebook_stage(
     "depth_runs",
     "The depth runs of one c* at one noise level: targets moved by (a*, b*, c*), noise, fit (a, b, c).",
     jobs=[{"c": label, "level": level} for label in DEPTH_SHIFTS for level in DEPTH_LEVELS],
-    notebook="research",
     job="research_depth_c{c}_level{level}",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE, best=BEST_FILE),
     output=dict(runs_file=result("research/depth/c{c}_level{level}.csv")),
     params=dict(
         **training(seed=config["noise"]["seed"]),
-        part="depth",
         flow=RESEARCH_DEPTH.get("flow", "paper"),
         depth_lr_scale=RESEARCH_DEPTH.get("lr_scale", 20),
         c=lambda wildcards: DEPTH_SHIFTS[wildcards.c],
         level=wildcard("level", int),
-        run_indices=DEPTH_RUNS,
+        runs=DEPTH_RUNS,
     ),
     runtime=30,
 )
@@ -45,7 +42,6 @@ notebook_stage(
     "table4",
     "Table 4: Table 2 per rule beside the paper's rule on the same draws, the paper and the issue's bar.",
     jobs=[{}] if RESEARCH_RULES["enabled"] else [],
-    notebook="research",
     input=dict(
         rule_files=each("rule_runs", "runs_file"),
         table2_distances=result("noise/distances.csv"),
@@ -56,19 +52,18 @@ notebook_stage(
         table4_summary=result("tables/table4_summary.md"),
         figure=figure("research_rules", "research_rules"),
     ),
-    params=dict(part="table4", names=RULE_NAMES, levels=config["noise"]["levels"], run_indices=RULE_RUNS),
+    params=dict(names=RULE_NAMES, levels=config["noise"]["levels"], runs=RULE_RUNS),
 )
 
 notebook_stage(
     "table5",
     "Table 5: the depth runs' mean errors of a, b, c and distances per c* and noise level.",
     jobs=[{}] if RESEARCH_DEPTH["enabled"] else [],
-    notebook="research",
     input=dict(depth_files=each("depth_runs", "runs_file")),
     output=dict(
         **table_files("table5"),
         table5_summary=result("tables/table5_summary.md"),
         figure=figure("research_depth", "research_depth"),
     ),
-    params=dict(part="table5", shifts_c=list(DEPTH_SHIFTS.values()), levels=DEPTH_LEVELS, run_indices=DEPTH_RUNS),
+    params=dict(shifts_c=list(DEPTH_SHIFTS.values()), levels=DEPTH_LEVELS, runs=DEPTH_RUNS),
 )

@@ -12,9 +12,10 @@
 
 
 def notebook_stage(
-    name, doc, *, jobs=({},), notebook=None, job=None, input={}, output={}, params={}, tracked={}, runtime=10
+    name, doc, *, jobs=({},), job=None, input={}, output={}, params={}, tracked={}, runtime=10
 ):
-    """Add the stage `name`, described by `doc`, that runs notebooks/<notebook>.py (default: name), as its rule.
+    """Add the stage `name`, described by `doc`, that runs notebooks/<name>.py, as its rule (one notebook per
+    stage: a notebook serves no other stage, and switches on no parameter to choose what it does).
 
     jobs: the rule's jobs as their wildcards, a dict each (the default, one job without wildcards, or none
         when the stage is switched off); the target all asks for each job's rendered notebook, and
@@ -29,7 +30,6 @@ def notebook_stage(
             f"code) are named by the stage"
         )
     job = job or name
-    notebook = notebook or name
     JOBS[name] = jobs
 
     rule:
@@ -54,7 +54,7 @@ def notebook_stage(
         params:
             **params,
             # a function: computed for the jobs a run asks for, after the checks below
-            stage=lambda wildcards: dict(notebook=f"notebooks/{notebook}.py", code=stage_code(notebook), **tracked),
+            stage=lambda wildcards: dict(notebook=f"notebooks/{name}.py", code=stage_code(name), **tracked),
         script:
             "../scripts/stage.py"
 

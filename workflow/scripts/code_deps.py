@@ -167,14 +167,14 @@ def fingerprint(notebook: str) -> str:
 # -- the table of docs/workflow.md ---------------------------------------------------------------------
 
 def stage_notebooks() -> dict[str, str]:
-    """Stage -> the notebook it runs, from the ``notebook_stage("<stage>", ..., notebook="<notebook>")`` calls
-    of the rule files the Snakefile includes, in its order (for the table; the rules know their own)."""
+    """Stage -> the notebook it runs (``notebooks/<stage>.py``: one notebook per stage), from the
+    ``notebook_stage("<stage>", ...)`` calls of the rule files the Snakefile includes, in its order (for the
+    table; the rules know their own)."""
     stages = {}
     for rule_file in re.findall(r'^include: "([^"]+)"', (ROOT / "Snakefile").read_text(), flags=re.MULTILINE):
         for call in (ROOT / rule_file).read_text().split("\nnotebook_stage(")[1:]:
             stage = re.match(r'\s*"(\w+)"', call).group(1)
-            notebook = re.search(r'\bnotebook="(\w+)"', call)
-            stages[stage] = notebook.group(1) if notebook else stage
+            stages[stage] = stage
     return stages
 
 

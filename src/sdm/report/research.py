@@ -54,6 +54,17 @@ def _stats(values: np.ndarray) -> dict[str, float]:
             "median_m": float(np.median(values))}
 
 
+def gathered_runs(paths: Sequence[str | Path], keys: Sequence[str], expected: set, what: str) -> pd.DataFrame:
+    """The run files at ``paths`` (CSVs, one row per run) concatenated, checked to hold exactly the runs
+    ``expected`` (tuples of the columns ``keys``, e.g. ``(flow, level, run)``); ``what`` names the table in
+    the error. The gathering stages of Tables 4 and 5 read their jobs' files with it."""
+    frame = pd.concat([pd.read_csv(path) for path in paths], ignore_index=True)
+    found = set(zip(*(frame[key] for key in keys)))
+    if found != expected:
+        raise SDMInputError(f"{what}: missing runs {sorted(expected - found)[:5]}, unexpected {sorted(found - expected)[:5]}")
+    return frame
+
+
 # -- Table 4 ------------------------------------------------------------------------------------------
 
 

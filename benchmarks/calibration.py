@@ -35,7 +35,8 @@ synthetic_dir = ""  # an existing ApolloCar3D-layout folder to read; empty: gene
 n_images = 5277  # images to generate when synthetic_dir is ""
 seed = 0  # seed of the generator and of the Sky sample
 n_sample = 4248  # images sampled for the Sky configurations (capped at the number of images)
-output_dir = "results/calibration"  # tables and figures, relative to the project root
+output_dir = "benchmarks/calibration"  # tables and figures, relative to the project root (not results/: no
+# workflow stage writes or reads them; `make clean` removes them)
 
 # %%
 import tempfile
