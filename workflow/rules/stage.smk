@@ -11,9 +11,7 @@
 # notebook, rendering, log, benchmark, environment and resources) is the same for every stage.
 
 
-def notebook_stage(
-    name, doc, *, jobs=({},), job=None, input={}, output={}, params={}, tracked={}, runtime=10
-):
+def notebook_stage(name, doc, *, jobs=({},), job=None, input={}, output={}, params={}, tracked={}, runtime=10):
     """Add the stage `name`, described by `doc`, that runs notebooks/<name>.py, as its rule (one notebook per
     stage: a notebook serves no other stage, and switches on no parameter to choose what it does).
 
