@@ -309,7 +309,8 @@ def train_runs(
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
         forms = [kernel_form(common.flow, level) for level in levels]
         if (method == "fast" and not common.fit_depth and None not in forms
-                and device.type == "cpu" and train_set.points.dtype == torch.float64 and native.enabled()):
+                and device.type == "cpu" and train_set.points.dtype == torch.float64 and native.enabled()
+                and native.trains_screen(camera.screen_shape)):
             centred = [centre for centre, _ in forms]
             run_levels = [[prepare(pyramid[level], level) if prepare is not None else pyramid[level]
                            for level, (_, prepare) in zip(levels, forms)] for pyramid in pyramids]

@@ -71,7 +71,7 @@ from ..representation import NO_RANK
 
 SOURCE = Path(__file__).with_name("_native.c")
 #: ``-ffp-contract=off``: no fused multiply-add, so every float operation rounds as torch's does.
-FLAGS = ("-O2", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math")
+FLAGS = ("-O3", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math")
 
 _I64 = ctypes.c_int64
 _PTR = ctypes.c_void_p
@@ -400,7 +400,17 @@ def paper_flow(screen: torch.Tensor, config: torch.Tensor, landed: torch.Tensor,
     return flow, matched, pulled[:n_pulled], window_l1[:n_pulled]
 
 
-#: The gradient rules whose whole training run the kernel does (:func:`train_program`).
+#: The largest screen side and pixel count :func:`train_program` takes: its chain runs on int32
+#: (``TRAIN_MAX_SIDE`` and ``TRAIN_MAX_CELLS`` in ``_native.c``); larger screens train on the torch path.
+TRAIN_MAX_SIDE, TRAIN_MAX_CELLS = 2**24, 2**30
+
+
+def trains_screen(screen_shape) -> bool:
+    """Whether :func:`train_program` takes a screen of ``screen_shape`` ``(H, W)`` pixels (see ``TRAIN_MAX_SIDE``)."""
+    height, width = screen_shape
+    return max(height, width) <= TRAIN_MAX_SIDE and height * width < TRAIN_MAX_CELLS
+
+
 def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor, offsets: torch.Tensor,
                   camera, steps: int, levels: list[int], n_epoch: int, batch_size: int, rates: list[float],
                   centred: list[bool], orders: torch.Tensor, targets: list[list[torch.Tensor]],
@@ -449,6 +459,8 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
         constants.data_ptr(), steps, len(levels), n_epoch, batch_size, rates_t.data_ptr(), centred_t.data_ptr(),
         orders.data_ptr(), addresses.data_ptr(), NO_RANK, theta0.data_ptr(), thetas.data_ptr(), losses.data_ptr(),
         failed.data_ptr())
+    if code == -2:
+        raise ValueError(f"sdm_train: a {height} x {width} screen is beyond its int32 chain (trains_screen)")
     if code != 0:
         raise MemoryError("sdm_train: no memory for one configuration's working rows")
     return thetas, losses, failed
