@@ -343,17 +343,23 @@ static inline void project(int64_t n, const double *restrict q, double a, double
     }
 }
 
-/* Levels steps..level of the zoom chain for one configuration's n points, as chain_level computes them, in
- * int32. Each level in three loops: which points survived the level before (gathers from its rmin table),
- * the step of every coordinate (the same shifts, clamp and add on each of the 2n lanes: vectorised), and the
- * entries into this level's table (scatters). At the loss level nothing enters (the trainer needs no rmin
- * after it: `landed` is decided by the level before) and the landed flags are written instead. */
-static inline void train_chain(int64_t n, const int32_t *restrict projected, const int64_t *restrict pixels,
+/* Levels steps..zoom of the zoom chain for one configuration's n points: chain_level's integer arithmetic
+ * (the same shifts, clamp, steps and rmin), in int32 (exact: TRAIN_MAX_SIDE, PROJECTED_LIMIT) so that a
+ * vector holds twice the lanes and the working rows half the cache. Each level in three loops, so that
+ * the one without memory dependences vectorises: which points survived the level before (gathers from
+ * its rmin table, read and reset as rmin_survives), the step of every coordinate (the same operations on
+ * each of the 2n lanes: vectorised), and the entries into this level's table (scatters). At the loss level
+ * nothing enters (the trainer needs no rmin after it: landing is decided by the level before); instead
+ * the points that land on the grid in a block the target leaves empty (the ones the flow pulls) are
+ * listed in `pulled`, in ascending order, by a branchless append. The first level also prefetches the
+ * target block each point will most likely land in. Returns the number pulled. */
+static inline int64_t train_chain(int64_t n, const int32_t *restrict projected, const int64_t *restrict pixels,
                                const int64_t *restrict rank, int32_t height, int32_t width, int32_t steps,
                                int32_t zoom, int32_t *table[2], int32_t sentinel, const uint8_t *target,
                                int32_t grid_h, int32_t grid_w, int32_t *restrict current, int32_t *restrict block,
                                int32_t *restrict landing, int32_t *restrict cell, uint8_t *restrict alive,
-                               uint8_t *restrict landed) {
+                               int32_t *restrict pulled) {
+    int64_t n_pulled = 0;
     for (int32_t level = steps; level >= zoom; --level) {
         const int first = level == steps, last = level == zoom;
         int32_t *decided = table[(steps - level + 1) & 1], *entering = table[(steps - level) & 1];
@@ -383,9 +389,13 @@ static inline void train_chain(int64_t n, const int32_t *restrict projected, con
             }
         if (last)
             for (int64_t i = 0; i < n; ++i) {
-                const int on = (uint32_t)current[2 * i] < (uint32_t)height &&
-                               (uint32_t)current[2 * i + 1] < (uint32_t)width;
-                landed[i] = (uint8_t)((first ? 1 : alive[i]) & on);
+                const int on = ((uint32_t)current[2 * i] < (uint32_t)height) &
+                               ((uint32_t)current[2 * i + 1] < (uint32_t)width);
+                const int landed = (first ? 1 : alive[i]) & on;
+                /* landed in a block the target leaves empty: pulled (branchless; block 0 is always there) */
+                const int32_t index = landed ? landing[2 * i] * grid_w + landing[2 * i + 1] : 0;
+                pulled[n_pulled] = (int32_t)i;
+                n_pulled += landed & (target[index] == 0);
             }
         else
             for (int64_t i = 0; i < n; ++i) {
@@ -403,6 +413,7 @@ static inline void train_chain(int64_t n, const int32_t *restrict projected, con
                 }
             }
     }
+    return n_pulled;
 }
 
 #if defined(__GNUC__) && defined(__x86_64__)
@@ -483,7 +494,7 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     const double fx = camera[0], fy = camera[1], cx = camera[2], cy = camera[3];
     const double rows_per_pixel = camera[4], cols_per_pixel = camera[5], k_row = camera[6], k_col = camera[7];
     const double screen_height = (double)height;
-    const int64_t batches = n_configs / batch_size, n_points = offsets[n_configs];
+    const int64_t batches = n_configs / batch_size;
     if (height > TRAIN_MAX_SIDE || width > TRAIN_MAX_SIDE || height * width >= TRAIN_MAX_CELLS) return -2;
     int64_t largest = 1;
     for (int64_t c = 0; c < n_configs; ++c)
@@ -498,9 +509,9 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     int32_t *rows = malloc(sizeof(int32_t) * (size_t)largest * 9);
     uint8_t *alive = malloc((size_t)largest);
     int32_t *cell_min = malloc(sizeof(int32_t) * (size_t)(2 * (cells + 1)));
-    uint8_t *landed = malloc((size_t)largest);
+    int32_t *pulled = malloc(sizeof(int32_t) * (size_t)largest);
     int64_t code = 0;
-    if (no_memory || !screen || !rows || !cell_min || !landed || !alive) {
+    if (no_memory || !screen || !rows || !cell_min || !pulled || !alive) {
         code = -1;
         goto done;
     }
@@ -544,11 +555,12 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
 #endif
                             project(n, points + 3 * lo, a, b, fx, fy, cx, cy, rows_per_pixel, cols_per_pixel,
                                     screen_height, screen, projected);
-                        train_chain(n, projected, pixels + 2 * lo, rank + lo, (int32_t)height, (int32_t)width,
-                                    (int32_t)steps, (int32_t)level, table, sentinel, own, (int32_t)grid_h,
-                                    (int32_t)grid_w, current, block, landing, cell, alive, landed);
-                        for (int64_t i = 0; i < n; ++i) {
-                            if (!landed[i] || own[landing[2 * i] * grid_w + landing[2 * i + 1]]) continue;
+                        const int64_t n_pulled = train_chain(
+                            n, projected, pixels + 2 * lo, rank + lo, (int32_t)height, (int32_t)width, (int32_t)steps,
+                            (int32_t)level, table, sentinel, own, (int32_t)grid_h, (int32_t)grid_w, current, block,
+                            landing, cell, alive, pulled);
+                        for (int64_t k = 0; k < n_pulled; ++k) { /* in point order, as before: the loss's order */
+                            const int64_t i = pulled[k];
                             const int64_t centre_row = centred[li] ? landing[2 * i] : block[2 * i];
                             const int64_t centre_col = centred[li] ? landing[2 * i + 1] : block[2 * i + 1];
                             const int64_t skip = centred[li] ? 4 : (landing[2 * i] - block[2 * i]) * 3 +
@@ -579,7 +591,7 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
         }
     }
 done:
-    free(dense), free(screen), free(rows), free(cell_min), free(landed), free(alive);
+    free(dense), free(screen), free(rows), free(cell_min), free(pulled), free(alive);
     return code;
 }
 
