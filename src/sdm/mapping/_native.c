@@ -450,6 +450,18 @@ __attribute__((target("avx2"), noinline)) static void project_avx2(
             projected + 2 * i);
 }
 #endif
+/* One level up a pyramid of 0/1 targets: n targets of h x w (h, w even) to h/2 x w/2, each block the OR of its
+ * 2 x 2 (sdm.zoom.target_pyramid; exact in any order). The n targets' rows are one array of n * h rows, so
+ * output row t is the OR of input rows 2t and 2t + 1. */
+static void halve_targets(int64_t n, int64_t h, int64_t w, const uint8_t *restrict finer, uint8_t *restrict coarser) {
+    for (int64_t t = 0; t < n * (h / 2); ++t) {
+        const uint8_t *top = finer + 2 * t * w, *bottom = top + w;
+        uint8_t *out = coarser + t * (w / 2);
+        for (int64_t c = 0; c < w / 2; ++c)
+            out[c] = (uint8_t)((top[2 * c] | top[2 * c + 1]) | (bottom[2 * c] | bottom[2 * c + 1]));
+    }
+}
+
 /* R whole training runs (sdm.train.train_runs): every level, epoch, mini-batch, chain, flow, loss and
  * SGD step, run after run (runs never interact, so each keeps its own targets hot in the cache).
  *
@@ -461,7 +473,12 @@ __attribute__((target("avx2"), noinline)) static void project_avx2(
  *          centred (n_levels,) 1 where the level uses the closed_centred_r1 window (centred on the
  *          landing block; its target already closed by the caller), 0 for the paper's flow
  * orders:  (n_levels * n_epoch, R, N) each epoch's shuffling of each run
- * targets: (R, n_levels) addresses of run r's (N, H >> level, W >> level) 0/1 target at each level
+ * targets: (R, n_levels) addresses of run r's (N, H >> level, W >> level) 0/1 target at each level, 0
+ *          where the kernel zooms it out itself from bases[r] (levels 1..steps of the run's pyramid, made
+ *          once per run into `pyramid`); bases: (R,) address of run r's (N, H, W) 0/1 target
+ * pyramid: scratch of N * sum over k = 1..steps of (H >> k) * (W >> k) bytes where any target is 0, reused
+ *          by the runs and (kept by the caller) the calls: in torch (zoom.target_pyramid) a noise run's
+ *          pyramid cost a tenth of its training, most of it in the first touch of fresh pages
  * theta0:  (R, 2) starts (a, b), metres
  * Outputs: thetas (total + 1, R, 2) theta before the first step and after each; losses (total, R);
  *          failed (R,) the step (0-based) at which run r's theta became non-finite (the run stops
@@ -482,11 +499,11 @@ __attribute__((target("avx2"), noinline)) static void project_avx2(
     int64_t n_runs, int64_t n_configs, const int64_t *offsets, const double *points, const int64_t *pixels,     \
         const int64_t *rank, int64_t height, int64_t width, const double *camera, int64_t steps, int64_t n_levels, \
         int64_t n_epoch, int64_t batch_size, const double *rates, const uint8_t *centred, const int64_t *orders,  \
-        const int64_t *targets, int64_t no_rank, const double *theta0, double *thetas, double *losses,            \
-        int64_t *failed
+        const int64_t *targets, const int64_t *bases, uint8_t *pyramid, int64_t no_rank, const double *theta0, \
+        double *thetas, double *losses, int64_t *failed
 #define TRAIN_ARGUMENTS                                                                                          \
     n_runs, n_configs, offsets, points, pixels, rank, height, width, camera, steps, n_levels, n_epoch, batch_size, \
-        rates, centred, orders, targets, no_rank, theta0, thetas, losses, failed
+        rates, centred, orders, targets, bases, pyramid, no_rank, theta0, thetas, losses, failed
 
 /* sdm_train's body, compiled once per instruction set it dispatches to (`wide`: AVX2's projection). */
 static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS, int wide) {
@@ -495,7 +512,7 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     const double rows_per_pixel = camera[4], cols_per_pixel = camera[5], k_row = camera[6], k_col = camera[7];
     const double screen_height = (double)height;
     const int64_t batches = n_configs / batch_size;
-    if (height > TRAIN_MAX_SIDE || width > TRAIN_MAX_SIDE || height * width >= TRAIN_MAX_CELLS) return -2;
+    if (height > TRAIN_MAX_SIDE || width > TRAIN_MAX_SIDE || height * width >= TRAIN_MAX_CELLS || steps > 62) return -2;
     int64_t largest = 1;
     for (int64_t c = 0; c < n_configs; ++c)
         if (offsets[c + 1] - offsets[c] > largest) largest = offsets[c + 1] - offsets[c];
@@ -510,6 +527,9 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     uint8_t *alive = malloc((size_t)largest);
     int32_t *cell_min = malloc(sizeof(int32_t) * (size_t)(2 * (cells + 1)));
     int32_t *pulled = malloc(sizeof(int32_t) * (size_t)largest);
+    /* where the zoomed-out levels 1..steps of a run's pyramid lie in `pyramid` */
+    int64_t level_start[64] = {0};
+    for (int64_t k = 2; k <= steps; ++k) level_start[k] = level_start[k - 1] + n_configs * (height >> (k - 1)) * (width >> (k - 1));
     int64_t code = 0;
     if (no_memory || !screen || !rows || !cell_min || !pulled || !alive) {
         code = -1;
@@ -526,9 +546,16 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
         thetas[2 * run + 1] = b;
         failed[run] = -1;
         int64_t step = 0;
+        const uint8_t *base = (const uint8_t *)(intptr_t)bases[run];
+        int zoom_run = 0;
+        for (int64_t li = 0; li < n_levels; ++li) zoom_run |= targets[run * n_levels + li] == 0;
+        for (int64_t k = 1; zoom_run && k <= steps; ++k)
+            halve_targets(n_configs, height >> (k - 1), width >> (k - 1), k == 1 ? base : pyramid + level_start[k - 1],
+                          pyramid + level_start[k]);
         for (int64_t li = 0; li < n_levels && failed[run] < 0; ++li) {
             const int64_t level = steps - li, grid_h = height >> level, grid_w = width >> level;
-            const uint8_t *target = (const uint8_t *)(intptr_t)targets[run * n_levels + li];
+            const int64_t given = targets[run * n_levels + li];
+            const uint8_t *target = given ? (const uint8_t *)(intptr_t)given : level ? pyramid + level_start[level] : base;
             const double rate = rates[li], block_size = (double)((int64_t)1 << level);
             for (int64_t epoch = 0; epoch < n_epoch && failed[run] < 0; ++epoch) {
                 const int64_t *order = orders + ((li * n_epoch + epoch) * n_runs + run) * n_configs;
