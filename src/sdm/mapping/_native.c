@@ -277,9 +277,13 @@ static inline void sum_add(exact_sum *acc, double value) {
 #define TRAIN_MAX_SIDE ((int64_t)1 << 24)
 #define TRAIN_MAX_CELLS ((int64_t)1 << 30)
 #define NO_RANK32 INT32_MAX
-/* A projected pixel beyond +-2^29 is clamped there: with sides of at most 2^24 pixels every point's
- * block is within 2^26 >> level, so (projected >> level) - block keeps its sign and a magnitude of at least
- * 2 at every level (level <= 24): the one-block step (clamp_unit) is the one the int64 value gives. */
+/* A start pixel beyond +-2^26 is clamped there: such a point is off the grid after the first level whatever
+ * its step (steps move at most 2^24 pixels), so it is dropped as the int64 value is, and nothing of a
+ * dropped point is read. A projected pixel beyond +-2^29 is clamped there: with sides of at most 2^24
+ * pixels every point's position stays within 2^26 + 2^25, so (projected >> level) - block keeps its sign
+ * and a magnitude of at least 2 at every level (level <= 24): the one-block step (clamp_unit) is the
+ * one the int64 value gives. */
+#define PIXEL_LIMIT ((int64_t)1 << 26)
 #define PROJECTED_LIMIT 536870912.0
 
 static int compare_pairs(const void *left, const void *right) {
@@ -317,8 +321,13 @@ static int64_t *ranks_in_int32(int64_t n_configs, const int64_t *offsets, const 
     return dense;
 }
 
+static inline int32_t start_pixel(int64_t pixel) {
+    return (int32_t)(pixel < -PIXEL_LIMIT ? -PIXEL_LIMIT : (pixel > PIXEL_LIMIT ? PIXEL_LIMIT : pixel));
+}
+
 /* floor(x) as int32, clamped to +-PROJECTED_LIMIT: torch.floor(x).long() clamped. Where x is NaN or floor(x)
- * is beyond int64 that is INT64_MIN (x86's conversion, as torch's .long() gives it there): -PROJECTED_LIMIT. Comparisons and selects only, so the loop vectorises (roundpd where the target has it). */
+ * is beyond int64 that is INT64_MIN (x86's conversion, as torch's .long() gives it there): -PROJECTED_LIMIT.
+ * Comparisons and selects only, no branch. */
 static inline int32_t floor_clamped(double x) {
     const double f = __builtin_floor(x);
     const double clamped = f < PROJECTED_LIMIT ? f : PROJECTED_LIMIT;
@@ -329,8 +338,8 @@ static inline int32_t floor_clamped(double x) {
  * it, to screen (row, col) = ((fy * y / z + cy) * rows_per_pixel - H, (fx * x / z + cx) * cols_per_pixel - 0)
  * and its floor. Elementwise IEEE operations in the torch path's order: a vectorised lane rounds as the
  * scalar operation does (no reassociation without -ffast-math, no fused multiply-add with -ffp-contract=off). */
-static inline void project(int64_t n, const double *restrict q, double a, double b, double fx, double fy, double cx, double cy,
-                           double rows_per_pixel, double cols_per_pixel, double screen_height,
+static inline void project(int64_t n, const double *restrict q, double a, double b, double fx, double fy, double cx,
+                           double cy, double rows_per_pixel, double cols_per_pixel, double screen_height,
                            double *restrict screen, int32_t *restrict projected) {
     for (int64_t i = 0; i < n; ++i) {
         const double x = q[3 * i] + a, y = q[3 * i + 1] + b, z = q[3 * i + 2] + 0.0;
@@ -369,11 +378,10 @@ static inline int64_t train_chain(int64_t n, const int32_t *restrict projected, 
                 decided[own] = won ? NO_RANK32 : least;
                 alive[i] = (uint8_t)((own != sentinel) & won);
             }
-        
         const int32_t size = (int32_t)1 << level;
         if (last)
             for (int64_t j = 0; j < 2 * n; ++j) {
-                const int32_t from = first ? (int32_t)pixels[j] : current[j]; /* pixels: below TRAIN_MAX_SIDE */
+                const int32_t from = first ? start_pixel(pixels[j]) : current[j];
                 const int32_t here = from >> level, ahead = (projected[j] >> level) - here;
                 const int32_t step = ahead < -1 ? -1 : (ahead > 1 ? 1 : ahead);
                 block[j] = here;
@@ -382,7 +390,7 @@ static inline int64_t train_chain(int64_t n, const int32_t *restrict projected, 
             }
         else
             for (int64_t j = 0; j < 2 * n; ++j) {
-                const int32_t from = first ? (int32_t)pixels[j] : current[j]; /* pixels: below TRAIN_MAX_SIDE */
+                const int32_t from = first ? start_pixel(pixels[j]) : current[j];
                 const int32_t here = from >> level, ahead = (projected[j] >> level) - here;
                 const int32_t step = ahead < -1 ? -1 : (ahead > 1 ? 1 : ahead);
                 current[j] = from + step * size;
@@ -529,7 +537,8 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     int32_t *pulled = malloc(sizeof(int32_t) * (size_t)largest);
     /* where the zoomed-out levels 1..steps of a run's pyramid lie in `pyramid` */
     int64_t level_start[64] = {0};
-    for (int64_t k = 2; k <= steps; ++k) level_start[k] = level_start[k - 1] + n_configs * (height >> (k - 1)) * (width >> (k - 1));
+    for (int64_t k = 2; k <= steps; ++k)
+        level_start[k] = level_start[k - 1] + n_configs * (height >> (k - 1)) * (width >> (k - 1));
     int64_t code = 0;
     if (no_memory || !screen || !rows || !cell_min || !pulled || !alive) {
         code = -1;
@@ -555,7 +564,8 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
         for (int64_t li = 0; li < n_levels && failed[run] < 0; ++li) {
             const int64_t level = steps - li, grid_h = height >> level, grid_w = width >> level;
             const int64_t given = targets[run * n_levels + li];
-            const uint8_t *target = given ? (const uint8_t *)(intptr_t)given : level ? pyramid + level_start[level] : base;
+            const uint8_t *target =
+                given ? (const uint8_t *)(intptr_t)given : (level ? pyramid + level_start[level] : base);
             const double rate = rates[li], block_size = (double)((int64_t)1 << level);
             for (int64_t epoch = 0; epoch < n_epoch && failed[run] < 0; ++epoch) {
                 const int64_t *order = orders + ((li * n_epoch + epoch) * n_runs + run) * n_configs;
