@@ -46,7 +46,11 @@ It serves two callers. The layer (:func:`~sdm.mapping.fast.fast_mapping`) calls
 or ``closed_centred_r1``'s: :func:`sdm.mapping.rules.kernel_form`), loss and SGD step in C, the
 per-step Python work gone; theta histories equal the torch path's to the bit
 (the loss to 1e-12 relative: its sum is compensated, not in torch's order). The
-paper's flow and the centred closed rule share one window function in C.
+paper's flow and the centred closed rule share one window function in C. Its
+chain runs in int32 with the per-coordinate arithmetic vectorised, its
+projection two points per AVX2 register where the CPU has it (picked at run
+time), and it zooms the runs' targets out itself (``_native.c`` says why each
+keeps the bits).
 """
 from __future__ import annotations
 
@@ -71,7 +75,9 @@ from ..io import write_atomic, write_text
 from ..representation import NO_RANK
 
 SOURCE = Path(__file__).with_name("_native.c")
-#: ``-ffp-contract=off``: no fused multiply-add, so every float operation rounds as torch's does.
+#: ``-ffp-contract=off``: no fused multiply-add, so every float operation rounds as torch's does. ``-O3``
+#: vectorises loops, float ones only elementwise (without ``-ffast-math`` nothing is reassociated); the
+#: trainer's AVX2 code is chosen at run time inside the library, so no ``-march`` (and no CPU in the key).
 FLAGS = ("-O3", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math")
 
 _I64 = ctypes.c_int64
