@@ -232,3 +232,21 @@ def test_sdm_native_0_turns_the_kernel_off():
     script = "from sdm.mapping import native; print(native.enabled())"
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     assert done.stdout.strip() == "False", done.stderr
+
+
+def test_the_compiled_run_keeps_the_order_of_ranks_beyond_int32(compiled_calls):
+    """The trainer's rmin tables hold int32: a set whose ranks do not fit is re-ranked by order within each
+    configuration, and its run still equals the reference loop bit for bit. The ranks here order the points by
+    rank % 3 first, a multiple of 2**33 that a plain cast to int32 would drop (leaving the reversed order)."""
+    from sdm.batch import ConfigurationSet
+    from train_reference import reference_train
+
+    data = configuration_set(48, seed=31)
+    far = ConfigurationSet(data.points, data.pixels, data.offsets, data.targets, data.camera,
+                           rank=data.rank % 3 * 2**33 + (2**20 - data.rank))
+    settings = TrainSettings(lr=3e-4, n_epoch=1, seed=2)
+    compiled = train(far, settings, progress=False)
+    theta, loss = reference_train(far, settings)
+    assert len(compiled_calls) == 1
+    assert_same_runs(compiled, theta, loss)
+    assert not torch.equal(train(data, settings, progress=False).theta, compiled.theta)  # the order matters

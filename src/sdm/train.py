@@ -298,9 +298,6 @@ def train_runs(
     generators = [torch.Generator(device="cpu").manual_seed(one.seed) for one in settings]
     orders = torch.stack([torch.stack([torch.randperm(n_configs, generator=g, device="cpu") for g in generators])
                           for _ in range(len(levels) * common.n_epoch)])
-    # Run r's zoomed-out targets, levels 0..s (the set's cached pyramid for its own targets).
-    pyramids = [train_set.pyramid(common.s) if own else target_pyramid(run_targets.to(device), common.s)
-                for own, run_targets in zip(own_targets, targets)]
     steps_per_level = common.n_epoch * (n_configs // batch_size)
     total = len(levels) * steps_per_level
     step_levels = torch.tensor(levels, dtype=torch.int64, device="cpu").repeat_interleave(steps_per_level)
@@ -309,13 +306,15 @@ def train_runs(
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
         forms = [kernel_form(common.flow, level) for level in levels]
         if (method == "fast" and not common.fit_depth and None not in forms
-                and device.type == "cpu" and train_set.points.dtype == torch.float64 and native.enabled()):
+                and device.type == "cpu" and train_set.points.dtype == torch.float64 and native.enabled()
+                and native.trains_screen(camera.screen_shape)):
             centred = [centre for centre, _ in forms]
-            run_levels = [[prepare(pyramid[level], level) if prepare is not None else pyramid[level]
-                           for level, (_, prepare) in zip(levels, forms)] for pyramid in pyramids]
+            bases = [run_targets.to(device) for run_targets in targets]
+            run_levels = [_kernel_targets(train_set, base, own, common.s, levels, forms)
+                          for base, own in zip(bases, own_targets)]
             thetas, losses, failed = native.train_program(
                 train_set.points, train_set.pixels, train_set.rank, train_set.offsets, camera, common.s, levels,
-                common.n_epoch, batch_size, rates, centred, orders, run_levels, starts)
+                common.n_epoch, batch_size, rates, centred, orders, run_levels, starts, bases)
             if bool((failed >= 0).any()):
                 step = int(failed[failed >= 0].min())
                 run = int((failed == step).nonzero()[0])
@@ -323,9 +322,31 @@ def train_runs(
                                     f"(lr {float(step_rates[step])!r} too large?)")
             bar.update(total)
         else:
+            # Run r's zoomed-out targets, levels 0..s (the set's cached pyramid for its own targets).
+            pyramids = [train_set.pyramid(common.s) if own else target_pyramid(run_targets.to(device), common.s)
+                        for own, run_targets in zip(own_targets, targets)]
             thetas, losses = _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders,
                                           starts, bar)
     return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings)
+
+
+def _kernel_targets(train_set: ConfigurationSet, target: torch.Tensor, own: bool, steps: int, levels: list[int],
+                    forms: list) -> list[torch.Tensor | None]:
+    """One run's target at each loss level for the compiled trainer (:func:`sdm.mapping.native.train_program`).
+
+    ``target`` ``(N, H, W)`` bool is the run's; ``forms`` the rule's :func:`~sdm.mapping.rules.kernel_form` per
+    level. The set's cached pyramid level where ``own``; else ``None`` where the kernel zooms ``target`` out
+    itself (a level above 0 taken as it is: no torch pyramid is made for it), ``target`` at level 0, and
+    the rule's prepared target where it has one (on the level of a torch pyramid, made only then).
+    """
+    pyramid = train_set.pyramid(steps) if own else None
+    out = []
+    for level, (_, prepare) in zip(levels, forms):
+        if pyramid is None and prepare is not None and level > 0:
+            pyramid = target_pyramid(target, steps)
+        zoomed = pyramid[level] if pyramid is not None else (target if level == 0 else None)
+        out.append(prepare(zoomed, level) if prepare is not None else zoomed)
+    return out
 
 
 def _usable_device(device: torch.device | str) -> torch.device:

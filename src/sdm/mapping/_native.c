@@ -10,6 +10,16 @@
  * it); only sdm_train's loss is summed in another order (see there). Built with -ffp-contract=off:
  * no fused multiply-adds.
  *
+ * Speed without changing a bit (sdm_train, issue 18): built with -O3, so loops are vectorised, but a
+ * float loop only elementwise: without -ffast-math (-fassociative-math) the compiler never reorders
+ * float operations, and a vector lane of add, multiply, divide or floor rounds exactly as its scalar
+ * form (IEEE: each correctly rounded). Sums over points whose order matters stay scalar loops: the
+ * loss (compensated) and the flow (integers, exact in any order anyway). All the freedom is taken in
+ * the integer work: the trainer's chain runs in int32 lanes, loops split so that the per-coordinate
+ * arithmetic vectorises apart from the rmin tables' gathers and scatters. sdm_train is compiled twice
+ * in one library, plain x86-64 and AVX2, and picks at run time by the CPU (__builtin_cpu_supports): the
+ * cached library is the same on every x86-64, so the cache key needs no -march.
+ *
  * All arrays are C-contiguous; int64 for integers, uint8 (0/1) for bool, double for floats.
  */
 #include <math.h>
@@ -145,13 +155,6 @@ void sdm_chain(int64_t n_points, const int64_t *projected, const int64_t *pixels
     }
 }
 
-/* floor(x) as int64, as torch.floor(x).long() gives it: without a call to libm's floor where x is in range. */
-static inline int64_t floor_to_int(double x) {
-    if (!(x > -9.2e18 && x < 9.2e18)) return (int64_t)floor(x); /* NaN and beyond int64: as the torch path */
-    const int64_t truncated = (int64_t)x;
-    return truncated - ((double)truncated > x);
-}
-
 static inline double sign_of(double value) { return (double)((value > 0.0) - (value < 0.0)); }
 
 /* The 3x3 window of one pulled point: the one formulation of "which blocks pull, and how".
@@ -267,6 +270,206 @@ static inline void sum_add(exact_sum *acc, double value) {
     acc->sum = total;
 }
 
+/* ---- sdm_train's helpers: the set's points in the layout the loops read, the projection, the chain ---- */
+
+/* The trainer's chain runs on int32 (half the bytes of int64 through the cache, twice the lanes per
+ * vector); sdm_train refuses screens where that could overflow (returns -2; the caller takes the torch path). */
+#define TRAIN_MAX_SIDE ((int64_t)1 << 24)
+#define TRAIN_MAX_CELLS ((int64_t)1 << 30)
+#define NO_RANK32 INT32_MAX
+/* A start pixel beyond +-2^26 is clamped there: such a point is off the grid after the first level whatever
+ * its step (steps move at most 2^24 pixels), so it is dropped as the int64 value is, and nothing of a
+ * dropped point is read. A projected pixel beyond +-2^29 is clamped there: with sides of at most 2^24
+ * pixels every point's position stays within 2^26 + 2^25, so (projected >> level) - block keeps its sign
+ * and a magnitude of at least 2 at every level (level <= 24): the one-block step (clamp_unit) is the
+ * one the int64 value gives. */
+#define PIXEL_LIMIT ((int64_t)1 << 26)
+#define PROJECTED_LIMIT 536870912.0
+
+static int compare_pairs(const void *left, const void *right) {
+    const int64_t *l = left, *r = right;
+    return (l[0] > r[0]) - (l[0] < r[0]);
+}
+
+/* Ranks matter only by their order within a configuration (rmin keeps the lowest), and the trainer's rmin
+ * tables hold int32: where every rank is in [0, INT32_MAX) they are used as they are (NULL), else this
+ * returns a copy in which each configuration's ranks are replaced by their position in its sorted order
+ * (equal ranks stay equal), or sets *failed where no memory could be had. */
+static int64_t *ranks_in_int32(int64_t n_configs, const int64_t *offsets, const int64_t *rank, int *failed) {
+    const int64_t n_points = offsets[n_configs];
+    int fits = 1;
+    for (int64_t i = 0; i < n_points; ++i) fits &= rank[i] >= 0 && rank[i] < NO_RANK32;
+    if (fits) return NULL;
+    int64_t *dense = malloc(sizeof(int64_t) * (size_t)(n_points ? n_points : 1));
+    int64_t *pairs = malloc(sizeof(int64_t) * 2 * (size_t)(n_points ? n_points : 1));
+    if (!dense || !pairs) {
+        free(dense), free(pairs);
+        *failed = 1;
+        return NULL;
+    }
+    for (int64_t c = 0; c < n_configs; ++c) {
+        const int64_t lo = offsets[c], n = offsets[c + 1] - lo;
+        for (int64_t i = 0; i < n; ++i) pairs[2 * i] = rank[lo + i], pairs[2 * i + 1] = i;
+        qsort(pairs, (size_t)n, 2 * sizeof(int64_t), compare_pairs);
+        int64_t position = 0;
+        for (int64_t i = 0; i < n; ++i) {
+            if (i && pairs[2 * i] != pairs[2 * i - 2]) ++position;
+            dense[lo + pairs[2 * i + 1]] = position;
+        }
+    }
+    free(pairs);
+    return dense;
+}
+
+static inline int32_t start_pixel(int64_t pixel) {
+    return (int32_t)(pixel < -PIXEL_LIMIT ? -PIXEL_LIMIT : (pixel > PIXEL_LIMIT ? PIXEL_LIMIT : pixel));
+}
+
+/* floor(x) as int32, clamped to +-PROJECTED_LIMIT: torch.floor(x).long() clamped. Where x is NaN or floor(x)
+ * is beyond int64 that is INT64_MIN (x86's conversion, as torch's .long() gives it there): -PROJECTED_LIMIT.
+ * Comparisons and selects only, no branch. */
+static inline int32_t floor_clamped(double x) {
+    const double f = __builtin_floor(x);
+    const double clamped = f < PROJECTED_LIMIT ? f : PROJECTED_LIMIT;
+    return (int32_t)((f > -PROJECTED_LIMIT && f < 9223372036854775808.0) ? clamped : -PROJECTED_LIMIT);
+}
+
+/* The projection of one configuration's n points moved by (a, b, 0), as sdm.camera.Camera.project evaluates
+ * it, to screen (row, col) = ((fy * y / z + cy) * rows_per_pixel - H, (fx * x / z + cx) * cols_per_pixel - 0)
+ * and its floor. Elementwise IEEE operations in the torch path's order: a vectorised lane rounds as the
+ * scalar operation does (no reassociation without -ffast-math, no fused multiply-add with -ffp-contract=off). */
+static inline void project(int64_t n, const double *restrict q, double a, double b, double fx, double fy, double cx,
+                           double cy, double rows_per_pixel, double cols_per_pixel, double screen_height,
+                           double *restrict screen, int32_t *restrict projected) {
+    for (int64_t i = 0; i < n; ++i) {
+        const double x = q[3 * i] + a, y = q[3 * i + 1] + b, z = q[3 * i + 2] + 0.0;
+        const double row = ((fy * y) / z + cy) * rows_per_pixel - screen_height;
+        const double col = ((fx * x) / z + cx) * cols_per_pixel - 0.0;
+        screen[2 * i] = row;
+        screen[2 * i + 1] = col;
+        projected[2 * i] = floor_clamped(row);
+        projected[2 * i + 1] = floor_clamped(col);
+    }
+}
+
+/* Levels steps..zoom of the zoom chain for one configuration's n points: chain_level's integer arithmetic
+ * (the same shifts, clamp, steps and rmin), in int32 (exact: TRAIN_MAX_SIDE, PROJECTED_LIMIT) so that a
+ * vector holds twice the lanes and the working rows half the cache. Each level in three loops, so that
+ * the one without memory dependences vectorises: which points survived the level before (gathers from
+ * its rmin table, read and reset as rmin_survives), the step of every coordinate (the same operations on
+ * each of the 2n lanes: vectorised), and the entries into this level's table (scatters). At the loss level
+ * nothing enters (the trainer needs no rmin after it: landing is decided by the level before); instead
+ * the points that land on the grid in a block the target leaves empty (the ones the flow pulls) are
+ * listed in `pulled`, in ascending order, by a branchless append. The first level also prefetches the
+ * target block each point will most likely land in. Returns the number pulled. */
+static inline int64_t train_chain(int64_t n, const int32_t *restrict projected, const int64_t *restrict pixels,
+                               const int64_t *restrict rank, int32_t height, int32_t width, int32_t steps,
+                               int32_t zoom, int32_t *table[2], int32_t sentinel, const uint8_t *target,
+                               int32_t grid_h, int32_t grid_w, int32_t *restrict current, int32_t *restrict block,
+                               int32_t *restrict landing, int32_t *restrict cell, uint8_t *restrict alive,
+                               int32_t *restrict pulled) {
+    int64_t n_pulled = 0;
+    for (int32_t level = steps; level >= zoom; --level) {
+        const int first = level == steps, last = level == zoom;
+        int32_t *decided = table[(steps - level + 1) & 1], *entering = table[(steps - level) & 1];
+        if (!first)
+            for (int64_t i = 0; i < n; ++i) {
+                const int32_t own = cell[i], least = decided[own], won = least == (int32_t)rank[i];
+                decided[own] = won ? NO_RANK32 : least;
+                alive[i] = (uint8_t)((own != sentinel) & won);
+            }
+        const int32_t size = (int32_t)1 << level;
+        if (last)
+            for (int64_t j = 0; j < 2 * n; ++j) {
+                const int32_t from = first ? start_pixel(pixels[j]) : current[j];
+                const int32_t here = from >> level, ahead = (projected[j] >> level) - here;
+                const int32_t step = ahead < -1 ? -1 : (ahead > 1 ? 1 : ahead);
+                block[j] = here;
+                landing[j] = here + step;
+                current[j] = from + step * size;
+            }
+        else
+            for (int64_t j = 0; j < 2 * n; ++j) {
+                const int32_t from = first ? start_pixel(pixels[j]) : current[j];
+                const int32_t here = from >> level, ahead = (projected[j] >> level) - here;
+                const int32_t step = ahead < -1 ? -1 : (ahead > 1 ? 1 : ahead);
+                current[j] = from + step * size;
+            }
+        if (last)
+            for (int64_t i = 0; i < n; ++i) {
+                const int on = ((uint32_t)current[2 * i] < (uint32_t)height) &
+                               ((uint32_t)current[2 * i + 1] < (uint32_t)width);
+                const int landed = (first ? 1 : alive[i]) & on;
+                /* landed in a block the target leaves empty: pulled (branchless; block 0 is always there) */
+                const int32_t index = landed ? landing[2 * i] * grid_w + landing[2 * i + 1] : 0;
+                pulled[n_pulled] = (int32_t)i;
+                n_pulled += landed & (target[index] == 0);
+            }
+        else
+            for (int64_t i = 0; i < n; ++i) {
+                const int32_t row = current[2 * i], col = current[2 * i + 1];
+                const int candidate = (first ? 1 : alive[i]) & ((uint32_t)row < (uint32_t)height) &
+                                      ((uint32_t)col < (uint32_t)width);
+                const int32_t own = candidate ? row * width + col : sentinel, own_rank = (int32_t)rank[i];
+                cell[i] = own;
+                const int32_t least = entering[own];
+                entering[own] = own_rank < least ? own_rank : least;
+                if (first) { /* the target block it will most likely land in, read by the flow after the chain */
+                    const int32_t near_row = projected[2 * i] >> zoom, near_col = projected[2 * i + 1] >> zoom;
+                    if ((uint32_t)near_row < (uint32_t)grid_h && (uint32_t)near_col < (uint32_t)grid_w)
+                        __builtin_prefetch(target + near_row * grid_w + near_col);
+                }
+            }
+    }
+    return n_pulled;
+}
+
+#if defined(__GNUC__) && defined(__x86_64__)
+#include <immintrin.h>
+#define TRAIN_AVX2 1
+/* project() two points per AVX2 register: lanes (row, col, row, col), the same IEEE operations in the same
+ * order on each lane as the scalar loop (vaddpd, vmulpd, vdivpd, vsubpd round as their scalar forms;
+ * vroundpd's floor is exact), the clamp by compare and blend as floor_clamped's selects. */
+__attribute__((target("avx2"), noinline)) static void project_avx2(
+    int64_t n, const double *restrict q, double a, double b, double fx, double fy, double cx, double cy,
+    double rows_per_pixel, double cols_per_pixel, double screen_height, double *restrict screen,
+    int32_t *restrict projected) {
+    const __m256d shift = _mm256_set_pd(a, b, a, b), focal = _mm256_set_pd(fx, fy, fx, fy);
+    const __m256d centre = _mm256_set_pd(cx, cy, cx, cy);
+    const __m256d per_pixel = _mm256_set_pd(cols_per_pixel, rows_per_pixel, cols_per_pixel, rows_per_pixel);
+    const __m256d origin = _mm256_set_pd(0.0, screen_height, 0.0, screen_height);
+    const __m256d limit = _mm256_set1_pd(PROJECTED_LIMIT), low = _mm256_set1_pd(-PROJECTED_LIMIT);
+    const __m256d int64_end = _mm256_set1_pd(9223372036854775808.0);
+    int64_t i = 0;
+    for (; i + 2 <= n; i += 2) {
+        const double *p = q + 3 * i;
+        const double z0 = p[2] + 0.0, z1 = p[5] + 0.0;
+        const __m256d moved = _mm256_add_pd(_mm256_set_pd(p[3], p[4], p[0], p[1]), shift); /* (y, x, y, x) */
+        const __m256d uv = _mm256_add_pd(_mm256_div_pd(_mm256_mul_pd(focal, moved), _mm256_set_pd(z1, z1, z0, z0)),
+                                         centre);
+        const __m256d on_screen = _mm256_sub_pd(_mm256_mul_pd(uv, per_pixel), origin);
+        _mm256_storeu_pd(screen + 2 * i, on_screen);
+        const __m256d f = _mm256_floor_pd(on_screen);
+        const __m256d clamped = _mm256_blendv_pd(limit, f, _mm256_cmp_pd(f, limit, _CMP_LT_OQ));
+        const __m256d ok = _mm256_and_pd(_mm256_cmp_pd(f, low, _CMP_GT_OQ), _mm256_cmp_pd(f, int64_end, _CMP_LT_OQ));
+        _mm_storeu_si128((__m128i *)(projected + 2 * i), _mm256_cvttpd_epi32(_mm256_blendv_pd(low, clamped, ok)));
+    }
+    project(n - i, q + 3 * i, a, b, fx, fy, cx, cy, rows_per_pixel, cols_per_pixel, screen_height, screen + 2 * i,
+            projected + 2 * i);
+}
+#endif
+/* One level up a pyramid of 0/1 targets: n targets of h x w (h, w even) to h/2 x w/2, each block the OR of its
+ * 2 x 2 (sdm.zoom.target_pyramid; exact in any order). The n targets' rows are one array of n * h rows, so
+ * output row t is the OR of input rows 2t and 2t + 1. */
+static void halve_targets(int64_t n, int64_t h, int64_t w, const uint8_t *restrict finer, uint8_t *restrict coarser) {
+    for (int64_t t = 0; t < n * (h / 2); ++t) {
+        const uint8_t *top = finer + 2 * t * w, *bottom = top + w;
+        uint8_t *out = coarser + t * (w / 2);
+        for (int64_t c = 0; c < w / 2; ++c)
+            out[c] = (uint8_t)((top[2 * c] | top[2 * c + 1]) | (bottom[2 * c] | bottom[2 * c + 1]));
+    }
+}
+
 /* R whole training runs (sdm.train.train_runs): every level, epoch, mini-batch, chain, flow, loss and
  * SGD step, run after run (runs never interact, so each keeps its own targets hot in the cache).
  *
@@ -278,47 +481,73 @@ static inline void sum_add(exact_sum *acc, double value) {
  *          centred (n_levels,) 1 where the level uses the closed_centred_r1 window (centred on the
  *          landing block; its target already closed by the caller), 0 for the paper's flow
  * orders:  (n_levels * n_epoch, R, N) each epoch's shuffling of each run
- * targets: (R, n_levels) addresses of run r's (N, H >> level, W >> level) 0/1 target at each level
+ * targets: (R, n_levels) addresses of run r's (N, H >> level, W >> level) 0/1 target at each level, 0
+ *          where the kernel zooms it out itself from bases[r] (levels 1..steps of the run's pyramid, made
+ *          once per run into `pyramid`); bases: (R,) address of run r's (N, H, W) 0/1 target
+ * pyramid: scratch of N * sum over k = 1..steps of (H >> k) * (W >> k) bytes where any target is 0, reused
+ *          by the runs and (kept by the caller) the calls: in torch (zoom.target_pyramid) a noise run's
+ *          pyramid cost a tenth of its training, most of it in the first touch of fresh pages
  * theta0:  (R, 2) starts (a, b), metres
  * Outputs: thetas (total + 1, R, 2) theta before the first step and after each; losses (total, R);
  *          failed (R,) the step (0-based) at which run r's theta became non-finite (the run stops
  *          there; later entries unwritten), -1 where it did not.
  *
  * A step of run r: point = q + (a, b, 0); the projection as sdm.camera.Camera.project evaluates it
- * (same operations, same order); the chain of sdm_chain per configuration; the flow by
+ * (same operations, same order: project); the chain per configuration (train_chain: chain_level's
+ * integer arithmetic in int32); the flow by
  * window_pull; grad = the summed flow (integers: exact in any order); theta = theta - rate * grad
  * (two roundings, as torch's theta -= rate * theta.grad). A batch without points pulls nothing.
  * The loss is the sum over the pulled points of l1_row * (z / k_row) + l1_col * (z / k_col), the
  * products as sdm.mapping.flow.pull_loss forms them, the sum compensated in point order (torch's
  * .sum() adds in its own order, which is not reproduced: the two agree to the last bits,
  * tests/test_native.py holds them to 1e-12 relative). Theta never depends on the loss.
- * Returns 0, or -1 where no memory could be had.
+ * Returns 0, -1 where no memory could be had, or -2 for a screen beyond the int32 chain (TRAIN_MAX_SIDE).
  */
-int64_t sdm_train(int64_t n_runs, int64_t n_configs, const int64_t *offsets, const double *points,
-                  const int64_t *pixels, const int64_t *rank, int64_t height, int64_t width, const double *camera,
-                  int64_t steps, int64_t n_levels, int64_t n_epoch, int64_t batch_size, const double *rates,
-                  const uint8_t *centred, const int64_t *orders, const int64_t *targets, int64_t no_rank,
-                  const double *theta0, double *thetas, double *losses, int64_t *failed) {
+#define TRAIN_PARAMETERS                                                                                         \
+    int64_t n_runs, int64_t n_configs, const int64_t *offsets, const double *points, const int64_t *pixels,     \
+        const int64_t *rank, int64_t height, int64_t width, const double *camera, int64_t steps, int64_t n_levels, \
+        int64_t n_epoch, int64_t batch_size, const double *rates, const uint8_t *centred, const int64_t *orders,  \
+        const int64_t *targets, const int64_t *bases, uint8_t *pyramid, int64_t no_rank, const double *theta0, \
+        double *thetas, double *losses, int64_t *failed
+#define TRAIN_ARGUMENTS                                                                                          \
+    n_runs, n_configs, offsets, points, pixels, rank, height, width, camera, steps, n_levels, n_epoch, batch_size, \
+        rates, centred, orders, targets, bases, pyramid, no_rank, theta0, thetas, losses, failed
+
+/* sdm_train's body, compiled once per instruction set it dispatches to (`wide`: AVX2's projection). */
+static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS, int wide) {
+    (void)no_rank; /* the tables hold NO_RANK32 (ranks_in_int32) */
     const double fx = camera[0], fy = camera[1], cx = camera[2], cy = camera[3];
     const double rows_per_pixel = camera[4], cols_per_pixel = camera[5], k_row = camera[6], k_col = camera[7];
     const double screen_height = (double)height;
     const int64_t batches = n_configs / batch_size;
+    if (height > TRAIN_MAX_SIDE || width > TRAIN_MAX_SIDE || height * width >= TRAIN_MAX_CELLS || steps > 62) return -2;
     int64_t largest = 1;
     for (int64_t c = 0; c < n_configs; ++c)
         if (offsets[c + 1] - offsets[c] > largest) largest = offsets[c + 1] - offsets[c];
-    /* one configuration's working rows and rmin cells (configurations never interact) */
-    int64_t *rows = malloc(sizeof(int64_t) * (size_t)largest * 11);
-    int64_t *cell_min = malloc(sizeof(int64_t) * (size_t)(2 * (height * width + 1))); /* chain_range's two tables */
+    largest = (largest + 15) & ~(int64_t)15;
+    const int32_t cells = (int32_t)(height * width), sentinel = cells;
+    int no_memory = 0;
+    int64_t *dense = ranks_in_int32(n_configs, offsets, rank, &no_memory);
+    if (dense) rank = dense;
+    /* one configuration's working rows and rmin cells */
     double *screen = malloc(sizeof(double) * (size_t)largest * 2);
-    uint8_t *flags = malloc((size_t)largest * 3);
-    if (!rows || !cell_min || !screen || !flags) {
-        free(rows), free(cell_min), free(screen), free(flags);
-        return -1;
+    int32_t *rows = malloc(sizeof(int32_t) * (size_t)largest * 9);
+    uint8_t *alive = malloc((size_t)largest);
+    int32_t *cell_min = malloc(sizeof(int32_t) * (size_t)(2 * (cells + 1)));
+    int32_t *pulled = malloc(sizeof(int32_t) * (size_t)largest);
+    /* where the zoomed-out levels 1..steps of a run's pyramid lie in `pyramid` */
+    int64_t level_start[64] = {0};
+    for (int64_t k = 2; k <= steps; ++k)
+        level_start[k] = level_start[k - 1] + n_configs * (height >> (k - 1)) * (width >> (k - 1));
+    int64_t code = 0;
+    if (no_memory || !screen || !rows || !cell_min || !pulled || !alive) {
+        code = -1;
+        goto done;
     }
-    int64_t *projected = rows, *out_pixels = rows + 2 * largest, *block = rows + 4 * largest;
-    int64_t *landing = rows + 6 * largest, *current = rows + 8 * largest, *cell = rows + 10 * largest;
-    uint8_t *entered = flags, *landed = flags + largest, *alive = flags + 2 * largest;
-    for (int64_t i = 0; i < 2 * (height * width + 1); ++i) cell_min[i] = no_rank;
+    int32_t *projected = rows, *current = rows + 2 * largest, *block = rows + 4 * largest;
+    int32_t *landing = rows + 6 * largest, *cell = rows + 8 * largest;
+    for (int64_t i = 0; i < 2 * (cells + 1); ++i) cell_min[i] = NO_RANK32;
+    int32_t *table[2] = {cell_min, cell_min + cells + 1};
 
     for (int64_t run = 0; run < n_runs; ++run) {
         double a = theta0[2 * run], b = theta0[2 * run + 1];
@@ -326,9 +555,17 @@ int64_t sdm_train(int64_t n_runs, int64_t n_configs, const int64_t *offsets, con
         thetas[2 * run + 1] = b;
         failed[run] = -1;
         int64_t step = 0;
+        const uint8_t *base = (const uint8_t *)(intptr_t)bases[run];
+        int zoom_run = 0;
+        for (int64_t li = 0; li < n_levels; ++li) zoom_run |= targets[run * n_levels + li] == 0;
+        for (int64_t k = 1; zoom_run && k <= steps; ++k)
+            halve_targets(n_configs, height >> (k - 1), width >> (k - 1), k == 1 ? base : pyramid + level_start[k - 1],
+                          pyramid + level_start[k]);
         for (int64_t li = 0; li < n_levels && failed[run] < 0; ++li) {
             const int64_t level = steps - li, grid_h = height >> level, grid_w = width >> level;
-            const uint8_t *target = (const uint8_t *)(intptr_t)targets[run * n_levels + li];
+            const int64_t given = targets[run * n_levels + li];
+            const uint8_t *target =
+                given ? (const uint8_t *)(intptr_t)given : (level ? pyramid + level_start[level] : base);
             const double rate = rates[li], block_size = (double)((int64_t)1 << level);
             for (int64_t epoch = 0; epoch < n_epoch && failed[run] < 0; ++epoch) {
                 const int64_t *order = orders + ((li * n_epoch + epoch) * n_runs + run) * n_configs;
@@ -338,7 +575,6 @@ int64_t sdm_train(int64_t n_runs, int64_t n_configs, const int64_t *offsets, con
                     for (int64_t j = 0; j < batch_size; ++j) {
                         const int64_t c = order[batch * batch_size + j];
                         const int64_t lo = offsets[c], n = offsets[c + 1] - lo;
-                        const double *q = points + 3 * lo;
                         const uint8_t *own = target + c * grid_h * grid_w;
                         const int64_t position = batch * batch_size + j;
                         if (position + 1 < batches * batch_size) {
@@ -348,27 +584,20 @@ int64_t sdm_train(int64_t n_runs, int64_t n_configs, const int64_t *offsets, con
                             prefetch_bytes(pixels + 2 * first, count * 2 * (int64_t)sizeof(int64_t));
                             prefetch_bytes(rank + first, count * (int64_t)sizeof(int64_t));
                         }
-                        for (int64_t i = 0; i < n; ++i) {
-                            const double x = q[3 * i] + a, y = q[3 * i + 1] + b, z = q[3 * i + 2] + 0.0;
-                            /* (v, u) = (fy * y / z + cy, fx * x / z + cx): both lanes as the scalar
-                             * operations round, one division instruction for the two */
-                            const pair uv = (pair){fy * y, fx * x} / (pair){z, z} + (pair){cy, cx};
-                            /* (row, col) = (v * rows_per_pixel - H, u * cols_per_pixel - 0): x - 0.0 is x */
-                            const pair on_screen = uv * (pair){rows_per_pixel, cols_per_pixel} - (pair){screen_height, 0.0};
-                            screen[2 * i] = on_screen[0];
-                            screen[2 * i + 1] = on_screen[1];
-                            projected[2 * i] = floor_to_int(screen[2 * i]);
-                            projected[2 * i + 1] = floor_to_int(screen[2 * i + 1]);
-                            /* the target block it will most likely land in: fetched while the chain runs */
-                            const int64_t near_row = projected[2 * i] >> level, near_col = projected[2 * i + 1] >> level;
-                            if (on_grid(near_row, near_col, grid_h, grid_w))
-                                __builtin_prefetch(own + near_row * grid_w + near_col);
-                        }
-                        chain_range(0, n, projected, pixels + 2 * lo, 0, rank + lo, height, width, steps, level,
-                                    cell_min, height * width, no_rank, out_pixels, entered, landed, block, landing,
-                                    current, cell, alive);
-                        for (int64_t i = 0; i < n; ++i) {
-                            if (!landed[i] || own[landing[2 * i] * grid_w + landing[2 * i + 1]]) continue;
+#ifdef TRAIN_AVX2
+                        if (wide)
+                            project_avx2(n, points + 3 * lo, a, b, fx, fy, cx, cy, rows_per_pixel, cols_per_pixel,
+                                         screen_height, screen, projected);
+                        else
+#endif
+                            project(n, points + 3 * lo, a, b, fx, fy, cx, cy, rows_per_pixel, cols_per_pixel,
+                                    screen_height, screen, projected);
+                        const int64_t n_pulled = train_chain(
+                            n, projected, pixels + 2 * lo, rank + lo, (int32_t)height, (int32_t)width, (int32_t)steps,
+                            (int32_t)level, table, sentinel, own, (int32_t)grid_h, (int32_t)grid_w, current, block,
+                            landing, cell, alive, pulled);
+                        for (int64_t k = 0; k < n_pulled; ++k) { /* in point order, as before: the loss's order */
+                            const int64_t i = pulled[k];
                             const int64_t centre_row = centred[li] ? landing[2 * i] : block[2 * i];
                             const int64_t centre_col = centred[li] ? landing[2 * i + 1] : block[2 * i + 1];
                             const int64_t skip = centred[li] ? 4 : (landing[2 * i] - block[2 * i]) * 3 +
@@ -378,7 +607,7 @@ int64_t sdm_train(int64_t n_runs, int64_t n_configs, const int64_t *offsets, con
                                         grid_w, block_size, pull, l1);
                             grad_a += pull[1]; /* (row, col) -> (x, y) */
                             grad_b += pull[0];
-                            const double z = q[3 * i + 2] + 0.0;
+                            const double z = points[3 * (lo + i) + 2] + 0.0;
                             sum_add(&loss, l1[0] * (z / k_row));
                             sum_add(&loss, l1[1] * (z / k_col));
                         }
@@ -398,8 +627,21 @@ int64_t sdm_train(int64_t n_runs, int64_t n_configs, const int64_t *offsets, con
             }
         }
     }
-    free(rows), free(cell_min), free(screen), free(flags);
-    return 0;
+done:
+    free(dense), free(screen), free(rows), free(cell_min), free(pulled), free(alive);
+    return code;
+}
+
+#ifdef TRAIN_AVX2
+__attribute__((target("avx2"))) static int64_t train_avx2(TRAIN_PARAMETERS) { return train_body(TRAIN_ARGUMENTS, 1); }
+#endif
+static int64_t train_plain(TRAIN_PARAMETERS) { return train_body(TRAIN_ARGUMENTS, 0); }
+
+int64_t sdm_train(TRAIN_PARAMETERS) {
+#ifdef TRAIN_AVX2
+    if (__builtin_cpu_supports("avx2")) return train_avx2(TRAIN_ARGUMENTS);
+#endif
+    return train_plain(TRAIN_ARGUMENTS);
 }
 
 /* ---- CMA-ES baseline: the exact zoom-0 pixel mismatch for many thetas (sdm/baselines/cmaes.py) ----

@@ -46,7 +46,11 @@ It serves two callers. The layer (:func:`~sdm.mapping.fast.fast_mapping`) calls
 or ``closed_centred_r1``'s: :func:`sdm.mapping.rules.kernel_form`), loss and SGD step in C, the
 per-step Python work gone; theta histories equal the torch path's to the bit
 (the loss to 1e-12 relative: its sum is compensated, not in torch's order). The
-paper's flow and the centred closed rule share one window function in C.
+paper's flow and the centred closed rule share one window function in C. Its
+chain runs in int32 with the per-coordinate arithmetic vectorised, its
+projection two points per AVX2 register where the CPU has it (picked at run
+time), and it zooms the runs' targets out itself (``_native.c`` says why each
+keeps the bits).
 """
 from __future__ import annotations
 
@@ -61,6 +65,7 @@ import signal
 import subprocess
 import sys
 import tempfile
+import threading
 import warnings
 from pathlib import Path
 
@@ -70,8 +75,10 @@ from ..io import write_atomic, write_text
 from ..representation import NO_RANK
 
 SOURCE = Path(__file__).with_name("_native.c")
-#: ``-ffp-contract=off``: no fused multiply-add, so every float operation rounds as torch's does.
-FLAGS = ("-O2", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math")
+#: ``-ffp-contract=off``: no fused multiply-add, so every float operation rounds as torch's does. ``-O3``
+#: vectorises loops, float ones only elementwise (without ``-ffast-math`` nothing is reassociated); the
+#: trainer's AVX2 code is chosen at run time inside the library, so no ``-march`` (and no CPU in the key).
+FLAGS = ("-O3", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math")
 
 _I64 = ctypes.c_int64
 _PTR = ctypes.c_void_p
@@ -91,7 +98,7 @@ SIGNATURES: dict[str, tuple[object, list]] = {
     "sdm_paper_flow": (_I64, [_I64, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _I64,
                               _PTR, _PTR, _PTR, _PTR]),
     "sdm_train": (_I64, [_I64, _I64, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _PTR, _I64, _I64, _I64, _I64,
-                         _PTR, _PTR, _PTR, _PTR, _I64, _PTR, _PTR, _PTR, _PTR]),
+                         _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _PTR, _PTR, _PTR, _PTR]),
     # the CMA-ES baseline's count (pixel_mismatch below)
     "sdm_pixel_mismatch": (None, [_I64, _PTR, _I64, _I64, *[_PTR] * 8, _I64, _I64, _PTR, _I64, *[_PTR] * 3]),
 }
@@ -400,11 +407,21 @@ def paper_flow(screen: torch.Tensor, config: torch.Tensor, landed: torch.Tensor,
     return flow, matched, pulled[:n_pulled], window_l1[:n_pulled]
 
 
-#: The gradient rules whose whole training run the kernel does (:func:`train_program`).
+#: The largest screen side and pixel count :func:`train_program` takes: its chain runs on int32
+#: (``TRAIN_MAX_SIDE`` and ``TRAIN_MAX_CELLS`` in ``_native.c``); larger screens train on the torch path.
+TRAIN_MAX_SIDE, TRAIN_MAX_CELLS = 2**24, 2**30
+
+
+def trains_screen(screen_shape) -> bool:
+    """Whether :func:`train_program` takes a screen of ``screen_shape`` ``(H, W)`` pixels (see ``TRAIN_MAX_SIDE``)."""
+    height, width = screen_shape
+    return max(height, width) <= TRAIN_MAX_SIDE and height * width < TRAIN_MAX_CELLS
+
+
 def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor, offsets: torch.Tensor,
                   camera, steps: int, levels: list[int], n_epoch: int, batch_size: int, rates: list[float],
-                  centred: list[bool], orders: torch.Tensor, targets: list[list[torch.Tensor]],
-                  theta0: torch.Tensor):
+                  centred: list[bool], orders: torch.Tensor, targets: list[list[torch.Tensor | None]],
+                  theta0: torch.Tensor, bases: list[torch.Tensor] | None = None):
     """``R`` whole SGD runs in one call (``sdm_train``): the compiled path of :func:`sdm.train.train_runs`.
 
     Args:
@@ -417,8 +434,12 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
         centred: per level, whether it takes ``closed_centred_r1``'s window (centred on the landing block,
             on a target the caller closed) instead of the paper's flow.
         orders: ``(len(levels) * n_epoch, R, N)`` int64, each epoch's shuffling of each run.
-        targets: ``R`` lists, one ``(N, H >> level, W >> level)`` bool target per level of ``levels``.
+        targets: ``R`` lists, one ``(N, H >> level, W >> level)`` bool target per level of ``levels``, or
+            ``None``: the kernel zooms ``bases[r]`` out to that level itself (as
+            :func:`sdm.zoom.target_pyramid`; into one buffer the runs reuse, which spares each noise run the
+            allocation and passes of a fresh pyramid).
         theta0: ``(R, 2)`` float64 starts ``(a, b)``, metres.
+        bases: ``R`` ``(N, H, W)`` bool level-0 targets, one per run (needed where ``targets`` holds ``None``).
 
     All tensors on the CPU (non-contiguous ones are copied); the results too.
 
@@ -429,8 +450,11 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     """
     points, pixels, rank, offsets, orders, theta0 = (
         t.contiguous() for t in (points, pixels, rank, offsets, orders, theta0))
-    targets = [[level.contiguous() for level in run] for run in targets]
+    targets = [[level.contiguous() if level is not None else None for level in run] for run in targets]
+    bases = [base.contiguous() for base in bases] if bases is not None else None
     n_runs, n_configs = orders.shape[1], orders.shape[2]
+    if bases is None and any(level is None for run in targets for level in run):
+        raise ValueError("train_program: a level left to the kernel (None) needs the run's level-0 target in bases")
     device = points.device
     total = len(levels) * n_epoch * (n_configs // batch_size)
     constants = torch.tensor([camera.fx, camera.fy, camera.cx, camera.cy, camera.rows_per_image_pixel,
@@ -438,20 +462,40 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
                               camera.fx * camera.cols_per_image_pixel], dtype=torch.float64, device=device)
     rates_t = torch.tensor(rates, dtype=torch.float64, device=device)
     centred_t = torch.tensor(centred, dtype=torch.uint8, device=device)
-    addresses = torch.tensor([[level.data_ptr() for level in run] for run in targets], dtype=torch.int64,
-                             device=device)
+    addresses = torch.tensor([[level.data_ptr() if level is not None else 0 for level in run] for run in targets],
+                             dtype=torch.int64, device=device)
+    height, width = camera.screen_shape
+    zooms = any(level is None for run in targets for level in run)
+    pyramid = _pyramid_scratch(n_configs * sum((height >> k) * (width >> k) for k in range(1, steps + 1))
+                               if zooms else 0)
+    base_addresses = torch.tensor([base.data_ptr() for base in bases] if bases is not None else [0] * n_runs,
+                                  dtype=torch.int64, device=device)
     thetas = torch.empty(total + 1, n_runs, 2, dtype=torch.float64, device=device)
     losses = torch.zeros(total, n_runs, dtype=torch.float64, device=device)
     failed = torch.empty(n_runs, dtype=torch.int64, device=device)
-    height, width = camera.screen_shape
     code = _library().sdm_train(
         n_runs, n_configs, offsets.data_ptr(), points.data_ptr(), pixels.data_ptr(), rank.data_ptr(), height, width,
         constants.data_ptr(), steps, len(levels), n_epoch, batch_size, rates_t.data_ptr(), centred_t.data_ptr(),
-        orders.data_ptr(), addresses.data_ptr(), NO_RANK, theta0.data_ptr(), thetas.data_ptr(), losses.data_ptr(),
-        failed.data_ptr())
+        orders.data_ptr(), addresses.data_ptr(), base_addresses.data_ptr(), pyramid.data_ptr(), NO_RANK,
+        theta0.data_ptr(), thetas.data_ptr(), losses.data_ptr(), failed.data_ptr())
+    if code == -2:
+        raise ValueError(f"sdm_train: a {height} x {width} screen is beyond its int32 chain (trains_screen)")
     if code != 0:
         raise MemoryError("sdm_train: no memory for one configuration's working rows")
     return thetas, losses, failed
+
+#: Per thread, the compiled trainer's pyramid scratch (:func:`train_program`): kept, because on the machines
+#: measured the first touch of fresh pages (a noise run's pyramid is 5.6 MB) cost more than zooming out.
+_SCRATCH = threading.local()
+
+
+def _pyramid_scratch(n_bytes: int) -> torch.Tensor:
+    """A CPU uint8 buffer of at least ``n_bytes`` (this thread's, reused by later calls)."""
+    buffer = getattr(_SCRATCH, "pyramid", None)
+    if buffer is None or buffer.numel() < n_bytes:
+        buffer = _SCRATCH.pyramid = torch.empty(max(n_bytes, 1), dtype=torch.uint8)
+    return buffer
+
 
 @_eager_under_compile
 def pixel_mismatch(thetas: torch.Tensor, layout, table: torch.Tensor, n_target: int) -> torch.Tensor:
