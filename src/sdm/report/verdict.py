@@ -114,7 +114,7 @@ def _reproduced(table1, table2) -> str:
     parts = []
     noise_free = [check for check in passed if "level 0" in check.name]
     if noise_free:
-        parts.append(f"the noise-free mean, {noise_free[0].measured} against a target of {noise_free[0].target}")
+        parts.append(f"the noise-free mean, {noise_free[0].measured} (target: {noise_free[0].target})")
     noisy = _noisy(table2)
     within = noisy[(noisy["mean_ratio"] >= NOISY_RATIO[0]) & (noisy["mean_ratio"] <= NOISY_RATIO[1])]
     if len(within):
@@ -128,7 +128,7 @@ def _reproduced(table1, table2) -> str:
 
 
 def _not_reproduced(table1, table2) -> str:
-    parts = [f"{check.name}: {check.measured}, against a target of {check.target}"
+    parts = [f"{check.name}, {check.measured} (target: {check.target})"
              for check in checks(table1, table2) if not check.passed]
     noisy = _noisy(table2)
     larger = noisy[noisy["mean_ratio"] > 1]
@@ -148,11 +148,11 @@ def _against(table3: pd.DataFrame, best: pd.DataFrame) -> str:
     losses = []
     for label, rows in others.groupby("label", sort=False):
         worst = max(rows.index, key=lambda level: sdm.get(level, math.nan) / rows.loc[level, "mean_m"])
-        losses.append(f"{label} is closer at {_levels(rows.index)} (at level {int(worst)}: "
-                      f"{_mm(1e3 * rows.loc[worst, 'mean_m'])} against SDM's {_mm(1e3 * sdm.get(worst, math.nan))})")
+        losses.append(f"{label} is closer at {_levels(rows.index)}, by the most at level {int(worst)}: "
+                      f"{_mm(1e3 * rows.loc[worst, 'mean_m'])} against SDM's {_mm(1e3 * sdm.get(worst, math.nan))}")
     head = "no, not everywhere" if sdm_levels else "no"
     won = f"; SDM is closest at {_levels(sdm_levels)}" if sdm_levels else ""
-    return f"{head}: " + "; ".join(losses) + won + " (Table 3, the same noisy targets for every method)."
+    return f"{head} (Table 3, the same noisy targets for every method): " + "; ".join(losses) + won + "."
 
 
 def _rule_sentence(table4: pd.DataFrame, rule: str | None) -> str:
