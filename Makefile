@@ -4,14 +4,17 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 CORES ?= 2
+# torch comes from PyTorch's CPU-only index (no GPU libraries); `make TORCH_INDEX= install` takes pip's default build
+TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 
-.PHONY: install run test bench report clean
+.PHONY: install run test bench report snapshot clean
 
 install: $(VENV)/.installed
 
 $(VENV)/.installed: pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(if $(TORCH_INDEX),$(BIN)/python -m pip install --quiet --no-deps -c constraints.txt --index-url $(TORCH_INDEX) torch)
 	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[workflow,test,baselines]'
 	touch $@
 
@@ -27,6 +30,10 @@ bench: install
 
 report: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/snakemake --profile profiles/default --report report.html
+
+# After `make run`: results/ -> docs/results/ (the committed snapshot) and the README's verdict from it.
+snapshot:
+	$(PYTHON) workflow/scripts/snapshot.py take
 
 clean:
 	rm -rf results logs benchmarks/*.tsv benchmarks/calibration report.html .snakemake

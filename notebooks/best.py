@@ -24,6 +24,8 @@ histories = []  # input: one history per cell, in the same order as cells
 grid = "results/tuning/grid.csv"  # output
 best = "results/tuning/best.json"  # output
 best_history = "results/tuning/best_history.csv"  # output: the chosen cell's history (theta after each step)
+theta_path = "results/figures/theta_path.png"  # output: theta~'s path during the chosen cell's run
+shift = [0.517, 0.303]  # theta* (a*, b*), metres, marked in the figure
 threads = 1
 
 # %%
@@ -48,3 +50,13 @@ table
 tied = int(table["tied"].sum()) if "tied" in table else 1
 print(f"best: n_epoch {choice['n_epoch']}, lr {choice['lr']:g}, dev loss {choice['dev_loss']:.3f}"
       + (f", tied with {tied - 1} other cell(s) (broken by the train loss, then the most epochs and the smaller lr)" if tied > 1 else ""))
+
+# %% [markdown]
+# theta~ during the chosen cell's run, coloured by zoom level.
+
+# %%
+from sdm.report.figures import show_figure, theta_path_figure
+
+tuned = results[chosen]
+show_figure(theta_path_figure(pd.read_csv(best_history), shift,
+                              title=f"theta~ with n_epoch {tuned['n_epoch']}, lr {tuned['lr']:g}"), theta_path)

@@ -15,23 +15,18 @@
 #
 # Figure 1: a configuration (E' as a mask, E' as depth, the target L). Figure 2: the SDM forward pass on one
 # point (its XY-adjustments and the kernel D). Figure 3: the backward pass on one point (which target
-# pixels pull it, and where). Figure 4: a target at noise levels 0-4. Then theta~'s path during training
-# with the tuned settings, per zoom level, and the distribution of distances per noise level.
-# The drawing code is `sdm.report.figures`; the single-point forward and backward are
+# pixels pull it, and where). Figure 4: a target at noise levels 0-4. They need one configuration of the
+# split and nothing trained, so they wait for no tuning or noise run (theta~'s path during the tuned run is
+# drawn by the stage `best`, the distances per noise level by `tables`). The drawing code is `sdm.report.figures`; the single-point forward and backward are
 # `sdm.mapping.explain_point`.
 
 # %% tags=["parameters"]
 sky = "results/sky/sky.bin"
 split = "results/split/split.json"
-best = "results/tuning/best.json"
-best_history = "results/tuning/best_history.csv"  # the tuned run's history
-distances = "results/noise/distances.csv"
 fig1 = "results/figures/fig1_configuration.png"
 fig2 = "results/figures/fig2_forward.png"
 fig3 = "results/figures/fig3_backward.png"
 fig4 = "results/figures/fig4_noise.png"
-theta_path = "results/figures/theta_path.png"
-distances_plot = "results/figures/distances.png"
 example = 0
 noise_seed = 0
 levels = [0, 1, 2, 3, 4]
@@ -40,7 +35,6 @@ shift = [0.517, 0.303]
 threads = 1
 
 # %%
-import pandas as pd
 import torch
 from IPython.display import Image, display
 
@@ -59,7 +53,6 @@ if example >= len(non_empty):
     raise SDMInputError(f"config key 'figures.example': only {len(non_empty)} train configurations have points, "
                         f"got example {example}")
 configuration = dataset[non_empty[example]]
-tuned = read_json(best)
 
 
 def show(figure, path):
@@ -88,14 +81,3 @@ show(figures.figure3(point, info), fig3)
 
 # %%
 show(figures.figure4(configuration.target, levels, seed=noise_seed), fig4)
-
-# %% [markdown]
-# theta~ during the tuned run (the best cell of Table 1), coloured by zoom level.
-
-# %%
-history = pd.read_csv(best_history)
-show(figures.theta_path_figure(history, shift, title=f"theta~ with n_epoch {tuned['n_epoch']}, lr {tuned['lr']:g}"),
-     theta_path)
-
-# %%
-show(figures.distances_figure(pd.read_csv(distances)), distances_plot)

@@ -28,6 +28,7 @@ runs = 2  # the runs 0..runs-1 each (rule, level) must hold
 table4_csv = "results/tables/table4.csv"  # output
 table4_md = "results/tables/table4.md"  # output: written beside table4_csv, same stem
 table4_tex = "results/tables/table4.tex"  # output: written beside table4_csv, same stem
+table4_html = "results/tables/table4.html"  # output: written beside table4_csv, same stem (for the Snakemake report)
 table4_summary = "results/tables/table4_summary.md"  # output: plain words, for the report
 figure = "results/figures/research_rules.png"  # output
 threads = 1
@@ -52,7 +53,7 @@ expected = {(name, level, run) for name in names for level in levels for run in 
 rule_runs = gathered_runs(rule_files, ("flow", "level", "run"), expected, "Table 4")
 table4 = table4_frame(rule_runs, pd.read_csv(table2_distances))
 written = write_research_table(table4, Path(table4_csv).with_suffix(""), 4)
-assert {str(path) for path in written} == {table4_csv, table4_md, table4_tex}, written
+assert {str(path) for path in written} == {table4_csv, table4_md, table4_tex, table4_html}, written
 display(Markdown(to_markdown(table4_display(table4), TABLE4_FORMAT)))
 show_figure(rules_figure(table4), figure)
 

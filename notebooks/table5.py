@@ -25,6 +25,7 @@ runs = 2  # the runs 0..runs-1 each (c*, level) must hold
 table5_csv = "results/tables/table5.csv"  # output
 table5_md = "results/tables/table5.md"  # output: written beside table5_csv, same stem
 table5_tex = "results/tables/table5.tex"  # output: written beside table5_csv, same stem
+table5_html = "results/tables/table5.html"  # output: written beside table5_csv, same stem (for the Snakemake report)
 table5_summary = "results/tables/table5_summary.md"  # output: plain words, for the report
 figure = "results/figures/research_depth.png"  # output
 threads = 1
@@ -48,7 +49,7 @@ expected = {(float(value), level, run) for value in shifts_c for level in levels
 depth_runs = gathered_runs(depth_files, ("c_true", "level", "run"), expected, "Table 5")
 table5 = table5_frame(depth_runs)
 written = write_research_table(table5, Path(table5_csv).with_suffix(""), 5)
-assert {str(path) for path in written} == {table5_csv, table5_md, table5_tex}, written
+assert {str(path) for path in written} == {table5_csv, table5_md, table5_tex, table5_html}, written
 display(Markdown(to_markdown(table5_display(table5), TABLE5_FORMAT)))
 show_figure(depth_figure(table5), figure)
 

@@ -24,12 +24,15 @@ best = "results/tuning/best.json"
 stats = "results/sky/stats.json"
 chunks = []  # input: the noise chunks
 distances = "results/noise/distances.csv"  # output: every run
+distances_plot = "results/figures/distances.png"  # output: the distances per noise level beside the paper's
 table1_csv = "results/tables/table1.csv"
 table1_md = "results/tables/table1.md"
 table1_tex = "results/tables/table1.tex"
+table1_html = "results/tables/table1.html"  # the outputs are written beside table1_csv, same stem
 table2_csv = "results/tables/table2.csv"
 table2_md = "results/tables/table2.md"
 table2_tex = "results/tables/table2.tex"
+table2_html = "results/tables/table2.html"
 levels = [0, 1, 2, 3, 4]
 runs = 60
 threads = 1
@@ -52,12 +55,22 @@ write_csv(distances, all_runs)
 
 # %%
 table1 = table1_frame(pd.read_csv(grid))
-write_table(table1, Path(table1_csv).with_suffix(""), TABLE1_FORMAT)
+written = write_table(table1, Path(table1_csv).with_suffix(""), TABLE1_FORMAT)
+assert {str(path) for path in written} == {table1_csv, table1_md, table1_tex, table1_html}, written
 display(Markdown(to_markdown(table1, TABLE1_FORMAT)))
 
 # %%
 depth = read_json(stats)["target_mean_depth"]
 table2 = table2_frame(all_runs, avg_dist_mm(depth, levels=[level for level in levels if level > 0]))
-write_table(table2, Path(table2_csv).with_suffix(""), TABLE2_FORMAT)
+written = write_table(table2, Path(table2_csv).with_suffix(""), TABLE2_FORMAT)
+assert {str(path) for path in written} == {table2_csv, table2_md, table2_tex, table2_html}, written
 print(f"mean target depth {depth:.2f} m")
 display(Markdown(to_markdown(table2, TABLE2_FORMAT)))
+
+# %% [markdown]
+# Table 2's runs, per noise level, beside the paper's mean and quartiles.
+
+# %%
+from sdm.report.figures import distances_figure, show_figure
+
+show_figure(distances_figure(pd.read_csv(distances)), distances_plot)

@@ -306,7 +306,7 @@ def test_table3_statistics(tmp_path):
     assert table.loc[table["method"] == "chamfer", "paper_mean_m"].isna().all()
 
     paths = write_table3(table, tmp_path / "table3")
-    assert [p.suffix for p in paths] == [".csv", ".md", ".tex"] and all(p.stat().st_size for p in paths)
+    assert [p.suffix for p in paths] == [".csv", ".md", ".tex", ".html"] and all(p.stat().st_size for p in paths)
     assert "2D Chamfer" in paths[1].read_text()
     figure = save_figure(baselines_figure(table, runs), tmp_path / "baselines.png")
     assert figure.stat().st_size > 1000

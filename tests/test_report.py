@@ -97,7 +97,9 @@ def test_table2_statistics_in_millimetres_beside_the_paper():
 def test_writers_produce_csv_markdown_and_latex(tmp_path):
     table = table2_frame(distances(), {1: 283.0, 2: 494.0, 3: 700.0, 4: 905.0})
     paths = write_table(table, tmp_path / "tables" / "table2", TABLE2_FORMAT)
-    assert [p.name for p in paths] == ["table2.csv", "table2.md", "table2.tex"]
+    assert [p.name for p in paths] == ["table2.csv", "table2.md", "table2.tex", "table2.html"]
+    page = paths[3].read_text()  # the Markdown as a page: every row a row of its table, numbers as in the .md
+    assert page.count("<tr>") == 1 + len(table) and ">283.0</td>" in page and page.count("<table>") == 1
     assert pd.read_csv(paths[0])["mean"].tolist() == pytest.approx(table["mean"].tolist())
     markdown = paths[1].read_text()
     lines = [line for line in markdown.splitlines() if line.startswith("|")]

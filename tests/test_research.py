@@ -203,7 +203,7 @@ def test_tables_are_written_and_drawn(tmp_path):
     table5 = table5_frame(_depth_runs({(0.5, 0): (1e-3, 1e-3, 1e-2), (0.5, 1): (2e-3, 2e-3, 2e-2)}))
     for frame, which in ((table4, 4), (table5, 5)):
         written = write_research_table(frame, tmp_path / f"table{which}", which)
-        assert [p.suffix for p in written] == [".csv", ".md", ".tex"] and all(p.stat().st_size for p in written)
+        assert [p.suffix for p in written] == [".csv", ".md", ".tex", ".html"] and all(p.stat().st_size for p in written)
         assert pd.read_csv(written[0]).shape == frame.shape
     assert "| closed |" in (tmp_path / "table4.md").read_text()
     with pytest.raises(SDMInputError, match="which"):

@@ -192,6 +192,17 @@ def _research_jobs(config: dict) -> dict[str, int]:
     return jobs
 
 
+def test_a_figure_waits_only_for_its_own_inputs(tmp_path):
+    """Figures 1-4 need one configuration of the split: asking for Figure 2 plans the data stages and the
+    figures, no tuning, noise run, baseline or research job (theta's path and Table 2's distances are drawn
+    by the stages that make their data)."""
+    jobs = planned(snakemake("results/figures/fig2_forward.png", "-n", "--quiet", "rules",
+                             cwd=workdir(tmp_path, default_config())))
+    assert jobs == {"synthetic": 1, "data": 1, "sample": 1, "sky": 1, "split": 1, "figures": 1}
+    jobs = planned(snakemake("results/figures/theta_path.png", "-n", "--quiet", "rules", cwd=tmp_path))
+    assert set(jobs) == {"synthetic", "data", "sample", "sky", "split", "tune", "best"}
+
+
 def test_dry_run_with_the_depth_table_switched_on_by_an_overlay(tmp_path):
     """docs/workflow.md's way to switch Table 5 on for one run: an overlay file merged key by key."""
     config = default_config()
@@ -362,7 +373,8 @@ def completed_run(tmp_path_factory) -> Path:
 def test_completed_run_has_every_output_and_nothing_left_to_do(completed_run):
     for path in ["results/tables/table1.csv", "results/tables/table1.md", "results/tables/table1.tex",
                  "results/tables/table2.csv", "results/tables/table2.md", "results/tables/table2.tex",
-                 "results/noise/distances.csv", "results/report/reproduction.md", "results/notebooks/report.html",
+                 "results/noise/distances.csv", "results/report/reproduction.md", "results/report/verdict.md",
+                 "results/notebooks/report.html",
                  *(f"results/figures/{name}.png" for name in ["fig1_configuration", "fig2_forward", "fig3_backward",
                                                               "fig4_noise", "theta_path", "distances"])]:
         assert (completed_run / path).stat().st_size > 0, path
@@ -401,10 +413,33 @@ def pd_read_csv(path: Path):
     return pd.read_csv(path)
 
 
+def report_results(html: Path) -> dict[str, bytes]:
+    """The results a ``snakemake --report`` page embeds (its ``var results = {...}`` object): path -> content."""
+    import base64
+
+    text = html.read_text()
+    start = text.index("var results = {") + len("var results = ")  # not the page's script code's own `results`
+    results, _ = json.JSONDecoder().raw_decode(text[start:])
+    return {path: base64.b64decode(entry["data_uri"].split(";base64,", 1)[1]) for path, entry in results.items()}
+
+
 def test_snakemake_report_collects_the_results(completed_run, tmp_path):
+    """`make report`'s page embeds every figure and table the run flags for it, each as the file itself: the
+    page a browser shows has nothing to fetch (what a browser draws of it: the README, "Install and platform")."""
     result = snakemake("--report", str(tmp_path / "report.html"), cwd=completed_run)
     assert result.returncode == 0, result.stdout + result.stderr
-    assert (tmp_path / "report.html").stat().st_size > 100_000
+    embedded = report_results(tmp_path / "report.html")
+    run = completed_run / "results"
+    expected = {f"results/{path.relative_to(run).as_posix()}" for path in [*(run / "figures").glob("*.png"),
+                                                                            *(run / "tables").glob("table?.html")]}
+    expected.add("results/report/reproduction.html")
+    assert len(expected) == 9 + 5 + 1 and expected <= set(embedded), sorted(expected - set(embedded))
+    # the report shows images and HTML pages in place, and offers anything else (a CSV) as a download only
+    assert {path.rsplit(".", 1)[1] for path in embedded} <= {"png", "html"}, sorted(embedded)
+    for path in expected:
+        assert embedded[path] == (completed_run / path).read_bytes(), path
+    assert all(embedded[path].startswith(b"\x89PNG\r\n\x1a\n") for path in expected if path.endswith(".png"))
+    assert all(b"<table>" in embedded[path] for path in expected if path.endswith(".html"))
 
 
 def test_every_output_is_readable_by_others(completed_run):
@@ -418,8 +453,9 @@ def _rendered_images(html: Path) -> int:
     return len(re.findall(r'<img[^>]+src="data:image/png', html.read_text()))
 
 
-@pytest.mark.parametrize("stage, page", [("data", "data"), ("sky", "sky"), ("tune", "tune_*"), ("figures", "figures"),
-                                         ("table3", "table3"), ("table4", "table4"), ("table5", "table5")])
+@pytest.mark.parametrize("stage, page", [("data", "data"), ("sky", "sky"), ("tune", "tune_*"), ("best", "best"),
+                                         ("tables", "tables"), ("figures", "figures"), ("table3", "table3"),
+                                         ("table4", "table4"), ("table5", "table5")])
 def test_notebooks_that_plot_show_their_plots(completed_run, stage, page):
     """The stages that draw show each plot inline in their rendered HTML."""
     pages = sorted((completed_run / "results" / "notebooks").glob(f"{page}.html"))

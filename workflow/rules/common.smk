@@ -36,12 +36,14 @@ def figure(name, caption):
 
 
 def table_files(name):
-    """A table's files under results/tables/ as named outputs: the CSV (flagged for `snakemake --report` with
-    its caption, workflow/report/<name>.rst), the Markdown and the LaTeX."""
+    """A table's files under results/tables/ as named outputs: the CSV, the Markdown, the LaTeX and the HTML
+    page (flagged for `snakemake --report` with its caption, workflow/report/<name>.rst: the report shows
+    a page, and offers a CSV as a download only)."""
     return {
-        f"{name}_csv": report(result(f"tables/{name}.csv"), caption=f"../report/{name}.rst", category="Tables"),
+        f"{name}_csv": result(f"tables/{name}.csv"),
         f"{name}_md": result(f"tables/{name}.md"),
         f"{name}_tex": result(f"tables/{name}.tex"),
+        f"{name}_html": report(result(f"tables/{name}.html"), caption=f"../report/{name}.rst", category="Tables"),
     }
 
 
@@ -215,9 +217,11 @@ def training(seed):
 
 
 def extra_tables_read_by_report():
-    """What the report reads of Tables 3-5: each enabled table's Markdown and summary."""
+    """What the report reads of Tables 3-5: each enabled table's Markdown and summary, and the CSVs of
+    Tables 3 and 4 (the verdict's best method and recommended rule)."""
     enabled = [stage for stage in ("table3", "table4", "table5") if JOBS[stage]]
-    return {key: result(f"tables/{key}.md") for stage in enabled for key in (stage, f"{stage}_summary")}
+    files = {key: result(f"tables/{key}.md") for stage in enabled for key in (stage, f"{stage}_summary")}
+    return files | {f"{stage}_csv": result(f"tables/{stage}.csv") for stage in enabled if stage != "table5"}
 
 
 def config_values(*keys):

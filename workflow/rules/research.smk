@@ -29,8 +29,9 @@ notebook_stage(
     output=dict(runs_file=result("research/depth/c{c}_level{level}.csv")),
     params=dict(
         **training(seed=config["noise"]["seed"]),
-        flow=RESEARCH_DEPTH.get("flow", "paper"),
-        depth_lr_scale=RESEARCH_DEPTH.get("lr_scale", 20),
+        # the schema's defaults fill these in whenever the section is there (no jobs when it is not)
+        flow=RESEARCH_DEPTH.get("flow"),
+        depth_lr_scale=RESEARCH_DEPTH.get("lr_scale"),
         c=lambda wildcards: DEPTH_SHIFTS[wildcards.c],
         level=wildcard("level", int),
         runs=DEPTH_RUNS,

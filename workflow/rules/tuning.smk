@@ -12,7 +12,13 @@ notebook_stage(
 
 notebook_stage(
     "best",
-    "Collect the grid (Table 1) and pick the cell with the lowest dev loss.",
+    "Collect the grid (Table 1), pick the cell with the lowest dev loss, draw theta's path in its run.",
     input=dict(cells=each("tune", "cell"), histories=each("tune", "history")),
-    output=dict(grid=result("tuning/grid.csv"), best=BEST_FILE, best_history=result("tuning/best_history.csv")),
+    output=dict(
+        grid=result("tuning/grid.csv"),
+        best=BEST_FILE,
+        best_history=result("tuning/best_history.csv"),
+        theta_path=figure("theta_path", "theta_path"),
+    ),
+    params=dict(shift=config["sky"]["shift"]),
 )

@@ -286,18 +286,38 @@ def to_latex(frame: pd.DataFrame, style: TableFormat) -> str:
 
 def write_table(frame: pd.DataFrame, stem: str | Path, style: TableFormat,
                 shown: pd.DataFrame | None = None) -> list[Path]:
-    """Write ``stem.csv`` (``frame``, full precision), ``stem.md`` and ``stem.tex``, each atomically.
+    """Write ``stem.csv`` (``frame``, full precision), ``stem.md``, ``stem.tex`` and ``stem.html`` (the
+    Markdown as a page, :func:`markdown_page`), each atomically.
 
     ``shown`` is what the Markdown and LaTeX render (default ``frame`` itself), e.g. ``frame``
     with its metres in 1e-3 m (:func:`in_millimetres`) while the CSV keeps metres.
     """
     stem = Path(stem)
     shown = frame if shown is None else shown
+    markdown = to_markdown(shown, style)
     return [
         write_csv(stem.with_suffix(".csv"), frame),
-        write_text(stem.with_suffix(".md"), to_markdown(shown, style)),
+        write_text(stem.with_suffix(".md"), markdown),
         write_text(stem.with_suffix(".tex"), to_latex(shown, style)),
+        write_text(stem.with_suffix(".html"), markdown_page(markdown, style.caption)),
     ]
+
+
+def markdown_page(markdown: str, title: str) -> str:
+    """Markdown (a table with its caption and notes, or a report) as a standalone HTML page.
+
+    ``snakemake --report`` shows images, HTML and PDF in the page and offers any other file (a CSV, a
+    Markdown file) as a download only, so the tables and the report are flagged for it as these pages.
+    Rendered by mistune (what nbconvert renders notebooks' Markdown with), tables included.
+    """
+    import html
+
+    import mistune
+
+    style = ("body{font-family:sans-serif;margin:1.5em;color:#222}table{border-collapse:collapse;font-size:90%}"
+             "th,td{border:1px solid #bbb;padding:3px 7px;text-align:right}th{background:#eee}")
+    return (f'<!doctype html>\n<html lang="en"><head><meta charset="utf-8"><title>{html.escape(title)}</title>'
+            f"<style>{style}</style></head><body>\n{mistune.html(markdown)}</body></html>\n")
 
 
 def in_millimetres(frame: pd.DataFrame, names: Sequence[str]) -> pd.DataFrame:

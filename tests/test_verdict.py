@@ -1,0 +1,81 @@
+"""The verdict (sdm.report.verdict): its table and sentences come from the tables handed in, nothing typed."""
+from __future__ import annotations
+
+import pandas as pd
+
+from sdm import paper
+from sdm.report.verdict import best_methods, recommended_rule, verdict
+
+LEVELS = [0, 1, 2, 3, 4]
+
+
+def _table1(n_epoch=1, lr=3e-4):
+    return pd.DataFrame({"n_epoch": [n_epoch, 2], "lr": [lr, 1e-4], "dev_loss": [1.0, 2.0], "best": [True, False]})
+
+
+def _table2(ratios):
+    """Table 2 with our mean = ratio x the paper's at each level (1e-3 m)."""
+    rows = []
+    for level, ratio in zip(LEVELS, ratios):
+        theirs = paper.TABLE2[level]["mean"]
+        rows.append({"level": level, "mean": ratio * theirs, "paper_mean": theirs, "mean_ratio": ratio})
+    return pd.DataFrame(rows)
+
+
+def _table3(means):
+    """Table 3 rows (metres) from {method: [mean per level in 1e-3 m]}."""
+    labels = {"sdm": "SDM", "cmaes": "CMA-ES (pixels)", "chamfer": "2D Chamfer", "floor": "floor"}
+    return pd.DataFrame([{"method": method, "label": labels[method], "level": level, "mean_m": 1e-3 * value}
+                         for method, values in means.items() for level, value in zip(LEVELS, values)])
+
+
+def _table4(means):
+    """Table 4 rows (metres) from {rule: [mean per level in 1e-3 m]}, with the issue's bar."""
+    rows = []
+    for flow, values in means.items():
+        for level, value in zip(LEVELS, values):
+            bar = paper.TABLE2[level]["mean"] * (1.0 if level == 0 else 0.5)
+            rows.append({"flow": flow, "level": level, "mean_m": 1e-3 * value, "bar_m": 1e-3 * bar,
+                         "meets_bar": value <= bar, "ratio_to_paper_rule": 0.25})
+    return pd.DataFrame(rows)
+
+
+def test_the_table_holds_the_papers_and_our_means():
+    text = verdict(_table1(), _table2([0.5, 1.6, 1.7, 1.8, 1.9]))
+    row = next(line for line in text.splitlines() if line.startswith("| 2 |"))
+    assert row == f"| 2 | {paper.TABLE2[2]['mean']:.3f} | {1.7 * paper.TABLE2[2]['mean']:.3f} | 1.70x |"
+    assert "within 0.5x-2x of the paper's (1.60x-1.90x)" in text
+    assert "ours are larger at levels 1-4 (1.60x-1.90x the paper's" in text
+
+
+def test_a_failed_criterion_is_said_not_to_reproduce():
+    text = verdict(_table1(n_epoch=2, lr=1e-4), _table2([0.5, 1.6, 2.5, 1.8, 1.9]))
+    did_not = next(line for line in text.splitlines() if line.startswith("- **What did not:**"))
+    assert "Table 1: best cell" in did_not and "level 2: mean / paper's" in did_not
+    assert "Table 1" not in next(line for line in text.splitlines() if line.startswith("- **What reproduced:**"))
+
+
+def test_the_closest_method_is_among_the_configured_ones_and_the_answer_follows_it():
+    table3 = _table3({"sdm": [0.06, 30, 40, 50, 60], "cmaes": [0.07, 1, 2, 3, 4], "chamfer": [1, 2, 3, 4, 5],
+                      "floor": [0.01, 0.1, 0.1, 0.1, 0.1]})
+    best = best_methods(table3, ["sdm", "cmaes", "chamfer"])
+    assert best["method"].tolist() == ["sdm", "cmaes", "cmaes", "cmaes", "cmaes"]  # the floor row is no method
+    text = verdict(_table1(), _table2([0.5, 1.6, 1.7, 1.8, 1.9]), table3, ["sdm", "cmaes", "chamfer"])
+    answer = next(line for line in text.splitlines() if line.startswith("- **Does SDM beat"))
+    assert answer.startswith("- **Does SDM beat the alternatives?** no, not everywhere (Table 3, the same noisy "
+                             "targets for every method): CMA-ES (pixels) is closer at levels 1-4")
+    assert "SDM is closest at level 0" in answer
+    everywhere = verdict(_table1(), _table2([0.5] * 5), _table3({"sdm": [1] * 5, "cmaes": [2] * 5}), ["sdm", "cmaes"])
+    assert "**Does SDM beat the alternatives?** yes" in everywhere
+
+
+def test_the_recommended_rule_meets_the_bar_at_the_most_levels():
+    table4 = _table4({"closed": [0.05, 3, 5, 9, 21], "closed_centred_r1": [0.05, 3, 4, 5, 6],
+                      "floor": [0.0, 0.0, 0.0, 0.0, 0.0]})
+    assert recommended_rule(table4, ["closed", "closed_centred_r1"]) == "closed_centred_r1"
+    assert recommended_rule(table4, ["closed"]) == "closed"
+    text = verdict(_table1(), _table2([0.5] * 5), table4=table4, rules=["closed", "closed_centred_r1"])
+    assert "`closed_centred_r1` (Table 4): it meets the issue's bar" in text and "at 5 of 5 levels" in text
+    hopeless = _table4({"closed5": [9, 90, 90, 90, 90]})
+    assert recommended_rule(hopeless, ["closed5"]) is None
+    assert "keep the paper's rule" in verdict(_table1(), _table2([0.5] * 5), table4=hopeless, rules=["closed5"])
