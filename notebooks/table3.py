@@ -43,6 +43,8 @@ tuning_files = []  # input: the baseline_tune files, one per method, in the orde
 run_files = []  # input: the baseline_runs files
 table2_distances = "results/noise/distances.csv"  # input: Table 2's per-run results, SDM's rows
 sdm_timings = []  # input: the noise jobs' timing files (SDM's seconds per run; none: no seconds)
+floor_files = []  # optional input: the floor_runs files (the floor's rows; none: no floor)
+floor_settings = {}  # the floor's search settings (floor.settings), stated in the summary
 methods = ["silhouette", "chamfer", "sinkhorn", "cmaes"]  # the baselines (SDM's rows are Table 2's)
 levels = [0, 1, 2, 3, 4]
 runs = 2  # the runs 0..runs-1 of each level
@@ -66,8 +68,8 @@ from IPython.display import Markdown, display
 from sdm.errors import SDMInputError
 from sdm.experiments import single_thread
 from sdm.report.baselines import (
-    TABLE3_FORMAT, TUNING_FORMAT, baselines_figure, table2_runs, table3_display, table3_frame, table3_summary,
-    tuning_frame, write_table3,
+    FLOOR, RUN_COLUMNS, TABLE3_FORMAT, TUNING_FORMAT, baselines_figure, floor_frame, floor_summary, table2_runs, table3_display,
+    table3_frame, table3_summary, tuning_frame, write_table3,
 )
 from sdm.report.figures import show_figure
 from sdm.report.io import read_json, write_csv, write_text
@@ -92,7 +94,10 @@ if unpaired:
                         f"'levels' and 'runs' must cover every run file)")
 print(f"SDM rows from Table 2: {len(sdm_runs)} runs; seconds per run by level: "
       + ", ".join(f"{level}: {value:.3f}" for level, value in sdm_runs.groupby("level")["seconds"].first().items()))
-all_runs = pd.concat([sdm_runs, baseline_runs], ignore_index=True)
+# The floor's rows: each run's exact-mismatch minimiser (the stage floor_runs), read against, not ranked.
+floor_runs = pd.concat([pd.read_csv(path) for path in floor_files], ignore_index=True) if floor_files else None
+floor_rows = [floor_runs.assign(method=FLOOR)[list(RUN_COLUMNS)]] if floor_files else []
+all_runs = pd.concat([sdm_runs, baseline_runs, *floor_rows], ignore_index=True)
 table3 = table3_frame(all_runs, shift=shift)
 written = write_table3(table3, Path(table3_csv).with_suffix(""))
 assert {str(path) for path in written} == {table3_csv, table3_md, table3_tex, table3_html}, written
@@ -109,6 +114,8 @@ show_figure(baselines_figure(table3, all_runs, shift), figure)
 
 # %%
 answer = table3_summary(table3, table2_runs=int(pd.read_csv(table2_distances).groupby("level").size().min()))
+if floor_files:
+    answer += floor_summary(floor_frame(floor_runs), floor_settings)
 write_text(summary, answer)
 display(Markdown(answer))
 

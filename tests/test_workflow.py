@@ -29,7 +29,7 @@ from config_check import ConfigError, check_config, load_config, validate_schema
 SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
 APOLLO_SAMPLE = ROOT / "data" / "apollocar3d-sample"
 STAGES = ["synthetic", "data", "sample", "sky", "split", "tune", "best", "noise", "tables", "baseline_tune",
-          "baseline_runs", "table3", "rule_runs", "depth_runs", "table4", "table5", "figures", "report"]
+          "baseline_runs", "floor_runs", "table3", "rule_runs", "depth_runs", "table4", "table5", "figures", "report"]
 
 pytestmark = pytest.mark.workflow
 
@@ -178,7 +178,7 @@ def test_dry_run_default_config_plans_every_stage(tmp_path):
     assert jobs == {"synthetic": 1, "data": 1, "sample": 1, "sky": 1, "split": 1, "tune": cells, "best": 1,
                     "noise": chunks, "tables": 1, "figures": 1, "report": 1,
                     "baseline_tune": len(methods), "baseline_runs": len(methods) * len(config["noise"]["levels"]),
-                    "table3": 1, **_research_jobs(config)}
+                    "table3": 1, "floor_runs": len(config["noise"]["levels"]), **_research_jobs(config)}
 
 
 def _research_jobs(config: dict) -> dict[str, int]:
@@ -531,6 +531,9 @@ def _key_cases() -> dict[str, tuple[dict, str | None]]:
         "baselines.chamfer": ({"baselines": {"chamfer": {"lr": 0.2, "steps": 12}}}, "baseline_tune"),
         "baselines.sinkhorn": ({"baselines": {"sinkhorn": {"lr": 0.2, "steps": 8}}}, "baseline_tune"),
         "baselines.cmaes": ({"baselines": {"cmaes": {"sigma0": 0.2, "budget": 120}}}, "baseline_tune"),
+        "floor.enabled": ({"floor": {"enabled": False}}, "table3"),
+        "floor.runs": ({"floor": {"runs": 1}}, "floor_runs"),
+        "floor.settings": ({"floor": {"settings": {"restarts": 2, "budget": 60}}}, "floor_runs"),
         "research.rules.enabled": ({"research": {"rules": {"enabled": False}}}, "report"),
         "research.rules.names": ({"research": {"rules": {"names": ["closed", "closed_r2"]}}}, "rule_runs"),
         "research.rules.runs": ({"research": {"rules": {"runs": 1}}}, "rule_runs"),

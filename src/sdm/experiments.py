@@ -250,14 +250,16 @@ def _sdm_runs(train_set, clean_targets, level, runs, settings, record, columns, 
 
 def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed: int, s: int = 4,
                        shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
-                       batch_size: int = 64, flow: str = "paper") -> pd.DataFrame:
+                       batch_size: int = 64, flow: str = "paper", zooms: Sequence[int] | None = None,
+                       at: Sequence[float] | None = None) -> pd.DataFrame:
     """The dynamic gradient flow *at* theta*, on each noise level's training targets (run 0's draw).
 
     Without noise theta* is a fixed point (the flow vanishes at every zoom level). With noisy
     targets it need not be: a non-zero mean flow at theta* is a pull that SGD follows past
     theta*, i.e. a bias of the noisy estimates, measured here instead of guessed.
 
-    ``flow`` names the gradient rule measured (:data:`sdm.FLOW_RULES`, default the paper's).
+    ``flow`` names the gradient rule measured (:data:`sdm.FLOW_RULES`, default the paper's); ``zooms`` the
+    loss levels measured (default ``s .. 0``); ``at`` another theta to measure at (default theta* itself).
 
     Returns:
         One row per (noise level, zoom): ``level, zoom, flow_a, flow_b`` (summed flow per
@@ -265,11 +267,11 @@ def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed:
         the points entering the zoom level that land on the grid in a block the target leaves empty).
     """
     camera = camera or train_set.camera
-    theta = shift_vector(shift, train_set.points)
+    theta = shift_vector(shift if at is None else at, train_set.points)
     rows = []
     for level in levels:
         noisy = train_set.with_targets(noisy_targets(train_set.targets, level, run_seed(seed, level, 0)))
-        for zoom in range(s, -1, -1):
+        for zoom in (range(s, -1, -1) if zooms is None else zooms):
             layer = SpatialDomainMapping(camera, s=s, zoom=zoom, flow=flow)
             total = torch.zeros(2, dtype=torch.float64, device=train_set.device)
             entered = unmatched = 0
@@ -281,6 +283,42 @@ def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed:
             rows.append({"level": int(level), "zoom": zoom, "flow_a": float(total[0]) / len(noisy),
                          "flow_b": float(total[1]) / len(noisy), "unmatched": unmatched / max(entered, 1)})
     return pd.DataFrame.from_records(rows, columns=["level", "zoom", "flow_a", "flow_b", "unmatched"])
+
+
+def rule_bias(train_set: ConfigurationSet, flow: str, levels: Sequence[int], seed: int, s: int = 4,
+              shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None, step: float = 1e-3) -> pd.DataFrame:
+    """Where a rule's SGD settles, predicted from two measurements at the last level (zoom 0): the flow's
+    bias at theta* under noise and its stiffness near theta* without noise.
+
+    SGD stops moving on average where the mean flow vanishes. Near theta* the flow per configuration is
+    about ``bias + stiffness * (theta - theta*)`` per axis, so it vanishes ``-bias / stiffness`` from theta*.
+    ``bias`` is :func:`flow_at_true_shift` at zoom 0 (run 0's noise draw of each level); ``stiffness`` the
+    flow's central difference over ``theta* +- step`` per axis on the same draw (flow per configuration per
+    metre). A measurement of where the rule's fixed point lies, not of SGD's scatter around it.
+
+    Returns:
+        One row per level: ``level, bias_a, bias_b`` (flow per configuration), ``stiffness_a, stiffness_b``
+        (per metre), ``offset_a, offset_b`` (metres, ``-bias / stiffness``) and ``predicted_m`` (their norm).
+    """
+    camera = camera or train_set.camera
+    rows = []
+    for level in levels:
+        bias = flow_at_true_shift(train_set, [level], seed, s, shift, camera, flow=flow, zooms=[0])
+        row = {"level": int(level)}
+        for axis, name in enumerate("ab"):
+            ends = []
+            for sign in (1.0, -1.0):
+                at = [float(v) for v in shift]
+                at[axis] += sign * step
+                ends.append(float(flow_at_true_shift(train_set, [level], seed, s, shift, camera, flow=flow, zooms=[0],
+                                                     at=at)[f"flow_{name}"].iloc[0]))
+            stiffness = (ends[0] - ends[1]) / (2 * step)
+            row[f"bias_{name}"] = float(bias[f"flow_{name}"].iloc[0])
+            row[f"stiffness_{name}"] = stiffness
+            row[f"offset_{name}"] = -row[f"bias_{name}"] / stiffness if stiffness else float("nan")
+        rows.append(row | {"predicted_m": float(np.hypot(row["offset_a"], row["offset_b"]))})
+    return pd.DataFrame.from_records(rows, columns=["level", "bias_a", "stiffness_a", "offset_a", "bias_b",
+                                                    "stiffness_b", "offset_b", "predicted_m"])
 
 
 def single_thread(threads: int = 1) -> None:

@@ -38,6 +38,23 @@ notebook_stage(
 )
 
 notebook_stage(
+    "floor_runs",
+    "The floor at one noise level: per paired run, the theta minimising the exact pixel mismatch.",
+    jobs=[{"level": level} for level in LEVELS] if FLOOR["enabled"] else [],
+    job="floor_level{level}",
+    input=dict(sky=SKY_FILE, split=SPLIT_FILE),
+    output=dict(runs_file=result("floor/level{level}.csv")),
+    params=dict(
+        level=wildcard("level", int),
+        runs=FLOOR_RUNS,
+        settings=FLOOR_SETTINGS,
+        seed=config["noise"]["seed"],
+        shift=config["sky"]["shift"],
+    ),
+    runtime=20,
+)
+
+notebook_stage(
     "table3",
     "Table 3 (SDM's rows from Table 2's runs), the tuning table, the figure, the answer in words.",
     jobs=[{}] if config["baselines"]["enabled"] else [],
@@ -46,6 +63,7 @@ notebook_stage(
         run_files=each("baseline_runs", "runs_file"),
         table2_distances=result("noise/distances.csv"),
         sdm_timings=each("noise", "timing_file"),
+        floor_files=each("floor_runs", "runs_file"),
     ),
     output=dict(
         **table_files("table3"),
@@ -56,6 +74,7 @@ notebook_stage(
     ),
     params=dict(
         methods=[*BASELINES],
+        floor_settings=FLOOR_SETTINGS,
         levels=config["noise"]["levels"],
         runs=BASELINE_RUNS,
         shift=config["sky"]["shift"],

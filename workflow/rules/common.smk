@@ -154,6 +154,10 @@ BASELINES = {
     for name in (config["baselines"]["methods"] if config["baselines"]["enabled"] else [])
 }
 BASELINE_RUNS = int(config["baselines"]["runs"])  # a count: the stages run 0..BASELINE_RUNS-1
+# The floor of Tables 3 and 4 (config section floor): one job per noise level, runs 0..FLOOR_RUNS-1.
+FLOOR = config.get("floor", {"enabled": False})
+FLOOR_RUNS = int(FLOOR.get("runs", 1))
+FLOOR_SETTINGS = dict(sorted(FLOOR.get("settings", {}).items()))  # name order, as BASELINES'
 
 # Beyond the paper (config section research). Table 4: the rules beside the paper's, each run at every
 # noise level with Table 2's runs 0..runs-1. Table 5: c* label -> its value, in config order.

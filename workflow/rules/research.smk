@@ -44,16 +44,27 @@ notebook_stage(
     "Table 4: Table 2 per rule beside the paper's rule on the same draws, the paper and the issue's bar.",
     jobs=[{}] if RESEARCH_RULES["enabled"] else [],
     input=dict(
+        sky=SKY_FILE,
+        split=SPLIT_FILE,
         rule_files=each("rule_runs", "runs_file"),
         table2_distances=result("noise/distances.csv"),
         baseline_run_files=each("baseline_runs", "runs_file"),
+        floor_files=each("floor_runs", "runs_file"),
     ),
     output=dict(
         **table_files("table4"),
         table4_summary=result("tables/table4_summary.md"),
+        table4_bias=result("tables/table4_bias.csv"),
         figure=figure("research_rules", "research_rules"),
     ),
-    params=dict(names=RULE_NAMES, levels=config["noise"]["levels"], runs=RULE_RUNS),
+    params=dict(
+        names=RULE_NAMES,
+        levels=config["noise"]["levels"],
+        runs=RULE_RUNS,
+        s=config["train"]["s"],
+        seed=config["noise"]["seed"],
+        shift=config["sky"]["shift"],
+    ),
 )
 
 notebook_stage(

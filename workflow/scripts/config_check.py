@@ -90,7 +90,7 @@ def check_config(config: Mapping[str, Any]) -> None:
     - ``split.n_train + split.n_dev == split.n_selected <= sky.n_images``;
     - with synthetic data, ``sky.n_images <= data.synthetic.n_images``;
     - ``figures.example < split.n_train`` (the example is a train configuration);
-    - ``noise.chunk_size <= noise.runs``; ``baselines.runs <= noise.runs``; the shift is finite (YAML's ``.inf`` is a number);
+    - ``noise.chunk_size <= noise.runs``; ``baselines.runs <= noise.runs``; ``floor.runs <= noise.runs``; the shift is finite (YAML's ``.inf`` is a number);
     - ``research.rules.runs <= noise.runs``, no ``paper`` among ``research.rules.names``, finite
       ``research.depth.shifts_c`` (when each part is enabled);
     - the data path for the chosen source is set;
@@ -155,6 +155,12 @@ def check_config(config: Mapping[str, Any]) -> None:
         paired = _int(baselines, "baselines", "runs")
         if paired > runs:
             raise ConfigError(f"config key 'baselines.runs': the runs are paired with Table 2's, so at most "
+                              f"noise.runs = {runs}, got {paired}")
+    floor = config.get("floor") or {}
+    if floor.get("enabled"):
+        paired = _int(floor, "floor", "runs")
+        if paired > runs:
+            raise ConfigError(f"config key 'floor.runs': the runs are paired with Table 2's, so at most "
                               f"noise.runs = {runs}, got {paired}")
     _check_research(config, runs)
 

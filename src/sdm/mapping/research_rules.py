@@ -22,8 +22,8 @@ from __future__ import annotations
 import torch
 
 from ..camera import Camera
-from .flow import block_window, nine
-from .rules import FlowRule, closing, sign_flow, window_rule
+from .flow import block_window, dynamic_flow, landing_matched, nine
+from .rules import FlowRule, by_zoom, closing, sign_flow, window_rule
 
 
 def _uncovered_window(screen, config, landed, landing, target, zoom, camera):
@@ -128,6 +128,68 @@ def _closing_pixels(radius: int, at_least: int = 0):
     return close
 
 
+#: The four one-block moves along the flow's axes: ``(drow, dcol)`` for y+, y-, x+, x-.
+_MOVES = ((1, 0), (-1, 0), (0, 1), (0, -1))
+
+
+def _mismatch_descent(screen, depth, config, landed, block, landing, target, zoom, camera: Camera):
+    """Per point, the discrete derivative of the exact block mismatch (false positives plus false negatives).
+
+    The objective is CMA-ES's (:mod:`sdm.baselines.cmaes`) at level ``zoom``: the blocks of the points'
+    *projections* ``floor(screen / 2^zoom)`` (every point, not only the chain's survivors: the chain drops
+    ``rmin`` losers, whose holes would pull at theta*), against ``target``. For each point and each of the
+    four one-block moves ``e`` it counts what that move alone would change:
+
+    - leaving its block ``L``: ``-s(L)`` if the point is the block's only one, else 0;
+    - arriving in ``L + e``: ``s(L + e)`` if no point is there, else 0;
+
+    with ``s = +1`` for a block of the grid the target leaves empty (a false positive appears or goes),
+    ``-1`` for an active one (a false negative) and ``0`` off the grid (nothing is counted there; points up
+    to one block off the grid are included, so that their way back in is counted). Only moves that lower
+    the count pull: the flow on an axis is ``(relu(-D(-e)) - relu(-D(+e))) / 2``, divided by the number of
+    points sharing the block (so a block's pull does not grow with its points). Without noise the count is 0
+    at theta*, no move lowers it, and theta* is an exact fixed point; nothing depends on the landing, so
+    the forward (the chain) is unchanged and only the backward differs.
+
+    Returns ``(flow, loss, matched)`` as :func:`~sdm.mapping.flow.dynamic_flow`, except that ``loss`` is
+    the mismatch count itself (blocks, summed over the batch), not metres.
+    """
+    n, grid_h, grid_w = target.shape
+    blocks = torch.floor(screen / float(1 << zoom)).long()  # (P, 2) exact: 2^zoom is a power of two
+    near = (blocks[:, 0] >= -1) & (blocks[:, 0] <= grid_h) & (blocks[:, 1] >= -1) & (blocks[:, 1] <= grid_w)
+    moved = near.nonzero().squeeze(1)
+    block_of = blocks.index_select(0, moved)  # (p, 2)
+    base = config.index_select(0, moved) * (grid_h * grid_w)  # (p,) first cell of the point's configuration
+    flat_target = target.reshape(-1)
+
+    def cell_at(rows, cols):
+        """(p,) cell index of blocks ``(rows, cols)`` (0 off the grid) and (p,) bool on the grid."""
+        on_grid = (rows >= 0) & (rows < grid_h) & (cols >= 0) & (cols < grid_w)
+        return torch.where(on_grid, base + rows * grid_w + cols, 0), on_grid
+
+    own_cell, own_on_grid = cell_at(block_of[:, 0], block_of[:, 1])
+    count = torch.bincount(own_cell[own_on_grid], minlength=flat_target.numel())  # points per grid block
+
+    def cost(cell, on_grid):
+        """(p,) ``s``: +1 an empty grid block, -1 an active one, 0 off the grid."""
+        return torch.where(flat_target.take(cell), -1.0, 1.0).to(screen.dtype) * on_grid
+
+    own_count = torch.where(own_on_grid, count.take(own_cell), 1)
+    leave = -cost(own_cell, own_on_grid) * (own_count == 1)
+    change = []
+    for drow, dcol in _MOVES:
+        cell, on_grid = cell_at(block_of[:, 0] + drow, block_of[:, 1] + dcol)
+        change.append(leave + cost(cell, on_grid) * (count.take(cell) == 0))
+    down = torch.relu(-torch.stack(change, dim=-1))  # (p, 4) how much each move lowers the count
+    pull = torch.stack((down[:, 3] - down[:, 2], down[:, 1] - down[:, 0]), dim=-1) / 2  # (p, 2) (x, y)
+    flow = torch.zeros_like(screen)
+    flow.index_copy_(0, moved, pull / own_count.to(screen.dtype)[:, None])
+    covered = torch.zeros_like(flat_target)
+    covered[own_cell[own_on_grid]] = True
+    loss = (covered ^ flat_target).sum().to(screen.dtype)
+    return flow, loss, landing_matched(config, landed, landing, target)
+
+
 #: The experimental rules by name (docs/method.md, "Beyond the paper"); none is used by a table.
 RESEARCH_RULES: dict[str, FlowRule] = {
     "nearest": window_rule(weigh=_nearest),
@@ -147,4 +209,6 @@ RESEARCH_RULES: dict[str, FlowRule] = {
     # Chamfer-like: also pulled towards target blocks that no point's projection covers.
     "two_sided": _two_sided(),
     "closed_two_sided": _two_sided(prepare=closing(3)),
+    # Issue 20: the discrete derivative of CMA-ES's objective at zoom 0, eq. 19 at the coarser levels.
+    "mismatch_descent": by_zoom(_mismatch_descent, dynamic_flow, finest_coarse=1),
 }

@@ -28,7 +28,13 @@ METHOD_LABELS = {
     "chamfer": "2D Chamfer",
     "sinkhorn": "Sinkhorn OT",
     "cmaes": "CMA-ES (pixels)",
+    "floor": "floor (exact-mismatch minimiser)",
 }
+#: The floor's rows (:mod:`sdm.baselines.floor`): what every method is read against, not a competitor.
+FLOOR = "floor"
+#: Per-run columns the floor's summary needs (``sdm.baselines.floor.FLOOR_COLUMNS`` has these and more).
+FLOOR_RUN_COLUMNS = ("level", "run", "a", "b", "distance", "search_distance", "half_distance", "extent_a",
+                     "extent_b", "min_mismatch", "mismatch_at_truth", "seconds")
 
 
 def _order(methods: Sequence[str]) -> list[str]:
@@ -309,7 +315,7 @@ def table3_summary(table: pd.DataFrame, reference: str = "sdm", table2_runs: int
     lines = []
     for level, rows in table.groupby("level", sort=True):
         ref = rows[rows["method"] == reference]
-        others = rows[rows["method"] != reference]
+        others = rows[(rows["method"] != reference) & (rows["method"] != FLOOR)]
         if ref.empty or others.empty:
             continue
         ref_mean = float(ref["mean_m"].iloc[0])
@@ -326,7 +332,7 @@ def table3_summary(table: pd.DataFrame, reference: str = "sdm", table2_runs: int
         lines.append(f"- noise level {int(level)} ({runs} paired runs): {verdict}; share of paired runs closer to "
                      f"theta* than SDM's: {', '.join(beaten)}. SDM's bias {1000 * float(ref['bias_m'].iloc[0]):.3f}e-3 m, "
                      f"spread {1000 * float(ref['spread_m'].iloc[0]):.3f}e-3 m.")
-    seconds = table.groupby("method", sort=False)["seconds_per_run"].mean()
+    seconds = table[table["method"] != FLOOR].groupby("method", sort=False)["seconds_per_run"].mean()
     ref_seconds = float(seconds[reference])
     timing = ", ".join(
         f"{METHOD_LABELS.get(name, name)} {value:.2f} s" + (f" ({value / ref_seconds:.1f}x)" if ref_seconds > 0 else "")
@@ -344,3 +350,51 @@ def table3_summary(table: pd.DataFrame, reference: str = "sdm", table2_runs: int
                      f"'baselines.runs'), fewer than Table 2 so that the default run stays within its time "
                      f"budget{cost}; set it to {table2_runs} to pair all of them.")
     return "\n".join(lines) + "\n"
+
+
+# -- the floor --------------------------------------------------------------------------------------
+
+
+def floor_frame(runs: pd.DataFrame) -> pd.DataFrame:
+    """The floor per noise level from its per-run rows (:data:`FLOOR_RUN_COLUMNS`, metres).
+
+    Returns:
+        One row per level: ``level, runs``; ``mean_m``, ``median_m`` of the floor's distance to theta*
+        (the centre of each run's minimal region); ``search_mean_m`` (the search's own best points);
+        ``half_mean_m`` (the floor found with half the budget) and ``budget_change`` (``|mean - half| /
+        mean``: what doubling the budget moved); ``extent_a_m``, ``extent_b_m`` (mean width of the region
+        where the count is minimal, along a and b); ``truth_minimal`` (share of runs where theta* itself
+        has the minimal count); ``seconds_per_run``.
+    """
+    missing = [c for c in FLOOR_RUN_COLUMNS if c not in runs]
+    if missing:
+        raise SDMInputError(f"floor runs: missing column(s) {missing}; has {list(runs.columns)}")
+    if runs.empty:
+        raise SDMInputError("floor runs: no run")
+    rows = []
+    for level, group in runs.groupby("level", sort=True):
+        mean, half = float(group["distance"].mean()), float(group["half_distance"].mean())
+        rows.append({"level": int(level), "runs": int(len(group)), "mean_m": mean,
+                     "median_m": float(group["distance"].median()), "search_mean_m": float(group["search_distance"].mean()),
+                     "half_mean_m": half, "budget_change": abs(mean - half) / mean if mean > 0 else math.nan,
+                     "extent_a_m": float(group["extent_a"].mean()), "extent_b_m": float(group["extent_b"].mean()),
+                     "truth_minimal": float((group["mismatch_at_truth"] == group["min_mismatch"]).mean()),
+                     "seconds_per_run": float(group["seconds"].mean())})
+    return pd.DataFrame.from_records(rows)
+
+
+def floor_summary(frame: pd.DataFrame, settings: Mapping) -> str:
+    """The floor in plain words (Markdown, one bullet), every number from :func:`floor_frame`'s ``frame``
+    and the search's ``settings`` (``sdm.baselines.floor.FloorSettings`` fields, as a mapping)."""
+    runs = ", ".join(sorted({str(int(r)) for r in frame["runs"]}))
+    per_level = "; ".join(
+        f"level {int(row.level)}: {1e3 * row.mean_m:.3f} (region {1e3 * row.extent_a_m:.3f} x {1e3 * row.extent_b_m:.3f} "
+        f"along a x b; theta* minimal in {row.truth_minimal:.0%} of runs)" for row in frame.itertuples())
+    worst = frame.loc[frame["budget_change"].idxmax()]
+    budget = ", ".join(f"{key} {value}" for key, value in sorted(settings.items()))
+    return (f"- floor (exact-mismatch minimiser; {runs} runs per level; search: {budget}): per run, the centre of "
+            f"the region of theta where the exact zoom-0 pixel mismatch of its noisy training set is minimal, the "
+            f"best any method minimising CMA-ES's objective can reach. Mean distance (1e-3 m) and the region's mean "
+            f"extent (1e-3 m): {per_level}. Doubling the budget (the same search stopped after half of it against "
+            f"all of it) moves a level's mean by at most {worst['budget_change']:.1%} (level {int(worst['level'])}); "
+            f"{frame['seconds_per_run'].mean():.2f} s per run.\n")

@@ -27,6 +27,27 @@ DEPTH_BAR_M = {"a": 2e-3, "b": 2e-3, "c": 2e-2}
 
 #: Per-run columns Table 4 needs (``sdm.experiments.rule_noise_runs``; Table 2's runs have no ``flow``).
 RULE_RUN_COLUMNS = ("flow", "level", "run", "distance")
+
+#: Table 4's rows that are not gradient rules: the best black-box search (Table 3's CMA-ES runs) and the
+#: floor (the exact-mismatch minimiser of each run, :mod:`sdm.baselines.floor`), on their own paired runs.
+CMAES_ROW = "CMA-ES (Table 3)"
+FLOOR_ROW = "floor (exact-mismatch minimiser)"
+#: Issue 20's bar: a gradient rule's mean distance at most this many times CMA-ES's, on the same runs.
+CMAES_FACTOR = 2.0
+
+
+def reference_rows(baseline_runs: pd.DataFrame | None, floor_runs: pd.DataFrame | None) -> pd.DataFrame:
+    """CMA-ES's runs (``method == "cmaes"`` of Table 3's per-run rows) and the floor's runs as Table 4 rows
+    (``flow`` :data:`CMAES_ROW` / :data:`FLOOR_ROW`, ``level, run, distance``); either may be ``None``."""
+    parts = []
+    if baseline_runs is not None and "cmaes" in set(baseline_runs.get("method", ())):
+        cmaes = baseline_runs[baseline_runs["method"] == "cmaes"]
+        parts.append(cmaes[["level", "run", "distance"]].assign(flow=CMAES_ROW))
+    if floor_runs is not None and len(floor_runs):
+        parts.append(floor_runs[["level", "run", "distance"]].assign(flow=FLOOR_ROW))
+    if not parts:
+        return pd.DataFrame(columns=list(RULE_RUN_COLUMNS))
+    return pd.concat(parts, ignore_index=True)[list(RULE_RUN_COLUMNS)]
 #: Per-run columns Table 5 needs (``sdm.experiments.DEPTH_RUN_COLUMNS``).
 DEPTH_RUN_COLUMNS = ("c_true", "level", "run", "error_a", "error_b", "error_c", "distance_ab", "distance")
 
@@ -68,7 +89,8 @@ def gathered_runs(paths: Sequence[str | Path], keys: Sequence[str], expected: se
 # -- Table 4 ------------------------------------------------------------------------------------------
 
 
-def table4_frame(rule_runs: pd.DataFrame, table2_runs: pd.DataFrame) -> pd.DataFrame:
+def table4_frame(rule_runs: pd.DataFrame, table2_runs: pd.DataFrame,
+                 cmaes_runs: pd.DataFrame | None = None) -> pd.DataFrame:
     """Table 4: Table 2 again for each gradient rule, with the paper's rule's paired runs beside.
 
     Args:
@@ -83,11 +105,15 @@ def table4_frame(rule_runs: pd.DataFrame, table2_runs: pd.DataFrame) -> pd.DataF
         paper_rule_median_m`` (Table 2's runs of the same (level, run)) and ``paper_rule_runs``;
         ``published_mean_m, published_std_m, published_median_m`` (the paper's Table 2, NaN for a
         level it lacks); ``bar_m`` (:func:`issue_bar_m`), ``meets_bar`` (``mean_m <= bar_m``) and
-        ``ratio_to_paper_rule`` (``mean_m / paper_rule_mean_m``).
+        ``ratio_to_paper_rule`` (``mean_m / paper_rule_mean_m``). With ``cmaes_runs`` (rows ``level, run,
+        distance``: Table 3's CMA-ES) also issue 20's comparison on the runs both have: ``cmaes_runs``
+        (their number), ``on_cmaes_runs_mean_m`` (the row's mean over them), ``cmaes_mean_m``,
+        ``ratio_to_cmaes`` and ``within_2x_cmaes`` (ratio at most :data:`CMAES_FACTOR`).
     """
     _require(rule_runs, RULE_RUN_COLUMNS, "Table 4 rule runs")
     _require(table2_runs, ("level", "run", "distance"), "Table 2 runs")
     reference = table2_runs.set_index(["level", "run"])["distance"]
+    search = cmaes_runs.set_index(["level", "run"])["distance"] if cmaes_runs is not None and len(cmaes_runs) else None
     rows = []
     for flow in pd.unique(rule_runs["flow"]):
         for level, group in rule_runs[rule_runs["flow"] == flow].groupby("level", sort=True):
@@ -103,30 +129,52 @@ def table4_frame(rule_runs: pd.DataFrame, table2_runs: pd.DataFrame) -> pd.DataF
                     for stat, key in (("mean", "mean"), ("std", "std"), ("median", "q2"))}
             row |= {"bar_m": bar, "meets_bar": bool(ours["mean_m"] <= bar) if not math.isnan(bar) else False,
                     "ratio_to_paper_rule": ours["mean_m"] / theirs["mean_m"] if theirs["mean_m"] > 0 else math.nan}
+            if search is not None:
+                row |= _against_cmaes(group, search)
             rows.append(row)
     return pd.DataFrame.from_records(rows)
 
 
+def _against_cmaes(group: pd.DataFrame, search: pd.Series) -> dict:
+    """Issue 20's columns for one (row, level): the row's and CMA-ES's means over the runs both have."""
+    own = group.set_index(["level", "run"])["distance"]
+    common = own.index.intersection(search.index)
+    if not len(common):
+        return {"cmaes_runs": 0, "on_cmaes_runs_mean_m": math.nan, "cmaes_mean_m": math.nan,
+                "ratio_to_cmaes": math.nan, "within_2x_cmaes": False}
+    mine, theirs = float(own.loc[common].mean()), float(search.loc[common].mean())
+    ratio = mine / theirs if theirs > 0 else math.nan
+    return {"cmaes_runs": int(len(common)), "on_cmaes_runs_mean_m": mine, "cmaes_mean_m": theirs,
+            "ratio_to_cmaes": ratio, "within_2x_cmaes": bool(ratio <= CMAES_FACTOR)}
+
+
 _TABLE4_DISTANCES = ("mean", "std", "median", "paper_rule_mean", "paper_rule_std", "paper_rule_median",
-                     "published_mean", "published_std", "published_median", "bar")
+                     "published_mean", "published_std", "published_median", "bar", "on_cmaes_runs_mean",
+                     "cmaes_mean")
 
 TABLE4_FORMAT = TableFormat(
     columns=("flow", "level", "runs", "mean", "std", "median", "paper_rule_mean", "paper_rule_std",
-             "paper_rule_median", "published_mean", "published_median", "bar", "meets_bar", "ratio_to_paper_rule"),
+             "paper_rule_median", "published_mean", "published_median", "bar", "meets_bar", "ratio_to_paper_rule",
+             "cmaes_runs", "on_cmaes_runs_mean", "cmaes_mean", "ratio_to_cmaes"),
     headers={
         "flow": "rule", "level": "noise level", "runs": "runs", "mean": "mean", "std": "std", "median": "median",
         "paper_rule_mean": "mean (paper's rule)", "paper_rule_std": "std (paper's rule)",
         "paper_rule_median": "median (paper's rule)", "published_mean": "mean (paper)",
         "published_median": "median (paper)", "bar": "bar", "meets_bar": "meets bar",
-        "ratio_to_paper_rule": "mean / paper's rule",
+        "ratio_to_paper_rule": "mean / paper's rule", "cmaes_runs": "runs with CMA-ES",
+        "on_cmaes_runs_mean": "mean (those runs)", "cmaes_mean": "CMA-ES mean", "ratio_to_cmaes": "/ CMA-ES",
     },
-    formats={c: ".3f" for c in _TABLE4_DISTANCES} | {"ratio_to_paper_rule": ".2f"},
+    formats={c: ".3f" for c in _TABLE4_DISTANCES} | {"ratio_to_paper_rule": ".2f", "ratio_to_cmaes": ".2f"},
     caption="Table 4: Table 2 per gradient rule, distance ||theta~ - theta*|| per noise level (1e-3 m)",
     label="tab:table4",
     notes=(
         "Each rule's run r at level n trains on the noisy targets and shuffling of Table 2's run r (the same seed). "
         "paper's rule: Table 2's runs with the same (level, run); paper: the published Table 2. "
         "bar (issue 12): half the paper's mean at levels 1-4, the paper's mean noise-free.",
+        f"{CMAES_ROW}: Table 3's CMA-ES runs; {FLOOR_ROW}: per run, the theta minimising the exact zoom-0 pixel "
+        "mismatch (CMA-ES's objective) over that run's noisy training set, the centre of the region where it is "
+        "minimal (sdm.baselines.floor). The last four columns compare each row with CMA-ES on the runs both have "
+        "(issue 20's bar: at most 2x CMA-ES's mean).",
     ),
 )
 
@@ -137,10 +185,14 @@ def table4_display(frame: pd.DataFrame) -> pd.DataFrame:
 
 
 def table4_summary(frame: pd.DataFrame) -> str:
-    """Table 4 in plain words (Markdown): per rule, whether it meets the issue's bar at every level,
-    where it misses, and how far it moves the mean from the paper's rule's on the same draws."""
+    """Table 4 in plain words (Markdown): per rule, whether it meets issue 12's bar at every level, where it
+    misses, how far it moves the mean from the paper's rule's on the same draws, and (where the table has
+    CMA-ES's columns) issue 20's bar: within :data:`CMAES_FACTOR` times CMA-ES's mean at every level, on the
+    runs both have, and by how much it misses where it does. The floor's and CMA-ES's own rows are stated
+    as what the rules are read against, not judged."""
     lines = []
-    for flow in pd.unique(frame["flow"]):
+    rules = [flow for flow in pd.unique(frame["flow"]) if flow not in (CMAES_ROW, FLOOR_ROW)]
+    for flow in rules:
         rows = frame[frame["flow"] == flow].sort_values("level")
         judged = rows[rows["bar_m"].notna()]
         missed = judged[~judged["meets_bar"]]
@@ -157,7 +209,62 @@ def table4_summary(frame: pd.DataFrame) -> str:
             verdict = ("misses the issue's bar at level " + ", ".join(str(int(v)) for v in missed["level"])
                        + f" and meets it at {len(judged) - len(missed)} of {len(judged)} levels")
         lines.append(f"- rule `{flow}` ({runs} runs per level) {verdict}. Mean distance (1e-3 m): {per_level}.")
+        if "ratio_to_cmaes" in rows and (rows["cmaes_runs"] > 0).any():
+            lines.append(_cmaes_verdict(flow, rows))
+    for name in (CMAES_ROW, FLOOR_ROW):
+        rows = frame[frame["flow"] == name].sort_values("level")
+        if len(rows):
+            runs = ", ".join(sorted({str(int(r)) for r in rows["runs"]}))
+            means = "; ".join(f"level {int(row.level)}: {1e3 * row.mean_m:.3f}" for row in rows.itertuples())
+            what = ("the best black-box search of Table 3, on the exact pixel mismatch" if name == CMAES_ROW else
+                    "the best any method minimising CMA-ES's objective can reach on these runs")
+            lines.append(f"- {name}, {what} ({runs} runs per level). Mean distance (1e-3 m): {means}.")
     return "\n".join(lines) + "\n"
+
+
+def _cmaes_verdict(flow: str, rows: pd.DataFrame) -> str:
+    """Issue 20's bar for one rule's rows of Table 4, in words, every number from the rows."""
+    judged = rows[rows["cmaes_runs"] > 0]
+    missed = judged[~judged["within_2x_cmaes"]]
+    runs = ", ".join(sorted({str(int(r)) for r in judged["cmaes_runs"]}))
+    if missed.empty:
+        return (f"  Against CMA-ES on the same {runs} runs per level (issue 20's bar: at most {CMAES_FACTOR:g}x its "
+                f"mean): met at every level ({len(judged)} of {len(judged)}).")
+    worst = missed.loc[missed["ratio_to_cmaes"].idxmax()]
+    by_level = "; ".join(f"level {int(row.level)}: {1e3 * row.on_cmaes_runs_mean_m:.3f} against "
+                         f"{1e3 * row.cmaes_mean_m:.3f} ({row.ratio_to_cmaes:.1f}x)" for row in judged.itertuples())
+    return (f"  Against CMA-ES on the same {runs} runs per level (issue 20's bar: at most {CMAES_FACTOR:g}x its mean): "
+            f"missed at level {', '.join(str(int(v)) for v in missed['level'])}, met at {len(judged) - len(missed)} of "
+            f"{len(judged)}; the worst miss is level {int(worst['level'])}, {worst['ratio_to_cmaes']:.1f}x CMA-ES's "
+            f"mean ({worst['ratio_to_cmaes'] / CMAES_FACTOR:.1f} times the bar). Mean distance (1e-3 m): {by_level}.")
+
+
+#: Columns of the rules' fixed-point measurement (:func:`sdm.experiments.rule_bias`, plus ``flow``).
+BIAS_COLUMNS = ("flow", "level", "bias_a", "stiffness_a", "offset_a", "bias_b", "stiffness_b", "offset_b",
+                "predicted_m")
+
+
+def bias_summary(bias: pd.DataFrame, frame: pd.DataFrame) -> str:
+    """Why each rule lands where it does, measured (Markdown): per rule and level, where the mean flow of the
+    last level vanishes (:func:`sdm.experiments.rule_bias`: its bias at theta* under noise over its stiffness
+    near theta*), beside the rule's measured mean distance in Table 4 (``frame``; Table 2's for ``paper``)."""
+    _require(bias, BIAS_COLUMNS, "the rules' bias")
+    lines = []
+    for flow in pd.unique(bias["flow"]):
+        rows = bias[bias["flow"] == flow].sort_values("level")
+        mine = frame[frame["flow"] == flow].set_index("level")["mean_m"] if flow in set(frame["flow"]) else (
+            frame[~frame["flow"].isin((CMAES_ROW, FLOOR_ROW))].groupby("level")["paper_rule_mean_m"].first())
+        parts = [f"level {int(row.level)}: bias ({row.bias_a:.2f}, {row.bias_b:.2f}) per configuration, stiffness "
+                 f"({row.stiffness_a:.0f}, {row.stiffness_b:.0f}) per metre, fixed point {1e3 * row.predicted_m:.3f} "
+                 f"from theta* against {1e3 * float(mine.get(row.level, math.nan)):.3f} measured"
+                 for row in rows.itertuples()]
+        lines.append(f"- rule `{flow}`, measured at the last level (zoom 0; run 0's draw; flow per configuration, "
+                     f"distances 1e-3 m): " + "; ".join(parts) + ".")
+    return ("Where each rule settles, measured: SGD stops on average where the last level's mean flow vanishes, "
+            "about -bias / stiffness from theta* per axis (bias: the mean flow at theta* under noise; stiffness: its "
+            "change per metre of theta near theta*, on the same draw). A rule misses where its bias is large "
+            "against its stiffness, or where SGD's scatter adds to it (measured minus predicted).\n\n"
+            + "\n".join(lines) + "\n")
 
 
 def rules_against_baselines(rule_runs: pd.DataFrame, baseline_runs: pd.DataFrame) -> str:
@@ -321,15 +428,27 @@ def rules_figure(frame: pd.DataFrame):
 
     fig, ax = plt.subplots(figsize=(6.4, 4.4), constrained_layout=True)
     colours = plt.get_cmap("tab10")
-    first = frame[frame["flow"] == frame["flow"].iloc[0]].sort_values("level")
+    rules = [flow for flow in pd.unique(frame["flow"]) if flow not in (CMAES_ROW, FLOOR_ROW)]
+    first = frame[frame["flow"] == (rules or list(pd.unique(frame["flow"])))[0]].sort_values("level")
     ax.plot(first["level"], 1e3 * first["paper_rule_mean_m"], marker="s", color="black",
             label="paper's rule (Table 2's runs)")
     ax.plot(first["level"], 1e3 * first["published_mean_m"], ls=":", color="black", label="paper (published)")
-    ax.plot(first["level"], 1e3 * first["bar_m"], ls="--", color="grey", label="issue's bar")
-    for i, flow in enumerate(pd.unique(frame["flow"])):
+    ax.plot(first["level"], 1e3 * first["bar_m"], ls="--", color="grey", label="issue 12's bar")
+    for i, flow in enumerate(rules):
         rows = frame[frame["flow"] == flow].sort_values("level")
         ax.errorbar(rows["level"], 1e3 * rows["mean_m"], yerr=1e3 * rows["std_m"].fillna(0.0), marker="o",
                     capsize=3, color=colours(i), label=f"rule {flow}")
+    search = frame[frame["flow"] == CMAES_ROW].sort_values("level")
+    if len(search):
+        ax.plot(search["level"], 1e3 * search["mean_m"], marker="^", color="tab:red", label=CMAES_ROW)
+        ax.plot(search["level"], CMAES_FACTOR * 1e3 * search["mean_m"], ls="-.", color="tab:red", lw=0.8,
+                label=f"{CMAES_FACTOR:g}x CMA-ES (issue 20's bar)")
+    floor = frame[frame["flow"] == FLOOR_ROW].sort_values("level")
+    if len(floor):  # a band: below it no method minimising the pixel mismatch lands, on average
+        mean, spread = 1e3 * floor["mean_m"], 1e3 * floor["std_m"].fillna(0.0)
+        ax.fill_between(floor["level"], (mean - spread).clip(lower=1e-3 * mean), mean + spread, color="grey",
+                        alpha=0.25, label=f"{FLOOR_ROW}, mean +- std")
+        ax.plot(floor["level"], mean, color="grey", lw=1.0)
     ax.set_yscale("log")
     ax.set_xticks(sorted(frame["level"].unique()))
     ax.set_xlabel("noise level n (pixels)")
