@@ -467,7 +467,7 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     height, width = camera.screen_shape
     zooms = any(level is None for run in targets for level in run)
     pyramid = _pyramid_scratch(n_configs * sum((height >> k) * (width >> k) for k in range(1, steps + 1))
-                               if zooms else 0)
+                               if zooms else 0, device)
     base_addresses = torch.tensor([base.data_ptr() for base in bases] if bases is not None else [0] * n_runs,
                                   dtype=torch.int64, device=device)
     thetas = torch.empty(total + 1, n_runs, 2, dtype=torch.float64, device=device)
@@ -489,11 +489,13 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
 _SCRATCH = threading.local()
 
 
-def _pyramid_scratch(n_bytes: int) -> torch.Tensor:
-    """A CPU uint8 buffer of at least ``n_bytes`` (this thread's, reused by later calls)."""
+def _pyramid_scratch(n_bytes: int, device: torch.device) -> torch.Tensor:
+    """A uint8 buffer of at least ``n_bytes`` on ``device`` (the trainer's inputs': the CPU; this thread's,
+    reused by later calls). Never device-less: under ``torch.set_default_device`` that would not be memory
+    the kernel can write (tests/test_devices.py)."""
     buffer = getattr(_SCRATCH, "pyramid", None)
-    if buffer is None or buffer.numel() < n_bytes:
-        buffer = _SCRATCH.pyramid = torch.empty(max(n_bytes, 1), dtype=torch.uint8)
+    if buffer is None or buffer.numel() < n_bytes or buffer.device != device:
+        buffer = _SCRATCH.pyramid = torch.empty(max(n_bytes, 1), dtype=torch.uint8, device=device)
     return buffer
 
 
