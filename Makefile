@@ -5,7 +5,7 @@ VENV ?= .venv
 BIN := $(VENV)/bin
 CORES ?= 2
 
-.PHONY: install run test bench report clean
+.PHONY: install run test test-slurm bench report clean
 
 install: $(VENV)/.installed
 
@@ -21,6 +21,11 @@ run: install
 # The workflow tests run Snakemake in temporary directories: whatever results/ holds, they see none of it.
 test: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest
+
+# The .test config on a one-node SLURM cluster that the test starts and stops (tests/test_slurm.py): needs
+# root and the slurm-wlm and munge packages, and takes about 15 minutes on two cores; `make test` leaves it out.
+test-slurm: install
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest -m slurm tests/test_slurm.py
 
 bench: install
 	$(BIN)/python benchmarks/bench_sdm.py
