@@ -22,8 +22,8 @@ run: install
 test: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest
 
-# The .test config on a one-node SLURM cluster that the test starts and stops (tests/test_slurm.py): needs
-# root and the slurm-wlm and munge packages, and takes about 15 minutes on two cores; `make test` leaves it out.
+# The .test config on a one-node SLURM cluster that the test starts and stops (tests/test_slurm.py):
+# needs root and the slurm-wlm and munge packages; about 35 minutes on two cores. `make test` leaves it out.
 test-slurm: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest -m slurm tests/test_slurm.py
 

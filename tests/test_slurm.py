@@ -15,7 +15,8 @@ run's (``completed_run`` of tests/test_workflow.py) byte for byte but the measur
 non-local job must be a SLURM job that completed, and ``snakemake -n`` must find nothing to do.
 
 Behind the marker ``slurm``, off by default (``make test-slurm`` runs it; it needs root, ``slurm-wlm``
-and ``munge``, and skips naming what is missing). On two cores it takes about 15 minutes.
+and ``munge``, and skips naming what is missing). On a busy 2-core machine it took 33 minutes: the local
+run 13, the two SLURM runs 18 (47 jobs submitted).
 """
 from __future__ import annotations
 
@@ -231,7 +232,7 @@ def _depth_config(c: float) -> dict:
 def slurm_run(cluster, tmp_path_factory):
     """The .test workflow through profiles/slurm: first with c* = BAD_C (fails inside a SLURM job), then fixed.
 
-    Yields the working directory, both runs' results and the wall time of the two; SDM_CACHE_DIR is a
+    Returns the working directory, both runs' results and the wall time of the two; SDM_CACHE_DIR is a
     fresh folder, so that the native kernel compiled there shows that the variable reached the jobs.
     """
     directory = tmp_path_factory.mktemp("slurm_run")
