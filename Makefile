@@ -7,7 +7,7 @@ CORES ?= 2
 # torch comes from PyTorch's CPU-only index (no GPU libraries); `make TORCH_INDEX= install` takes pip's default build
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 
-.PHONY: install run test bench report snapshot clean
+.PHONY: install run test test-slurm bench report snapshot clean
 
 install: $(VENV)/.installed
 
@@ -24,6 +24,11 @@ run: install
 # The workflow tests run Snakemake in temporary directories: whatever results/ holds, they see none of it.
 test: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest
+
+# The .test config on a one-node SLURM cluster that the test starts and stops (tests/test_slurm.py):
+# needs root and the slurm-wlm and munge packages; about 35 minutes on two cores. `make test` leaves it out.
+test-slurm: install
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest -m slurm tests/test_slurm.py
 
 bench: install
 	$(BIN)/python benchmarks/bench_sdm.py

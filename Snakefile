@@ -7,6 +7,7 @@ from snakemake.utils import min_version, validate
 
 sys.path.insert(0, f"{workflow.basedir}/workflow/scripts")
 from config_check import ConfigError, check_against_annotations, check_config
+from failure_causes import failure_causes
 
 min_version("9.0")
 
@@ -66,3 +67,11 @@ rule all:
             if JOBS[stage]
         ],
         [each(stage, "html") for stage in JOBS],
+
+
+# A stage run as a cluster job prints its one-line cause into the job's cluster log, which Snakemake only
+# names: print each failed stage's cause (the first line of its text log) at the end of the run's output.
+onerror:
+    causes = failure_causes(log)
+    if causes:
+        print("The failed stages' causes:", *causes, sep="\n", file=sys.stderr)

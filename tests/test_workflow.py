@@ -610,6 +610,8 @@ def test_a_failed_stage_names_the_cause_first(tmp_path):
     assert result.returncode != 0
     causes = [line for line in output.splitlines() if " failed: " in line]
     assert causes and "SDMInputError: config key 'sky.n_images'" in causes[0], output[-3000:]
+    # and again at the end, read from the stage's log (the way a cluster job's cause reaches the console)
+    assert output[output.index("The failed stages' causes:"):].splitlines()[1] == causes[0]
     assert "results/notebooks/sample.ipynb" in output
     assert (tmp_path / "run" / "results" / "notebooks" / "sample.ipynb").is_file()
     assert '"cell_type"' not in output  # no notebook JSON on the console
