@@ -446,7 +446,7 @@ def rules_figure(frame: pd.DataFrame):
     floor = frame[frame["flow"] == FLOOR_ROW].sort_values("level")
     if len(floor):  # a band from the axis' bottom up to the floor's mean: no mismatch minimiser lands below, on average
         mean = 1e3 * floor["mean_m"]
-        bottom = min(ax.get_ylim()[0], 0.5 * float(mean.min()))
+        bottom = 0.3 * 1e3 * float(frame["mean_m"][frame["mean_m"] > 0].min())  # below every mean: a log axis
         ax.fill_between(floor["level"], bottom, mean, color="grey", alpha=0.25, label=f"below the {FLOOR_ROW}")
         ax.plot(floor["level"], mean, color="grey", lw=1.0)
         ax.set_ylim(bottom=bottom)
