@@ -17,6 +17,8 @@ import re
 import shutil
 import subprocess
 import sys
+import tempfile
+import time
 from pathlib import Path
 
 import pytest
@@ -36,8 +38,38 @@ pytestmark = pytest.mark.workflow
 
 def snakemake(*args: str, cwd: Path = ROOT, timeout: int = 900) -> subprocess.CompletedProcess:
     """Snakemake with the project's Snakefile, in ``cwd``, under the common umask 022."""
-    return subprocess.run([sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), *args],
-                          cwd=cwd, capture_output=True, text=True, timeout=timeout, preexec_fn=lambda: os.umask(0o022))
+    return snakemakes((cwd, args), timeout=timeout)[0]
+
+
+def snakemakes(*runs: tuple[Path, tuple[str, ...]], timeout: int = 900) -> list[subprocess.CompletedProcess]:
+    """Snakemake runs, each ``(cwd, args)`` as in :func:`snakemake`, started together: independent chains of
+    stages use both cores. Each run's stdout and stderr go to files (no pipe to fill); past ``timeout`` seconds
+    every run is killed and TimeoutExpired raised, as subprocess.run does."""
+    started = []
+    try:
+        for cwd, args in runs:
+            output = (tempfile.TemporaryFile("w+"), tempfile.TemporaryFile("w+"))  # stdout, stderr
+            command = [sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), *args]
+            started.append((subprocess.Popen(command, cwd=cwd, stdout=output[0], stderr=output[1], text=True,
+                                             preexec_fn=lambda: os.umask(0o022)), output))
+        deadline = time.monotonic() + timeout
+        for process, _ in started:
+            process.wait(timeout=max(deadline - time.monotonic(), 0))
+        results = []
+        for process, output in started:
+            texts = []
+            for file in output:
+                file.seek(0)
+                texts.append(file.read())
+            results.append(subprocess.CompletedProcess(process.args, process.returncode, *texts))
+        return results
+    finally:
+        for process, output in started:
+            if process.poll() is None:
+                process.kill()
+                process.wait()
+            for file in output:
+                file.close()
 
 
 def default_config() -> dict:
@@ -581,16 +613,30 @@ def test_every_schema_key_has_a_case_and_a_documented_stage():
                                                                      _key_cases().items()}
 
 
+@pytest.fixture(scope="module")
+def key_case_dry_runs(completed_run, tmp_path_factory, request) -> dict[str, subprocess.CompletedProcess]:
+    """The dry run of the completed .test run with each collected key case's config (an override file), per key.
+    Two at a time, side by side: a dry run takes one core, mostly Snakemake's start."""
+    keys = sorted({item.callspec.params["key"] for item in request.session.items
+                   if getattr(item, "originalname", None) == "test_each_config_key_reruns_its_first_stage"})
+    folder = tmp_path_factory.mktemp("key_cases")
+    runs = []
+    for key in keys:
+        change, _ = _key_cases()[key]
+        if change is None:  # data.source: the shipped real sample instead of the synthetic set
+            change = {"data": {"source": "apollo", "apollo_folder": str(APOLLO_SAMPLE)},
+                      "sky": {"n_images": 57}, "split": {"n_selected": 48, "n_train": 32, "n_dev": 16}}
+        override = folder / f"{key}.yaml"
+        override.write_text(yaml.safe_dump(_merge(dot_test_config(), change)))
+        runs.append((completed_run, ("-n", "--quiet", "rules", "--configfile", str(override))))
+    results = [result for i in range(0, len(runs), 2) for result in snakemakes(*runs[i:i + 2])]
+    return dict(zip(keys, results))
+
+
 @pytest.mark.parametrize("key", sorted(_key_cases()))
-def test_each_config_key_reruns_its_first_stage(completed_run, tmp_path, key):
-    change, expected = _key_cases()[key]
-    base = dot_test_config()
-    if change is None:  # data.source: the shipped real sample instead of the synthetic set
-        change = {"data": {"source": "apollo", "apollo_folder": str(APOLLO_SAMPLE)},
-                  "sky": {"n_images": 57}, "split": {"n_selected": 48, "n_train": 32, "n_dev": 16}}
-    override = tmp_path / "override.yaml"
-    override.write_text(yaml.safe_dump(_merge(base, change)))
-    jobs = planned(snakemake("-n", "--quiet", "rules", "--configfile", str(override), cwd=completed_run))
+def test_each_config_key_reruns_its_first_stage(key_case_dry_runs, key):
+    _, expected = _key_cases()[key]
+    jobs = planned(key_case_dry_runs[key])
     first = next((stage for stage in STAGES if stage in jobs), None)
     assert first == expected, (key, jobs)
 
@@ -690,29 +736,35 @@ def test_a_changed_annotation_file_reruns_the_data_stage(real_run, tmp_path, cha
 
 
 def test_an_edited_annotation_changes_the_tables(real_run, tmp_path):
-    """Edit the cars of a training image in place: the rerun's Sky statistics and tables follow."""
+    """The same annotations in another folder give the same tables; the cars of a training image edited in place
+    change them (the rerun's Sky statistics and tables follow). Each on a copy of the completed run; the two
+    reruns, chains of stages, run side by side (one core each)."""
     config = yaml.safe_load((real_run / "config.yaml").read_text())
     folder = Path(config["data"]["apollo_folder"])
+    moved, edited = tmp_path / "moved", tmp_path / "edited"
+    for directory in (moved, edited):
+        shutil.copytree(real_run, directory, symlinks=True, ignore=shutil.ignore_patterns("locks", "incomplete"))
     copy_dir = _real_folder(tmp_path / "annotations", n_empty=30)
-    directory = tmp_path / "run"
-    shutil.copytree(real_run, directory, symlinks=True, ignore=shutil.ignore_patterns("locks", "incomplete"))
-    config["data"]["apollo_folder"] = str(copy_dir)
-    workdir(directory, config)
-    assert "data" in planned(snakemake("-n", "--quiet", "rules", cwd=directory))  # a new folder is a new param
-    result = snakemake("-c2", "tables", cwd=directory)  # up to Tables 1-2, the tables this test reads
-    assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
-    before = (directory / "results" / "tables" / "table2.csv").read_text()
-    assert before == (real_run / "results" / "tables" / "table2.csv").read_text()  # same content, same tables
-    split = json.loads((directory / "results" / "split" / "split.json").read_text())
-    victim = copy_dir / "car_poses" / f"{split['train_ids'][0]}.json"
-    cars = json.loads(victim.read_text())
-    for car in cars:
-        car["pose"][3] += 0.8  # every car of a training image 0.8 m to the right
-    victim.write_text(json.dumps(cars))
-    result = snakemake("-c2", "tables", cwd=directory)
-    assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
-    assert (directory / "results" / "tables" / "table2.csv").read_text() != before
-    assert folder != copy_dir
+    workdir(moved, _merge(config, {"data": {"apollo_folder": str(copy_dir)}}))
+    assert "data" in planned(snakemake("-n", "--quiet", "rules", cwd=moved))  # a new folder is a new param
+    split = json.loads((real_run / "results" / "split" / "split.json").read_text())
+    victim = folder / "car_poses" / f"{split['train_ids'][0]}.json"  # the run's own folder: restored below
+    original = victim.read_bytes()
+    try:
+        cars = json.loads(original)
+        for car in cars:
+            car["pose"][3] += 0.8  # every car of a training image 0.8 m to the right
+        victim.write_text(json.dumps(cars))
+        # up to Tables 1-2, the tables this test reads
+        results = snakemakes((moved, ("-c1", "tables")), (edited, ("-c1", "tables")))
+    finally:
+        victim.write_bytes(original)
+    for result in results:
+        assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
+    before = (real_run / "results" / "tables" / "table2.csv").read_text()
+    assert (moved / "results" / "tables" / "table2.csv").read_text() == before  # same content, same tables
+    assert (edited / "results" / "tables" / "table2.csv").read_text() != before
+    assert planned(snakemake("-n", "--quiet", "rules", cwd=real_run)) == {}  # restored: nothing to do
 
 
 def test_an_all_empty_annotation_folder_fails_at_the_first_stage_naming_it(tmp_path):
