@@ -385,7 +385,8 @@ def floor_frame(runs: pd.DataFrame) -> pd.DataFrame:
 
 def floor_summary(frame: pd.DataFrame, settings: Mapping) -> str:
     """The floor in plain words (Markdown, one bullet), every number from :func:`floor_frame`'s ``frame``
-    and the search's ``settings`` (``sdm.baselines.floor.FloorSettings`` fields, as a mapping)."""
+    and the search's ``settings`` (``sdm.baselines.floor.FloorSettings`` fields, as a mapping). No measured
+    time: the words are deterministic, like the tables (the time is the table's ``s / run`` column)."""
     runs = ", ".join(sorted({str(int(r)) for r in frame["runs"]}))
     per_level = "; ".join(
         f"level {int(row.level)}: {1e3 * row.mean_m:.3f} (region {1e3 * row.extent_a_m:.3f} x {1e3 * row.extent_b_m:.3f} "
@@ -397,4 +398,4 @@ def floor_summary(frame: pd.DataFrame, settings: Mapping) -> str:
             f"best any method minimising CMA-ES's objective can reach. Mean distance (1e-3 m) and the region's mean "
             f"extent (1e-3 m): {per_level}. Doubling the budget (the same search stopped after half of it against "
             f"all of it) moves a level's mean by at most {worst['budget_change']:.1%} (level {int(worst['level'])}); "
-            f"{frame['seconds_per_run'].mean():.2f} s per run.\n")
+            f"its time per run is Table 3's `s / run`.\n")
