@@ -423,9 +423,13 @@ def test_completed_run_has_the_research_tables_and_the_report_section(completed_
         assert (tables / f"{name}_summary.md").stat().st_size > 0, name
     config = dot_test_config()["research"]
     table4 = pd_read_csv(tables / "table4.csv")
-    assert sorted(set(zip(table4["flow"], table4["level"]))) == sorted(
-        (name, level) for name in config["rules"]["names"] for level in dot_test_config()["noise"]["levels"])
-    assert (table4["runs"] == config["rules"]["runs"]).all() and (table4["paper_rule_runs"] == table4["runs"]).all()
+    levels = dot_test_config()["noise"]["levels"]
+    # the rules, then Table 3's CMA-ES and the floor beside them (issue 20), each compared with CMA-ES
+    rows = [*config["rules"]["names"], "CMA-ES (Table 3)", "floor (exact-mismatch minimiser)"]
+    assert sorted(set(zip(table4["flow"], table4["level"]))) == sorted((name, level) for name in rows for level in levels)
+    rules = table4[table4["flow"].isin(config["rules"]["names"])]
+    assert (rules["runs"] == config["rules"]["runs"]).all() and (rules["paper_rule_runs"] == rules["runs"]).all()
+    assert (table4["cmaes_runs"] == dot_test_config()["baselines"]["runs"]).all()
     table5 = pd_read_csv(tables / "table5.csv")
     assert sorted(set(zip(table5["c_true"], table5["level"]))) == sorted(
         (c, level) for c in config["depth"]["shifts_c"] for level in config["depth"]["levels"])
@@ -687,6 +691,7 @@ def _small_real_config(folder: Path, n_images: int) -> dict:
         "tuning": {"n_epoch": [2], "lr": [1.0e-3]},
         "noise": {"levels": [0, 2], "runs": 2, "chunk_size": 2},
         "baselines": {"enabled": False},
+        "floor": {"enabled": False},
         "research": {"rules": {"enabled": False}},
     })
 
