@@ -150,19 +150,19 @@ def check_config(config: Mapping[str, Any]) -> None:
     runs, chunk = _int(noise, "noise", "runs"), _int(noise, "noise", "chunk_size")
     if chunk > runs:
         raise ConfigError(f"config key 'noise.chunk_size': must not exceed noise.runs = {runs}, got {chunk}")
-    baselines = config.get("baselines") or {}
-    if baselines.get("enabled"):
-        paired = _int(baselines, "baselines", "runs")
-        if paired > runs:
-            raise ConfigError(f"config key 'baselines.runs': the runs are paired with Table 2's, so at most "
-                              f"noise.runs = {runs}, got {paired}")
-    floor = config.get("floor") or {}
-    if floor.get("enabled"):
-        paired = _int(floor, "floor", "runs")
-        if paired > runs:
-            raise ConfigError(f"config key 'floor.runs': the runs are paired with Table 2's, so at most "
-                              f"noise.runs = {runs}, got {paired}")
+    for section in ("baselines", "floor"):
+        values = config.get(section) or {}
+        if values.get("enabled"):
+            _check_paired_runs(values, section, runs)
     _check_research(config, runs)
+
+
+def _check_paired_runs(section: Mapping[str, Any], name: str, noise_runs: int) -> None:
+    """``<name>.runs`` pairs Table 2's runs 0..runs-1: a count of at most ``noise.runs``."""
+    paired = _int(section, name, "runs")
+    if paired > noise_runs:
+        raise ConfigError(f"config key '{name}.runs': the runs are paired with Table 2's, so at most "
+                          f"noise.runs = {noise_runs}, got {paired}")
 
 
 def check_finite(value: Any, key: str = "") -> None:
@@ -205,10 +205,7 @@ def _check_research(config: Mapping[str, Any], noise_runs: int) -> None:
         if "paper" in (rules.get("names") or []):
             raise ConfigError("config key 'research.rules.names': 'paper' is Table 2 itself, always beside the "
                               "other rules in Table 4; list only the others")
-        paired = _int(rules, "research.rules", "runs")
-        if paired > noise_runs:
-            raise ConfigError(f"config key 'research.rules.runs': the runs are paired with Table 2's, so at most "
-                              f"noise.runs = {noise_runs}, got {paired}")
+        _check_paired_runs(rules, "research.rules", noise_runs)
     depth = research.get("depth") or {}
     if depth.get("enabled"):
         shifts = depth.get("shifts_c")
