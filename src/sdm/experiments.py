@@ -28,7 +28,7 @@ from .data import SkyFile
 from .errors import SDMInputError
 from .mapping import SpatialDomainMapping
 from .metrics import dev_loss, distance
-from .sky import SKY_SHIFT, add_target_noise, shift_vector
+from .sky import SKY_SHIFT, NoiseBuffer, add_target_noise, shift_vector
 from .train import TrainSettings, train, train_runs
 
 #: Runs packed into one :func:`sdm.train.train_runs` call by default (:func:`paired_runs`'s
@@ -128,13 +128,15 @@ def tune_cell(train_set, dev_set, settings, shift: Sequence[float] = SKY_SHIFT, 
     return record, history.to_frame()
 
 
-def noisy_targets(targets: torch.Tensor, level: int, seed: int, active: torch.Tensor | None = None) -> torch.Tensor:
+def noisy_targets(targets: torch.Tensor, level: int, seed: int, active: torch.Tensor | None = None,
+                  out: NoiseBuffer | None = None) -> torch.Tensor:
     """Every target moved by noise ``level`` (paper, section 5.2), drawn from ``seed``.
 
-    ``active`` is ``targets.nonzero()`` where the caller has it (one clean set, many draws).
+    ``active`` is ``targets.nonzero()`` where the caller has it (one clean set, many draws); ``out`` a
+    :class:`sdm.sky.NoiseBuffer` to draw into (as :func:`sdm.sky.add_target_noise`'s).
     """
     generator = torch.Generator().manual_seed(int(seed))
-    return add_target_noise(targets, level, generator, active)  # one draw for all targets, in target order
+    return add_target_noise(targets, level, generator, active, out)  # one draw for all targets, in target order
 
 
 #: Columns of Table 2's run rows (:func:`noise_runs`); lengths in metres, ``seed`` the run's own.
@@ -151,8 +153,10 @@ def paired_runs(clean_targets: torch.Tensor, level: int, runs: Sequence[int], se
     the seed :func:`run_seed` ``(seed, level, r)`` and the targets :func:`noisy_targets`
     ``(clean_targets, level, that seed)``, whatever the table or the method, so every table's run
     ``(level, r)`` sees the same noise (the comparisons are paired). The runs go to ``fit_group``
-    ``group_size`` at a time, in the order of ``runs``; a group's noisy targets are dropped before
-    the next group is drawn.
+    ``group_size`` at a time, in the order of ``runs``. The noisy targets a group gets are valid
+    during its ``fit_group`` call only: the next group's are drawn into the same ``group_size``
+    buffers (fresh 16 MB tensors per run cost more in first touches of their pages than the draw),
+    and at level 0 (no noise: nothing moves) every run gets ``clean_targets`` itself, read-only.
 
     Args:
         clean_targets: ``(N, H, W)`` bool noise-free targets of the training configurations (any device).
@@ -160,7 +164,8 @@ def paired_runs(clean_targets: torch.Tensor, level: int, runs: Sequence[int], se
         runs: run indices (non-negative integers).
         seed: the experiment's seed.
         fit_group: ``fit_group(targets, seeds)``: a group's ``(N, H, W)`` bool noisy targets (on the
-            device of ``clean_targets``) and their run seeds -> one result per run, in order.
+            device of ``clean_targets``; read-only, and not to be kept past the call) and their run
+            seeds -> one result per run, in order.
         record: ``record(result)``: the row's columns beyond ``level, run, seed``.
         columns: the table's columns, in order (:data:`RUN_COLUMNS`, ...).
         group_size: runs per ``fit_group`` call, a positive integer; ``None``: all of ``runs`` at once.
@@ -177,11 +182,18 @@ def paired_runs(clean_targets: torch.Tensor, level: int, runs: Sequence[int], se
     seeds = [run_seed(seed, level, run) for run in runs]
     runs = [int(run) for run in runs]
     group_size = int(group_size) if group_size is not None else max(len(runs), 1)
-    active = clean_targets.nonzero() if level else None  # every run moves the same clean pixels
+    # Every run moves the same clean pixels; contiguous once (nonzero's rows are strided), not per draw.
+    active = clean_targets.nonzero().contiguous() if level else None
+    buffers: list[torch.Tensor] = []  # the noisy targets' memory, drawn into again by every group
     rows = []
     for first in range(0, len(runs), group_size):
         group = range(first, min(first + group_size, len(runs)))
-        noisy = [noisy_targets(clean_targets, level, seeds[i], active) for i in group]
+        if level:
+            buffers += [NoiseBuffer(clean_targets) for _ in range(len(group) - len(buffers))]
+            noisy = [noisy_targets(clean_targets, level, seeds[i], active, out)
+                     for i, out in zip(group, buffers)]
+        else:
+            noisy = [clean_targets] * len(group)
         results = fit_group(noisy, [seeds[i] for i in group])
         del noisy
         rows += [{"level": int(level), "run": runs[i], "seed": seeds[i]} | record(result)

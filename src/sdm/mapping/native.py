@@ -99,6 +99,7 @@ SIGNATURES: dict[str, tuple[object, list]] = {
                               _PTR, _PTR, _PTR, _PTR]),
     "sdm_train": (_I64, [_I64, _I64, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _PTR, _I64, _I64, _I64, _I64,
                          _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _PTR, _PTR, _PTR, _PTR]),
+    "sdm_noise_fill": (_I64, [_I64, _PTR, _I64, _PTR, _PTR, _I64, _I64, _PTR, _PTR, _I64]),
     # the CMA-ES baseline's count (pixel_mismatch below)
     "sdm_pixel_mismatch": (None, [_I64, _PTR, _I64, _I64, *[_PTR] * 8, _I64, _I64, _PTR, _I64, *[_PTR] * 3]),
 }
@@ -526,3 +527,24 @@ def pixel_mismatch(thetas: torch.Tensor, layout, table: torch.Tensor, n_target: 
         int(n_target), offsets.data_ptr(), layout.stamp.data_ptr(), counts.data_ptr())
     return counts
 
+
+
+def noise_fill(active: torch.Tensor, moves: torch.Tensor, height: int, width: int, out: torch.Tensor,
+               written: torch.Tensor, n_written: int) -> int:
+    """:func:`sdm.sky.add_target_noise`'s scatter into a reused buffer (``sdm_noise_fill``), in one pass.
+
+    Args:
+        active: ``(K, d)`` int64 active pixels: ``d - 2`` leading indices, then ``(row, col)``.
+        moves: ``(K, 2)`` int64 the drawn moves ``(row, col)``.
+        height, width: the grid; pixels moved off it are dropped.
+        out: contiguous ``(..., height, width)`` bool buffer (``d - 2`` leading dimensions) whose only set
+            entries are the ``n_written`` flat indices in ``written`` (all of it 0 where ``n_written`` is 0).
+        written: ``(>= K,)`` int64: in, those flat indices; out, this draw's.
+
+    All tensors on the CPU (see :func:`serves`). Returns the number of pixels now set (this draw's ``n_written``).
+    """
+    active, moves = active.contiguous(), moves.contiguous()
+    lead_strides = torch.tensor(out.stride()[:-2] or (0,), dtype=torch.int64, device=out.device)
+    return int(_library().sdm_noise_fill(active.shape[0], active.data_ptr(), active.shape[1] - 2,
+                                         lead_strides.data_ptr(), moves.data_ptr(), height, width, out.data_ptr(),
+                                         written.data_ptr(), int(n_written)))
