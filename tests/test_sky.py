@@ -106,3 +106,26 @@ def test_noise_on_a_stack_of_targets_equals_noise_target_by_target():
         together = add_target_noise(targets, level, torch.Generator().manual_seed(11))
         assert torch.equal(together, one_by_one)
         assert not torch.equal(together, targets)
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_draws_into_a_reused_noise_buffer_equal_fresh_draws(compiled):
+    """A NoiseBuffer clears only its last draw's pixels (in C where the kernel serves, else in torch): every draw
+    into it, after draws of other levels, sizes and a copy, equals the fresh draw of the same seed."""
+    from contextlib import nullcontext
+
+    from sdm.mapping import native
+    from sdm.sky import NoiseBuffer
+
+    targets = torch.rand(6, 64, 32, generator=torch.Generator().manual_seed(2)) > 0.9
+    sparse = targets & (torch.rand(6, 64, 32, generator=torch.Generator().manual_seed(3)) > 0.5)
+    buffer = NoiseBuffer(targets)
+    with nullcontext() if compiled else native.disabled():
+        for target, level, seed in ((targets, 1, 0), (sparse, 4, 1), (targets, 3, 2), (sparse, 0, 3),
+                                    (sparse, 2, 4), (targets, 2, 5)):
+            fresh = add_target_noise(target, level, torch.Generator().manual_seed(seed))
+            reused = add_target_noise(target, level, torch.Generator().manual_seed(seed), out=buffer)
+            assert reused is buffer.targets
+            assert torch.equal(reused, fresh), (level, seed)
+    with pytest.raises(SDMInputError, match="NoiseBuffer of shape"):
+        add_target_noise(targets[:2], 1, out=buffer)

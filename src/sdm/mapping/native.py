@@ -50,7 +50,8 @@ paper's flow and the centred closed rule share one window function in C. Its
 chain runs in int32 with the per-coordinate arithmetic vectorised, its
 projection two points per AVX2 register where the CPU has it (picked at run
 time), and it zooms the runs' targets out itself (``_native.c`` says why each
-keeps the bits).
+keeps the bits). :func:`noise_fill` is the paired runs' noise scatter into a reused
+buffer (:class:`sdm.sky.NoiseBuffer`).
 """
 from __future__ import annotations
 
