@@ -24,6 +24,7 @@ import torch
 from sdm import FLOW_RULES
 from sdm.mapping.research_rules import RESEARCH_RULES
 from sdm.experiments import flow_at_true_shift, load_split, noise_runs, settings_for
+from sdm.train import Refinement
 
 TUNED = dict(n_epoch=2, lr=1e-4, s=4, batch_size=16, lr_decay=0.5, seed=0)
 #: Table 2 of the paper, mean distance (metres) per noise level 1..4; the issue's bar is half of it.
@@ -35,7 +36,8 @@ def main(argv=None) -> int:
     parser.add_argument("sky")
     parser.add_argument("split")
     parser.add_argument("--rules", default="paper,closed_centred_r1",
-                        help=f"comma-separated, of {','.join(FLOW_RULES)} or the experiments {','.join(RESEARCH_RULES)}")
+                        help=f"comma-separated, of {','.join(FLOW_RULES)} or the experiments {','.join(RESEARCH_RULES)}; "
+                             "RULE+REFINE:E trains RULE, then E refinement passes with REFINE (sdm.train.Refinement)")
     parser.add_argument("--runs", type=int, default=20)
     parser.add_argument("--levels", default="0,1,2,3,4")
     parser.add_argument("--threads", type=int, default=1)
@@ -49,15 +51,20 @@ def main(argv=None) -> int:
     rows, table, flows = [], [], []
     for rule in args.rules.split(","):
         start = time.time()
+        base, _, refined = rule.partition("+")
+        refine = None
+        if refined:
+            name, _, epochs = refined.partition(":")
+            refine = Refinement(name, int(epochs or 4))
         for level in levels:
-            frame = noise_runs(train_set, level, range(args.runs), replace(settings, flow=rule))
+            frame = noise_runs(train_set, level, range(args.runs), replace(settings, flow=base), refine=refine)
             frame.insert(0, "rule", rule)
             rows.append(frame)
             table.append({"rule": rule, "level": level, "mean_mm": 1e3 * frame.distance.mean(),
                           "std_mm": 1e3 * frame.distance.std(), "runs": len(frame),
                           "bar_mm": 0.68 if level == 0 else 0.5e3 * PAPER_TABLE2.get(level, float("nan"))})
         if not args.no_flow:
-            flow = flow_at_true_shift(train_set, levels, seed=0, flow=rule)
+            flow = flow_at_true_shift(train_set, levels, seed=0, flow=refine.flow if refine else base)
             flow = flow[flow.zoom == 0].drop(columns="zoom")
             flow.insert(0, "rule", rule)
             flows.append(flow)

@@ -93,3 +93,28 @@ def closing_by_max_pools(target, size: int):
     dilated = F.max_pool2d(image, size, stride=1, padding=pad)
     eroded = -F.max_pool2d(-F.pad(dilated, (pad, pad, pad, pad), value=1.0), size, stride=1)
     return eroded[:, 0] > 0.5
+
+
+def group_move_recount(screen, depth, config, target):
+    """``{(config, depth): [change for y+, y-, x+, x-]}``: the exact zoom-0 mismatch recounted from scratch
+    after moving all the points of one configuration with one depth by one pixel (every other point where it
+    is). The mismatch: pixels covered by ``floor(screen)`` (on the screen) against the target, false positives
+    plus false negatives. Plain Python sets, one group and one move at a time."""
+    n, height, width = target.shape
+    pixels = [(int(c), math.floor(r), math.floor(q), float(z))
+              for (r, q), z, c in zip(screen.tolist(), depth.tolist(), config.tolist())]
+    active = {(c, r, q) for c, r, q in target.nonzero().tolist()}
+
+    def mismatch(c, covered):
+        on_screen = {(r, q) for r, q in covered if 0 <= r < height and 0 <= q < width}
+        held = {(r, q) for cc, r, q in active if cc == c}
+        return len(on_screen ^ held)
+
+    changes = {}
+    for c, z in sorted({(c, z) for c, _, _, z in pixels}):
+        others = [(r, q) for cc, r, q, zz in pixels if cc == c and zz != z]
+        own = [(r, q) for cc, r, q, zz in pixels if cc == c and zz == z]
+        before = mismatch(c, set(others) | set(own))
+        changes[(c, z)] = [mismatch(c, set(others) | {(r + dr, q + dq) for r, q in own}) - before
+                           for dr, dq in ((1, 0), (-1, 0), (0, 1), (0, -1))]
+    return changes

@@ -29,7 +29,7 @@ from .errors import SDMInputError
 from .mapping import SpatialDomainMapping
 from .metrics import dev_loss, distance
 from .sky import SKY_SHIFT, NoiseBuffer, add_target_noise, shift_vector
-from .train import TrainSettings, train, train_runs
+from .train import Refinement, TrainSettings, refine_runs, train, train_runs
 
 #: Runs packed into one :func:`sdm.train.train_runs` call by default (:func:`paired_runs`'s
 #: ``group_size``). The group size changes no result of the paper's rule (flows are exact sums of
@@ -203,19 +203,23 @@ def paired_runs(clean_targets: torch.Tensor, level: int, runs: Sequence[int], se
 
 def train_group(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], settings: TrainSettings,
                 seeds: Sequence[int], camera: Camera | None = None, device: torch.device | str | None = None,
-                theta0=None):
+                theta0=None, refine: Refinement | None = None):
     """SDM's fit of a group of paired runs: run ``r`` is ``settings`` with seed ``seeds[r]`` (its shuffling)
     on the points of ``train_set`` and the targets ``targets[r]``, all as one :func:`sdm.train.train_runs`
     (``theta0``: as there, ``None`` for every run from ``(0, 0)``).
 
     Table 2's, 4's and 5's runs (through :func:`paired_runs`) and SDM's rows of Table 3
-    (:func:`sdm.baselines.sdm_layer.fit_runs`) all train here.
+    (:func:`sdm.baselines.sdm_layer.fit_runs`) all train here. ``refine``: the schedule's extra passes
+    (:class:`sdm.train.Refinement`, :func:`sdm.train.refine_runs`), or ``None`` for the paper's schedule.
 
     Returns:
         :class:`sdm.train.RunsHistory` (on the CPU).
     """
-    return train_runs(train_set, targets, [replace(settings, seed=int(seed)) for seed in seeds], camera=camera,
-                      device=device, theta0=theta0)
+    run_settings = [replace(settings, seed=int(seed)) for seed in seeds]
+    history = train_runs(train_set, targets, run_settings, camera=camera, device=device, theta0=theta0)
+    if refine is None:
+        return history
+    return refine_runs(train_set, targets, run_settings, history, refine, camera, device)
 
 
 def shift_record(theta: Sequence[float], shift: Sequence[float]) -> dict:
@@ -226,7 +230,8 @@ def shift_record(theta: Sequence[float], shift: Sequence[float]) -> dict:
 
 def noise_runs(train_set, level: int, runs: Sequence[int], settings: TrainSettings,
                shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
-               group_size: int = NOISE_GROUP_SIZE, device: torch.device | str | None = None) -> pd.DataFrame:
+               group_size: int = NOISE_GROUP_SIZE, device: torch.device | str | None = None,
+               refine: Refinement | None = None) -> pd.DataFrame:
     """Table 2: noise runs at one level, trained ``group_size`` at a time as one program; one row each.
 
     Run ``r`` (:func:`paired_runs`) trains with the seed :func:`run_seed` ``(settings.seed, level, r)``,
@@ -244,18 +249,20 @@ def noise_runs(train_set, level: int, runs: Sequence[int], settings: TrainSettin
         camera: default the set's.
         group_size: runs trained together (:data:`NOISE_GROUP_SIZE`: the trade-off).
         device: where to train; default the set's device.
+        refine: extra passes after the schedule (:class:`sdm.train.Refinement`; issue 20), or ``None``.
 
     Returns:
         Columns :data:`RUN_COLUMNS`, one row per run, in the order of ``runs`` (metres).
     """
     return _sdm_runs(train_set, train_set.targets, level, runs, settings, lambda theta: shift_record(theta, shift),
-                     RUN_COLUMNS, camera, group_size, device)
+                     RUN_COLUMNS, camera, group_size, device, refine)
 
 
-def _sdm_runs(train_set, clean_targets, level, runs, settings, record, columns, camera, group_size, device):
+def _sdm_runs(train_set, clean_targets, level, runs, settings, record, columns, camera, group_size, device,
+              refine=None):
     """:func:`paired_runs` trained by SDM (:func:`train_group`): ``record`` gets a run's final theta."""
     def fit_group(targets, seeds):
-        return train_group(train_set, targets, settings, seeds, camera, device).final_theta
+        return train_group(train_set, targets, settings, seeds, camera, device, refine=refine).final_theta
 
     return paired_runs(clean_targets, level, runs, settings.seed, fit_group, record, columns, group_size)
 

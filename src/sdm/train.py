@@ -20,6 +20,7 @@ import math
 from dataclasses import dataclass, replace
 from typing import Sequence
 
+import numpy as np
 import torch
 from tqdm.std import tqdm  # plain text: renders in notebooks without ipywidgets, no IProgress warning
 
@@ -328,6 +329,80 @@ def train_runs(
             thetas, losses = _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders,
                                           starts, bar)
     return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings)
+
+
+@dataclass(frozen=True)
+class Refinement:
+    """A documented extension of the paper's schedule: more epochs at the finest level with another rule.
+
+    After the levels ``s .. zoom`` of :class:`TrainSettings`, ``epochs`` more passes at level ``zoom`` with the
+    gradient rule ``flow``; pass ``i`` (from 0) runs at the rate of level ``zoom + 1`` times ``lr_decay^i``
+    (twice the last level's rate, then halving each pass: the paper's halving, continued per epoch), with the
+    chain ``s .. zoom`` of the last level (:func:`refine_runs`).
+
+    Issue 20 (docs/method.md, "A rule aimed at the floor"): ``closed_centred_r1`` brings theta within a few
+    millimetres, where ``group_crossing`` (whose fixed point is near the floor but whose pull far from it is
+    weak) refines it.
+
+    Attributes:
+        flow: a rule name (:func:`sdm.mapping.rules.flow_rule`).
+        epochs: passes, a positive integer.
+    """
+
+    flow: str = "group_crossing"
+    epochs: int = 4
+
+    def __post_init__(self) -> None:
+        rule_by_name(self.flow)
+        if isinstance(self.epochs, bool) or not isinstance(self.epochs, int) or self.epochs < 1:
+            raise SDMInputError(f"refinement epochs must be a positive integer, got {self.epochs!r}")
+
+    def rates(self, settings: TrainSettings) -> list[float]:
+        """The learning rate of each pass (metres per unit of summed flow)."""
+        rate = settings.lr * settings.lr_decay ** max(settings.s - settings.zoom - 1, 0)
+        return [rate * settings.lr_decay ** i for i in range(self.epochs)]
+
+
+def refine_seed(seed: int) -> int:
+    """The seed of the refinement passes' shuffling of a run seeded ``seed`` (a hash, stable across platforms)."""
+    return int(np.random.SeedSequence([int(seed), 20]).generate_state(1, dtype=np.uint32)[0])
+
+
+def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], settings: Sequence[TrainSettings],
+                history: RunsHistory, refinement: Refinement, camera: Camera | None = None,
+                device: torch.device | str | None = None) -> RunsHistory:
+    """``history`` (of :func:`train_runs` with these arguments) continued by ``refinement``'s passes.
+
+    The passes train at level ``zoom`` only, through the whole chain ``s .. zoom`` (the forward of the
+    schedule's last level), from each run's last theta, on the torch path of :func:`train_runs` (packed runs,
+    each moved by its own flow); run ``r`` shuffles its passes with a generator seeded
+    :func:`refine_seed` ``(settings[r].seed)``, one permutation per pass. Returns the whole history: the
+    steps of ``history``, then those of the passes.
+    """
+    settings = list(settings)
+    passes = [replace(one, n_epoch=1, flow=refinement.flow) for one in settings]
+    common = passes[0]
+    camera = camera or train_set.camera
+    if device is not None:
+        train_set = train_set.to(_usable_device(device))
+    device = train_set.device
+    n_configs = len(train_set)
+    generators = [torch.Generator(device="cpu").manual_seed(refine_seed(one.seed)) for one in settings]
+    orders = torch.stack([torch.stack([torch.randperm(n_configs, generator=g, device="cpu") for g in generators])
+                          for _ in range(refinement.epochs)])
+    rates = refinement.rates(common)
+    levels = [common.zoom] * refinement.epochs
+    pyramids = [train_set.pyramid(common.s) if run_targets is train_set.targets
+                else target_pyramid(run_targets.to(device), common.s) for run_targets in targets]
+    starts = history.theta[-1].to(device)
+    with tqdm(total=0, disable=True) as bar:
+        thetas, losses = _train_torch(train_set, pyramids, passes, camera, "fast", levels, rates, orders, starts, bar)
+    steps = refinement.epochs * (n_configs // common.batch_size)
+    per_pass = n_configs // common.batch_size
+    return RunsHistory(torch.cat((history.theta, thetas[1:].cpu())), torch.cat((history.loss, losses.cpu())),
+                       torch.cat((history.level, torch.full((steps,), common.zoom, dtype=torch.int64))),
+                       torch.cat((history.lr, torch.tensor(rates, dtype=torch.float64).repeat_interleave(per_pass))),
+                       settings)
 
 
 def _kernel_targets(train_set: ConfigurationSet, target: torch.Tensor, own: bool, steps: int, levels: list[int],

@@ -1,0 +1,61 @@
+"""The schedule's refinement passes (issue 20: closed_centred_r1, then group_crossing at zoom 0)."""
+from dataclasses import replace
+
+import pytest
+import torch
+
+from scenes import configuration_set
+from sdm.errors import SDMInputError
+from sdm.experiments import noisy_targets, train_group
+from sdm.sky import SKY_SHIFT
+from sdm.train import Refinement, TrainSettings, refine_runs, refine_seed, train_runs
+
+BASE = TrainSettings(lr=1e-4, n_epoch=1, s=4, flow="closed_centred_r1")
+
+
+@pytest.fixture(scope="module")
+def small():
+    return configuration_set(64, seed=11)
+
+
+def test_refined_runs_packed_equal_each_run_refined_alone(small):
+    """Three runs refined together (R = 3, packed steps) have each run's history refined alone (R = 1) to the bit:
+    group_crossing's flow values are exact binary fractions, so the packed sum cannot round otherwise."""
+    settings = [replace(BASE, seed=seed) for seed in (4, 9, 4)]
+    targets = [noisy_targets(small.targets, 2, 1), noisy_targets(small.targets, 1, 5), small.targets]
+    refinement = Refinement("group_crossing", 3)
+    together = refine_runs(small, targets, settings, train_runs(small, targets, settings), refinement)
+    main_steps = 5 * (64 // 16)
+    assert together.theta.shape == (main_steps + 3 * (64 // 16) + 1, 3, 2)
+    for run, (one, run_targets) in enumerate(zip(settings, targets)):
+        alone = refine_runs(small, [run_targets], [one], train_runs(small, [run_targets], [one]), refinement)
+        assert torch.equal(together.theta[:, run], alone.theta[:, 0]), run
+    assert not torch.equal(together.theta[main_steps:, 0], together.theta[main_steps, 0].expand(4 * 3 + 1, 2))
+
+
+def test_refinement_passes_continue_the_halving_at_the_finest_level(small):
+    """Pass i runs at level zoom, at twice the last level's rate times lr_decay^i, shuffled by its own seed."""
+    history = train_group(small, [small.targets], BASE, [7], refine=Refinement("group_crossing", 3))
+    per_pass = 64 // 16
+    assert history.level[-3 * per_pass:].tolist() == [0] * (3 * per_pass)
+    rates = history.lr[-3 * per_pass:].reshape(3, per_pass)
+    assert rates[:, 0].tolist() == [1e-4 * 0.5**3, 1e-4 * 0.5**4, 1e-4 * 0.5**5]
+    assert bool((rates == rates[:, :1]).all())
+    assert refine_seed(7) != 7 and refine_seed(7) != refine_seed(8)
+
+
+def test_refinement_keeps_the_true_shift_without_noise(small):
+    """Started at theta* on noise-free targets, group_crossing's passes do not move it (exact fixed point)."""
+    settings = BASE
+    start = train_runs(small, [small.targets], [settings], theta0=[SKY_SHIFT])
+    assert torch.equal(start.theta[-1, 0], torch.tensor(SKY_SHIFT, dtype=torch.float64))
+    stay = refine_runs(small, [small.targets], [settings], start, Refinement("group_crossing", 2))
+    moved = (stay.theta[len(start.theta):, 0] - torch.tensor(SKY_SHIFT, dtype=torch.float64)).abs().max()
+    assert float(moved) == 0
+
+
+@pytest.mark.parametrize("kwargs,match", [({"flow": "no-such"}, "flow"), ({"epochs": 0}, "epochs"),
+                                          ({"epochs": 2.0}, "epochs"), ({"epochs": True}, "epochs")])
+def test_bad_refinements_are_refused_naming_the_field(kwargs, match):
+    with pytest.raises(SDMInputError, match=match):
+        Refinement(**kwargs)
