@@ -50,7 +50,7 @@ def main(argv=None) -> int:
     settings = settings_for(**TUNED)
     rows, table, flows = [], [], []
     for rule in args.rules.split(","):
-        start = time.time()
+        start, cpu = time.time(), time.process_time()
         base, _, refined = rule.partition("+")
         refine = None
         if refined:
@@ -68,7 +68,9 @@ def main(argv=None) -> int:
             flow = flow[flow.zoom == 0].drop(columns="zoom")
             flow.insert(0, "rule", rule)
             flows.append(flow)
-        print(f"# {rule}: {time.time() - start:.0f} s", file=sys.stderr, flush=True)
+        print(f"# {rule}: {time.time() - start:.0f} s wall, "
+              f"{(time.process_time() - cpu) / max(len(levels) * args.runs, 1):.3f} CPU s per run (with the flow at theta*"
+              f" unless --no-flow)", file=sys.stderr, flush=True)
     pd.set_option("display.width", 200)
     table = pd.DataFrame(table)
     table["meets_bar"] = table.mean_mm <= table.bar_mm
