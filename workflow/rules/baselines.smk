@@ -1,7 +1,8 @@
 # Table 3: SDM against the losses a researcher would use instead, on Table 2's noisy targets
 # (the same run seeds: a paired comparison). Per baseline, one tuning job (its grid on the dev set,
-# like Table 1), then one job per noise level (that level's paired runs), like the noise stage;
-# then the table. SDM is not rerun: its rows are Table 2's runs (noise/distances.csv), its time
+# like Table 1), then one job for its paired runs at every noise level (one job, not one per level: a
+# job's start-up, about 4-5 CPU seconds for the interpreter, torch and the notebook kernel, cost as much
+# as a level's runs; each level keeps its own file); then the table. SDM is not rerun: its rows are Table 2's runs (noise/distances.csv), its time
 # per run the one the noise jobs record.
 
 notebook_stage(
@@ -22,36 +23,37 @@ notebook_stage(
 
 notebook_stage(
     "baseline_runs",
-    "One baseline's paired runs at one noise level, with its tuned settings.",
-    jobs=[{"method": method, "level": level} for method in BASELINES for level in LEVELS],
-    job="baselines_{method}_level{level}",
+    "One baseline's paired runs at every noise level, with its tuned settings (one file per level).",
+    jobs=[{"method": method} for method in BASELINES],
+    job="baselines_{method}",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE, tuning_file=result("baselines/tuning_{method}.csv")),
-    output=dict(runs_file=result("baselines/runs_{method}_level{level}.csv")),
+    output=dict(runs_files=[result(f"baselines/runs_{{method}}_level{level}.csv") for level in LEVELS]),
     params=dict(
         method=wildcard("method"),
-        level=wildcard("level", int),
+        levels=LEVELS,
         runs=BASELINE_RUNS,
         seed=config["noise"]["seed"],
         shift=config["sky"]["shift"],
     ),
-    runtime=15,
+    runtime=15 * len(LEVELS),
 )
 
 notebook_stage(
     "floor_runs",
-    "The floor at one noise level: per paired run, the theta minimising the exact pixel mismatch.",
-    jobs=[{"level": level} for level in LEVELS] if FLOOR["enabled"] else [],
-    job="floor_level{level}",
+    "The floor at every noise level (one file per level): per paired run, the theta minimising the exact pixel "
+    "mismatch.",
+    jobs=[{}] if FLOOR["enabled"] else [],
+    job="floor",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE),
-    output=dict(runs_file=result("floor/level{level}.csv")),
+    output=dict(runs_files=[result(f"floor/level{level}.csv") for level in LEVELS]),
     params=dict(
-        level=wildcard("level", int),
+        levels=LEVELS,
         runs=FLOOR_RUNS,
         settings=FLOOR_SETTINGS,
         seed=config["noise"]["seed"],
         shift=config["sky"]["shift"],
     ),
-    runtime=20,
+    runtime=20 * len(LEVELS),
 )
 
 notebook_stage(
@@ -60,10 +62,10 @@ notebook_stage(
     jobs=[{}] if config["baselines"]["enabled"] else [],
     input=dict(
         tuning_files=each("baseline_tune", "tuning_file"),
-        run_files=each("baseline_runs", "runs_file"),
+        run_files=each("baseline_runs", "runs_files"),
         table2_distances=result("noise/distances.csv"),
         sdm_timings=each("noise", "timing_file"),
-        floor_files=each("floor_runs", "runs_file"),
+        floor_files=each("floor_runs", "runs_files"),
     ),
     output=dict(
         **table_files("table3"),
