@@ -22,7 +22,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from test_workflow import ROOT, STAGES, apollo_sample_config, dot_test_config, planned, snakemake, workdir
+from test_workflow import (ROOT, STAGES, apollo_sample_config, dot_test_config, planned, snakemake,
+                           snakemake_commands, workdir)
 
 sys.path.insert(0, str(ROOT / "workflow" / "scripts"))
 import code_deps  # noqa: E402
@@ -47,8 +48,7 @@ def copy_project(target: Path, config: dict) -> Path:
 
 def in_project(project: Path, *args: str) -> subprocess.CompletedProcess:
     """Snakemake run in ``project`` with its own Snakefile (and, as there, its workflow profile)."""
-    return subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=project, capture_output=True, text=True,
-                          timeout=900)
+    return snakemake_commands((project, args))[0]
 
 
 def complete_without_running(project: Path) -> list[dict]:
