@@ -8,6 +8,7 @@ beside that file's run.
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from pathlib import Path
 
