@@ -22,11 +22,14 @@ run: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/snakemake --profile profiles/default --cores $(CORES)
 
 # The workflow tests run Snakemake in temporary directories: whatever results/ holds, they see none of it.
+# On $(CORES) pytest-xdist workers, a test file to a worker (its fixtures, a workflow run among them, are built
+# once), the files of the longest fixtures first (tests/conftest.py). Plain `pytest` runs the same in one process.
 test: install
-	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest -n $(CORES) --dist loadfile --no-loadscope-reorder
 
 # The .test config on a one-node SLURM cluster that the test starts and stops (tests/test_slurm.py):
 # needs root and the slurm-wlm and munge packages; about 35 minutes on two cores. `make test` leaves it out.
+# One process (no -n): its one cluster and the local run it compares with are built once.
 test-slurm: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest -m slurm tests/test_slurm.py
 

@@ -32,3 +32,22 @@ def saved_set(tmp_path_factory) -> Path:
     path = tmp_path_factory.mktemp("probe") / "set.pt"
     torch.save({"points": data.points, "pixels": data.pixels, "offsets": data.offsets, "targets": data.targets}, path)
     return path
+
+
+#: The fixtures that cost minutes (a run of the workflow, a touched project copy), longest first. Under
+#: pytest-xdist (`make test`: ``-n 2 --dist loadfile``) a file's tests run on one worker, so each is built once.
+HEAVY_FIXTURES = ("completed_run", "real_run", "touched_project")
+
+
+def pytest_collection_modifyitems(config, items):
+    """In an xdist worker: the files using a heavy fixture first, in that order, the others as collected, so
+    that the longest chains start first (with ``--no-loadscope-reorder``, the files are handed out in this
+    order). Without xdist nothing changes."""
+    if not hasattr(config, "workerinput"):
+        return
+    rank = {}
+    for item in items:
+        file = item.nodeid.split("::")[0]
+        heavy = [i for i, name in enumerate(HEAVY_FIXTURES) if name in item.fixturenames]
+        rank[file] = min(rank.get(file, len(HEAVY_FIXTURES)), *heavy, len(HEAVY_FIXTURES))
+    items.sort(key=lambda item: rank[item.nodeid.split("::")[0]])

@@ -10,10 +10,12 @@ two cores); the tests that need a completed run share it.
 from __future__ import annotations
 
 import ast
+import atexit
 import copy
 import json
 import os
 import re
+import select
 import shutil
 import subprocess
 import sys
@@ -43,33 +45,89 @@ def snakemake(*args: str, cwd: Path = ROOT, timeout: int = 900) -> subprocess.Co
 
 def snakemakes(*runs: tuple[Path, tuple[str, ...]], timeout: int = 900) -> list[subprocess.CompletedProcess]:
     """Snakemake runs, each ``(cwd, args)`` as in :func:`snakemake`, started together: independent chains of
-    stages use both cores. Each run's stdout and stderr go to files (no pipe to fill); past ``timeout`` seconds
-    every run is killed and TimeoutExpired raised, as subprocess.run does."""
-    started = []
-    try:
-        for cwd, args in runs:
-            output = (tempfile.TemporaryFile("w+"), tempfile.TemporaryFile("w+"))  # stdout, stderr
-            command = [sys.executable, "-m", "snakemake", "--snakefile", str(ROOT / "Snakefile"), *args]
-            started.append((subprocess.Popen(command, cwd=cwd, stdout=output[0], stderr=output[1], text=True,
-                                             preexec_fn=lambda: os.umask(0o022)), output))
-        deadline = time.monotonic() + timeout
-        for process, _ in started:
-            process.wait(timeout=max(deadline - time.monotonic(), 0))
-        results = []
-        for process, output in started:
-            texts = []
-            for file in output:
-                file.seek(0)
-                texts.append(file.read())
-            results.append(subprocess.CompletedProcess(process.args, process.returncode, *texts))
-        return results
-    finally:
-        for process, output in started:
-            if process.poll() is None:
-                process.kill()
-                process.wait()
-            for file in output:
-                file.close()
+    stages use both cores. See :func:`snakemake_commands`."""
+    return snakemake_commands(*((cwd, ("--snakefile", str(ROOT / "Snakefile"), *args)) for cwd, args in runs),
+                              timeout=timeout)
+
+
+class _Server:
+    """tests/snakemake_server.py, started on first use: each run is ``python -m snakemake`` less its import."""
+
+    process: subprocess.Popen | None = None
+    pending = b""  # read, not yet a whole line
+    ended: dict[int, int] = {}  # pid -> returncode, until its run's caller takes it
+
+    @classmethod
+    def write(cls, request: dict) -> None:
+        cls.process.stdin.write((json.dumps(request) + "\n").encode())
+        cls.process.stdin.flush()
+
+    @classmethod
+    def send(cls, request: dict) -> int:
+        if cls.process is None or cls.process.poll() is not None:
+            cls.process = subprocess.Popen([sys.executable, str(ROOT / "tests" / "snakemake_server.py")],
+                                           stdin=subprocess.PIPE, stdout=subprocess.PIPE)
+            cls.pending = b""
+            atexit.register(cls.stop, cls.process)
+        cls.write(request)
+        while "started" not in (message := cls.receive(None)):  # an earlier run's end may come first
+            pass
+        return message["started"]
+
+    @staticmethod
+    def stop(process: subprocess.Popen) -> None:
+        """End of stdin: the server kills what still runs and exits (waited for: its CPU time is counted)."""
+        process.stdin.close()
+        process.wait(timeout=60)
+
+    @classmethod
+    def receive(cls, deadline: float | None) -> dict:
+        """The server's next message; TimeoutError past ``deadline`` (time.monotonic())."""
+        fd = cls.process.stdout.fileno()
+        while b"\n" not in cls.pending:
+            wait = None if deadline is None else max(deadline - time.monotonic(), 0)
+            if not select.select([fd], [], [], wait)[0]:
+                raise TimeoutError
+            chunk = os.read(fd, 65536)
+            if not chunk:
+                raise RuntimeError(f"tests/snakemake_server.py exited with {cls.process.wait()}")
+            cls.pending += chunk
+        line, cls.pending = cls.pending.split(b"\n", 1)
+        message = json.loads(line)
+        if "pid" in message:
+            cls.ended[message["pid"]] = message["returncode"]
+        return message
+
+
+def snakemake_commands(*runs: tuple[Path, tuple[str, ...]], timeout: int = 900) -> list[subprocess.CompletedProcess]:
+    """``python -m snakemake ARGS`` for each ``(cwd, args)``, in ``cwd`` under the common umask 022, all started
+    together. Each run's stdout and stderr go to files (no pipe to fill); past ``timeout`` seconds every run is
+    killed and TimeoutExpired raised, as subprocess.run does. The runs are forked by tests/snakemake_server.py
+    from a process that has imported Snakemake once (a dry run is mostly that import)."""
+    with tempfile.TemporaryDirectory() as folder:
+        started = []
+        try:
+            for i, (cwd, args) in enumerate(runs):
+                output = (f"{folder}/{i}.out", f"{folder}/{i}.err")
+                pid = _Server.send({"cwd": str(cwd), "args": list(args), "env": dict(os.environ),
+                                    "stdout": output[0], "stderr": output[1]})
+                started.append(([sys.executable, "-m", "snakemake", *args], pid, output))
+            deadline = time.monotonic() + timeout
+            while any(pid not in _Server.ended for _, pid, _ in started):
+                try:
+                    _Server.receive(deadline)
+                except TimeoutError:
+                    raise subprocess.TimeoutExpired(started[0][0], timeout) from None
+            return [subprocess.CompletedProcess(command, _Server.ended[pid], Path(output[0]).read_text(),
+                                                Path(output[1]).read_text()) for command, pid, output in started]
+        finally:
+            for _, pid, _ in started:
+                if pid not in _Server.ended:
+                    _Server.write({"kill": pid})
+            for _, pid, _ in started:
+                while pid not in _Server.ended:
+                    _Server.receive(time.monotonic() + 60)
+                _Server.ended.pop(pid)
 
 
 def default_config() -> dict:
@@ -127,8 +185,7 @@ def test_a_misdeclared_stage_is_refused_when_the_workflow_is_parsed(tmp_path, ca
     shutil.copy(ROOT / "config.yaml", tmp_path)
     with (tmp_path / "workflow" / "rules" / "report.smk").open("a") as rules_file:
         rules_file.write(f"\n{call}\n")
-    result = subprocess.run([sys.executable, "-m", "snakemake", "-n", "--quiet", "rules"], cwd=tmp_path,
-                            capture_output=True, text=True, timeout=300)
+    result = snakemake_commands((tmp_path, ("-n", "--quiet", "rules")), timeout=300)[0]
     assert result.returncode != 0
     assert message in result.stdout + result.stderr
 
@@ -665,124 +722,6 @@ def test_a_failed_stage_names_the_cause_first(tmp_path):
     assert "results/notebooks/sample.ipynb" in output
     assert (tmp_path / "run" / "results" / "notebooks" / "sample.ipynb").is_file()
     assert '"cell_type"' not in output  # no notebook JSON on the console
-
-
-# -- real annotations: tracked by content, empty images, an all-empty folder ---------------------------------
-
-
-def _real_folder(path: Path, n_empty: int) -> Path:
-    """A copy of the shipped 57 real frames (or none) plus ``n_empty`` annotation files without cars."""
-    path.mkdir(parents=True)
-    (path / "car_poses").mkdir()
-    shutil.copytree(APOLLO_SAMPLE / "camera", path / "camera")
-    if n_empty < 1000:
-        for source in sorted((APOLLO_SAMPLE / "car_poses").glob("*.json")):
-            shutil.copy(source, path / "car_poses" / source.name)
-    for i in range(n_empty % 1000):
-        (path / "car_poses" / f"empty_{i:03d}.json").write_text("[]\n")
-    return path
-
-
-def _small_real_config(folder: Path, n_images: int) -> dict:
-    return _merge(default_config(), {
-        "data": {"source": "apollo", "apollo_folder": str(folder)},
-        "sky": {"n_images": n_images},
-        "split": {"n_selected": 40, "n_train": 24, "n_dev": 16},
-        "tuning": {"n_epoch": [2], "lr": [1.0e-3]},
-        "noise": {"levels": [0, 2], "runs": 2, "chunk_size": 2},
-        "baselines": {"enabled": False},
-        "floor": {"enabled": False},
-        "research": {"rules": {"enabled": False}},
-    })
-
-
-@pytest.fixture(scope="session")
-def real_run(tmp_path_factory) -> Path:
-    """The 57 real frames with 30 annotation files without cars mixed in, run end to end."""
-    root = tmp_path_factory.mktemp("real_run")
-    folder = _real_folder(root / "annotations", n_empty=30)
-    directory = workdir(root / "run", _small_real_config(folder, n_images=80))
-    result = snakemake("-c2", cwd=directory)
-    assert result.returncode == 0, (result.stdout + result.stderr)[-5000:]
-    return directory
-
-
-def test_real_frames_with_empty_annotation_files_mixed_in_complete(real_run):
-    summary = json.loads((real_run / "results" / "data" / "summary.json").read_text())
-    assert summary["images"] == 87 and summary["images_without_car_on_screen"] >= 30
-    table2 = (real_run / "results" / "tables" / "table2.csv").read_text()
-    assert "nan" not in table2.lower()
-    assert "NaN" not in (real_run / "results" / "sky" / "stats.json").read_text()
-
-
-@pytest.mark.parametrize("change", ["edit", "add", "remove"])
-def test_a_changed_annotation_file_reruns_the_data_stage(real_run, tmp_path, change):
-    """Adding, removing or editing one annotation file reruns the data stage (and what follows)."""
-    config = yaml.safe_load((real_run / "config.yaml").read_text())
-    folder = Path(config["data"]["apollo_folder"])
-    victim = sorted((folder / "car_poses").glob("*.json"))[0]
-    original = victim.read_bytes()
-    try:
-        if change == "edit":
-            cars = json.loads(original)
-            cars[0]["pose"][5] += 1.0
-            victim.write_text(json.dumps(cars))
-            os.utime(victim, ns=(victim.stat().st_atime_ns, victim.stat().st_mtime_ns - 10**12))  # even an old mtime
-        elif change == "add":
-            (folder / "car_poses" / "added.json").write_text("[]\n")
-        else:
-            victim.unlink()
-        jobs = planned(snakemake("-n", "--quiet", "rules", cwd=real_run))
-        assert "data" in jobs and "sky" in jobs and "report" in jobs, jobs
-    finally:
-        victim.write_bytes(original)
-        (folder / "car_poses" / "added.json").unlink(missing_ok=True)
-    assert planned(snakemake("-n", "--quiet", "rules", cwd=real_run)) == {}  # restored: nothing to do
-
-
-def test_an_edited_annotation_changes_the_tables(real_run, tmp_path):
-    """The same annotations in another folder give the same tables; the cars of a training image edited in place
-    change them (the rerun's Sky statistics and tables follow). Each on a copy of the completed run; the two
-    reruns, chains of stages, run side by side (one core each)."""
-    config = yaml.safe_load((real_run / "config.yaml").read_text())
-    folder = Path(config["data"]["apollo_folder"])
-    moved, edited = tmp_path / "moved", tmp_path / "edited"
-    for directory in (moved, edited):
-        shutil.copytree(real_run, directory, symlinks=True, ignore=shutil.ignore_patterns("locks", "incomplete"))
-    copy_dir = _real_folder(tmp_path / "annotations", n_empty=30)
-    workdir(moved, _merge(config, {"data": {"apollo_folder": str(copy_dir)}}))
-    assert "data" in planned(snakemake("-n", "--quiet", "rules", cwd=moved))  # a new folder is a new param
-    split = json.loads((real_run / "results" / "split" / "split.json").read_text())
-    victim = folder / "car_poses" / f"{split['train_ids'][0]}.json"  # the run's own folder: restored below
-    original = victim.read_bytes()
-    try:
-        cars = json.loads(original)
-        for car in cars:
-            car["pose"][3] += 0.8  # every car of a training image 0.8 m to the right
-        victim.write_text(json.dumps(cars))
-        # up to Tables 1-2, the tables this test reads
-        results = snakemakes((moved, ("-c1", "tables")), (edited, ("-c1", "tables")))
-    finally:
-        victim.write_bytes(original)
-    for result in results:
-        assert result.returncode == 0, (result.stdout + result.stderr)[-3000:]
-    before = (real_run / "results" / "tables" / "table2.csv").read_text()
-    assert (moved / "results" / "tables" / "table2.csv").read_text() == before  # same content, same tables
-    assert (edited / "results" / "tables" / "table2.csv").read_text() != before
-    assert planned(snakemake("-n", "--quiet", "rules", cwd=real_run)) == {}  # restored: nothing to do
-
-
-def test_an_all_empty_annotation_folder_fails_at_the_first_stage_naming_it(tmp_path):
-    folder = _real_folder(tmp_path / "empty_annotations", n_empty=1000 + 8)
-    config = _small_real_config(folder, n_images=8)
-    config["split"] = {"n_selected": 4, "n_train": 2, "n_dev": 2, "seed": 0}
-    config["figures"]["example"] = 0
-    result = snakemake("-c1", cwd=workdir(tmp_path / "run", config))
-    output = result.stdout + result.stderr
-    assert result.returncode != 0
-    causes = [line for line in output.splitlines() if " failed: " in line]
-    assert causes and "notebooks/data.py" in causes[0] and str(folder) in causes[0], output[-3000:]
-    assert not (tmp_path / "run" / "results" / "sample").exists()
 
 
 def test_a_damaged_sky_file_is_refused_and_a_rebuilt_one_gives_the_same_tables(completed_run, tmp_path):

@@ -22,7 +22,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from test_workflow import ROOT, STAGES, apollo_sample_config, dot_test_config, planned, snakemake, workdir
+from test_workflow import (ROOT, STAGES, apollo_sample_config, dot_test_config, planned, snakemake,
+                           snakemake_commands, workdir)
 
 sys.path.insert(0, str(ROOT / "workflow" / "scripts"))
 import code_deps  # noqa: E402
@@ -47,8 +48,7 @@ def copy_project(target: Path, config: dict) -> Path:
 
 def in_project(project: Path, *args: str) -> subprocess.CompletedProcess:
     """Snakemake run in ``project`` with its own Snakefile (and, as there, its workflow profile)."""
-    return subprocess.run([sys.executable, "-m", "snakemake", *args], cwd=project, capture_output=True, text=True,
-                          timeout=900)
+    return snakemake_commands((project, args))[0]
 
 
 def complete_without_running(project: Path) -> list[dict]:
@@ -186,9 +186,19 @@ def test_each_library_file_edit_changes_the_fingerprints_of_the_stages_that_run_
     spec.loader.exec_module(deps)
     assert deps.ROOT == tmp_path
     notebooks = sorted(path.stem for path in (tmp_path / "notebooks").glob("*.py"))
+    parse, parsed = deps._parsed.__wrapped__, {}
+
+    def parse_by_content(path: Path):
+        """code_deps' own parse, kept per file content: an edited file is parsed anew, the others once."""
+        key = (path, path.read_bytes())
+        if key not in parsed:
+            parsed[key] = parse(path)
+        return parsed[key]
+
+    deps._parsed = parse_by_content
 
     def fingerprints() -> dict[str, str]:
-        for cached in (deps.module_file, deps._parsed, deps.imported, deps.reached, deps.file_digest, deps.fingerprint):
+        for cached in (deps.module_file, deps.imported, deps.reached, deps.file_digest, deps.fingerprint):
             cached.cache_clear()
         return {notebook: deps.fingerprint(notebook) for notebook in notebooks}
 
