@@ -180,7 +180,7 @@ def test_group_moves_change_the_mismatch_as_a_recount_says(level):
     for theta in ((0.3, 0.1), SKY_SHIFT, (2.0, -1.5)):
         screen, depth, config, *_ = _rule_inputs(data, theta, target, 0)
         group, first = rigid_groups(screen, depth, config)
-        changes = group_move_changes(screen, group, config, target)
+        changes, _ = group_move_changes(screen, group, config, target)
         expected = group_move_recount(screen, depth, config, target)
         assert len(expected) == first.numel()
         for g, point in enumerate(first.tolist()):

@@ -296,9 +296,7 @@ def train_runs(
         rate *= common.lr_decay
     # Every epoch's shuffling of every run, (levels * n_epoch, R, N): each run's generator draws its
     # permutations in epoch order, as the run alone would.
-    generators = [torch.Generator(device="cpu").manual_seed(one.seed) for one in settings]
-    orders = torch.stack([torch.stack([torch.randperm(n_configs, generator=g, device="cpu") for g in generators])
-                          for _ in range(len(levels) * common.n_epoch)])
+    orders = _shufflings([one.seed for one in settings], n_configs, len(levels) * common.n_epoch)
     steps_per_level = common.n_epoch * (n_configs // batch_size)
     total = len(levels) * steps_per_level
     step_levels = torch.tensor(levels, dtype=torch.int64, device="cpu").repeat_interleave(steps_per_level)
@@ -324,8 +322,7 @@ def train_runs(
             bar.update(total)
         else:
             # Run r's zoomed-out targets, levels 0..s (the set's cached pyramid for its own targets).
-            pyramids = [train_set.pyramid(common.s) if own else target_pyramid(run_targets.to(device), common.s)
-                        for own, run_targets in zip(own_targets, targets)]
+            pyramids = _run_pyramids(train_set, targets, own_targets, common.s)
             thetas, losses = _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders,
                                           starts, bar)
     return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings)
@@ -383,26 +380,37 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     passes = [replace(one, n_epoch=1, flow=refinement.flow) for one in settings]
     common = passes[0]
     camera = camera or train_set.camera
+    own_targets = [run_targets is train_set.targets for run_targets in targets]  # before the set moves
     if device is not None:
         train_set = train_set.to(_usable_device(device))
-    device = train_set.device
-    n_configs = len(train_set)
-    generators = [torch.Generator(device="cpu").manual_seed(refine_seed(one.seed)) for one in settings]
-    orders = torch.stack([torch.stack([torch.randperm(n_configs, generator=g, device="cpu") for g in generators])
-                          for _ in range(refinement.epochs)])
+    orders = _shufflings([refine_seed(one.seed) for one in settings], len(train_set), refinement.epochs)
     rates = refinement.rates(common)
-    levels = [common.zoom] * refinement.epochs
-    pyramids = [train_set.pyramid(common.s) if run_targets is train_set.targets
-                else target_pyramid(run_targets.to(device), common.s) for run_targets in targets]
-    starts = history.theta[-1].to(device)
+    pyramids = _run_pyramids(train_set, targets, own_targets, common.s)
+    starts = history.theta[-1].to(train_set.device)
     with tqdm(total=0, disable=True) as bar:
-        thetas, losses = _train_torch(train_set, pyramids, passes, camera, "fast", levels, rates, orders, starts, bar)
-    steps = refinement.epochs * (n_configs // common.batch_size)
-    per_pass = n_configs // common.batch_size
+        thetas, losses = _train_torch(train_set, pyramids, passes, camera, "fast", [common.zoom] * refinement.epochs,
+                                      rates, orders, starts, bar)
+    per_pass = len(train_set) // common.batch_size
     return RunsHistory(torch.cat((history.theta, thetas[1:].cpu())), torch.cat((history.loss, losses.cpu())),
-                       torch.cat((history.level, torch.full((steps,), common.zoom, dtype=torch.int64))),
+                       torch.cat((history.level, torch.full((refinement.epochs * per_pass,), common.zoom,
+                                                            dtype=torch.int64))),
                        torch.cat((history.lr, torch.tensor(rates, dtype=torch.float64).repeat_interleave(per_pass))),
                        settings)
+
+
+def _shufflings(seeds: Sequence[int], n_configs: int, n_epochs: int) -> torch.Tensor:
+    """``(n_epochs, R, N)`` int64 CPU: each run's generator (seeded ``seeds[r]``) draws its permutations in
+    epoch order, as the run alone would."""
+    generators = [torch.Generator(device="cpu").manual_seed(int(seed)) for seed in seeds]
+    return torch.stack([torch.stack([torch.randperm(n_configs, generator=g, device="cpu") for g in generators])
+                        for _ in range(n_epochs)])
+
+
+def _run_pyramids(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], own_targets: Sequence[bool],
+                  steps: int) -> list[list[torch.Tensor]]:
+    """Run r's zoomed-out targets, levels 0..steps, on the set's device (the set's cached pyramid for its own)."""
+    return [train_set.pyramid(steps) if own else target_pyramid(run_targets.to(train_set.device), steps)
+            for own, run_targets in zip(own_targets, targets)]
 
 
 def _kernel_targets(train_set: ConfigurationSet, target: torch.Tensor, own: bool, steps: int, levels: list[int],

@@ -178,7 +178,9 @@ def group_move_changes(screen, group, config, target) -> torch.Tensor:
             int64; target: ``(n, H, W)`` bool, zoom 0.
 
     Returns:
-        ``(G, 4)`` float (dtype of ``screen``), exact integers. Same device as ``screen``.
+        ``(changes, mismatch)``: ``changes`` ``(G, 4)`` float (dtype of ``screen``), exact integers;
+        ``mismatch`` ``()`` the count itself before any move, summed over the configurations (same dtype).
+        On the device of ``screen``.
     """
     n, height, width = target.shape
     pixel = torch.floor(screen).long()
@@ -220,7 +222,8 @@ def group_move_changes(screen, group, config, target) -> torch.Tensor:
         arrives = on_screen & ~in_group(pixel[:, 0] + drow, pixel[:, 1] + dcol) & (covering.take(cell) == 0)
         change = leaves * leave_change + arrives * torch.where(holds, -1.0, 1.0).to(screen.dtype)
         changes[:, k].index_add_(0, group, change)
-    return changes
+    mismatch = ((covering > 0) ^ flat_target).sum().to(screen.dtype)
+    return changes, mismatch
 
 
 def _crossing_kernel(distance: torch.Tensor) -> torch.Tensor:
@@ -255,9 +258,10 @@ def _group_crossing(screen, depth, config, landed, block, landing, target, zoom,
     if screen.shape[0] == 0:
         return flow, screen.new_zeros(()), landing_matched(config, landed, landing, target)
     group, first = rigid_groups(screen, depth, config)
-    changes = group_move_changes(screen, group, config, target)  # (G, 4): y+, y-, x+, x-
+    changes, loss = group_move_changes(screen, group, config, target)  # (G, 4): y+, y-, x+, x-
     lowers = torch.relu(-changes)
-    sub_pixel = screen.index_select(0, first) - torch.floor(screen.index_select(0, first))  # (G, 2) (row, col)
+    group_screen = screen.index_select(0, first)
+    sub_pixel = group_screen - torch.floor(group_screen)  # (G, 2) (row, col)
     group_depth = depth.index_select(0, first)
     gain = torch.stack((camera.fy * camera.rows_per_image_pixel / group_depth,
                         camera.fx * camera.cols_per_image_pixel / group_depth), 1)  # (G, 2) pixels per metre
@@ -265,12 +269,6 @@ def _group_crossing(screen, depth, config, landed, block, landing, target, zoom,
     pull_y = lowers[:, 1] * behind[:, 0] - lowers[:, 0] * ahead[:, 0]
     pull_x = lowers[:, 3] * behind[:, 1] - lowers[:, 2] * ahead[:, 1]
     flow.index_copy_(0, first, CROSSING_SCALE * torch.stack((pull_x, pull_y), 1))
-    n, height, width = target.shape
-    pixel = torch.floor(screen).long()
-    on_screen = (pixel[:, 0] >= 0) & (pixel[:, 0] < height) & (pixel[:, 1] >= 0) & (pixel[:, 1] < width)
-    covered = torch.zeros(target.numel(), dtype=torch.bool, device=target.device)
-    covered[(config * (height * width) + pixel[:, 0] * width + pixel[:, 1])[on_screen]] = True
-    loss = (covered ^ target.reshape(-1)).sum().to(screen.dtype)
     return flow, loss, landing_matched(config, landed, landing, target)
 
 
