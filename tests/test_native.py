@@ -129,7 +129,7 @@ def compiled_calls(monkeypatch):
     return calls
 
 
-@pytest.mark.parametrize("flow", ["paper", "closed_centred_r1"])
+@pytest.mark.parametrize("flow", ["paper", "closed_centred_r1", "group_crossing"])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("s,zoom,n_epoch", [(4, 0, 1), (3, 1, 2)])
 def test_the_compiled_run_equals_the_reference_loop_bit_for_bit(flow, seed, s, zoom, n_epoch, compiled_calls):
@@ -162,7 +162,7 @@ def test_the_compiled_run_on_real_sized_data(compiled_calls):
     data = configuration_set(512, seed=2024)
     targets = [noisy_targets(data.targets, 2, 3), noisy_targets(data.targets, 4, 4)]
     finals = {}
-    for flow in ("paper", "closed_centred_r1"):
+    for flow in ("paper", "closed_centred_r1", "group_crossing"):
         settings = [TrainSettings(lr=1e-4, n_epoch=2, seed=seed, flow=flow) for seed in (6, 7)]
         compiled = train_runs(data, targets, settings)
         for run in range(2):
@@ -170,8 +170,9 @@ def test_the_compiled_run_on_real_sized_data(compiled_calls):
             assert torch.equal(compiled.theta[:, run], theta), (flow, run)
             assert float((compiled.loss[:, run] - loss).abs().max()) <= 1e-12 * float(loss.abs().max())
         finals[flow] = compiled.theta[-1]
-    assert len(compiled_calls) == 2
+    assert len(compiled_calls) == 3
     assert not torch.equal(finals["paper"], finals["closed_centred_r1"])  # the rules differ at zoom 0
+    assert not torch.equal(finals["paper"], finals["group_crossing"])
 
 
 def test_other_training_settings_take_the_torch_path(compiled_calls):

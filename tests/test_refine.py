@@ -6,6 +6,7 @@ import torch
 
 from scenes import configuration_set
 from sdm.errors import SDMInputError
+from sdm.mapping import native
 from sdm.experiments import noisy_targets, train_group
 from sdm.sky import SKY_SHIFT
 from sdm.train import Refinement, TrainSettings, refine_runs, refine_seed, train_runs
@@ -31,6 +32,29 @@ def test_refined_runs_packed_equal_each_run_refined_alone(small):
         alone = refine_runs(small, [run_targets], [one], train_runs(small, [run_targets], [one]), refinement)
         assert torch.equal(together.theta[:, run], alone.theta[:, 0]), run
     assert not torch.equal(together.theta[main_steps:, 0], together.theta[main_steps, 0].expand(4 * 3 + 1, 2))
+
+
+@pytest.mark.skipif(not native.enabled(), reason="no C compiler: the compiled kernel is not built")
+def test_the_compiled_refinement_equals_the_torch_path_bit_for_bit(small, monkeypatch):
+    """The passes run in one sdm_train call (levels 0, 0, ...; group_crossing's mode) and give the torch
+    path's theta history to the bit and its loss (the mismatch count) exactly."""
+    settings = [replace(BASE, seed=seed) for seed in (3, 8)]
+    targets = [noisy_targets(small.targets, 3, 2), noisy_targets(small.targets, 1, 6)]
+    refinement = Refinement("group_crossing", 3)
+    calls = []
+    program = native.train_program
+    monkeypatch.setattr(native, "train_program", lambda *args, **kwargs: calls.append(1) or program(*args, **kwargs))
+    compiled = refine_runs(small, targets, settings, train_runs(small, targets, settings), refinement)
+    assert len(calls) == 2
+    monkeypatch.setattr(native, "enabled", lambda: False)
+    torch_path = refine_runs(small, targets, settings, train_runs(small, targets, settings), refinement)
+    assert len(calls) == 2
+    assert torch.equal(compiled.theta, torch_path.theta)
+    main_steps = 5 * (64 // 16)  # before: closed_centred_r1's loss in metres, summed in another order
+    scale = float(torch_path.loss[:main_steps].abs().max())
+    assert float((compiled.loss[:main_steps] - torch_path.loss[:main_steps]).abs().max()) <= 1e-12 * scale
+    assert torch.equal(compiled.loss[main_steps:], torch_path.loss[main_steps:])
+    assert bool((compiled.loss[main_steps:] == compiled.loss[main_steps:].round()).all())  # pixel counts
 
 
 def test_refinement_passes_continue_the_halving_at_the_finest_level(small):

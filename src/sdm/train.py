@@ -8,7 +8,7 @@ batch, which is what the paper's learning rates assume.
 
 One engine, :func:`train_runs`, trains ``R`` independent runs (own targets, seed
 and start each); :func:`train` is it with ``R = 1``. On the CPU, for the paper's
-rule and ``"closed_centred_r1"`` on float64 points, the whole run (every level,
+rule, ``"closed_centred_r1"`` and ``"group_crossing"`` on float64 points, the whole run (every level,
 epoch, mini-batch, chain, flow and SGD step) is one call of the compiled kernel
 (:func:`sdm.mapping.native.train_program`); everything else, and every device,
 runs the torch path, one layer call per step with autograd. Both give the theta
@@ -224,8 +224,8 @@ def train_runs(
     its own shuffling (``settings[r].seed``) and its own start ``theta0[r]``; runs never
     interact. :func:`train` is this with ``R = 1``. Two paths, the same theta histories:
 
-    * **compiled** (CPU, float64 points, ``method="fast"``, flow ``"paper"`` or
-      ``"closed_centred_r1"``, no ``fit_depth``, the kernel of :mod:`sdm.mapping.native`
+    * **compiled** (CPU, float64 points, ``method="fast"``, flow ``"paper"``,
+      ``"closed_centred_r1"`` or ``"group_crossing"``, no ``fit_depth``, the kernel of :mod:`sdm.mapping.native`
       available): Python draws every epoch's shuffling and zooms out every run's targets
       once, and one C call (``sdm_train``) does every level, epoch, mini-batch, chain,
       flow, loss and SGD step, with the torch path's float operations in its order:
@@ -303,28 +303,8 @@ def train_runs(
     step_rates = torch.tensor(rates, dtype=torch.float64, device="cpu").repeat_interleave(steps_per_level)
 
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
-        forms = [kernel_form(common.flow, level) for level in levels]
-        if (method == "fast" and not common.fit_depth and None not in forms
-                and device.type == "cpu" and train_set.points.dtype == torch.float64 and native.enabled()
-                and native.trains_screen(camera.screen_shape)):
-            centred = [centre for centre, _ in forms]
-            bases = [run_targets.to(device) for run_targets in targets]
-            run_levels = [_kernel_targets(train_set, base, own, common.s, levels, forms)
-                          for base, own in zip(bases, own_targets)]
-            thetas, losses, failed = native.train_program(
-                train_set.points, train_set.pixels, train_set.rank, train_set.offsets, camera, common.s, levels,
-                common.n_epoch, batch_size, rates, centred, orders, run_levels, starts, bases)
-            if bool((failed >= 0).any()):
-                step = int(failed[failed >= 0].min())
-                run = int((failed == step).nonzero()[0])
-                raise SDMInputError(f"theta of run {run} became non-finite at step {step + 1} "
-                                    f"(lr {float(step_rates[step])!r} too large?)")
-            bar.update(total)
-        else:
-            # Run r's zoomed-out targets, levels 0..s (the set's cached pyramid for its own targets).
-            pyramids = _run_pyramids(train_set, targets, own_targets, common.s)
-            thetas, losses = _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders,
-                                          starts, bar)
+        thetas, losses = _train_program(train_set, targets, own_targets, settings, camera, method, levels, rates,
+                                        orders, starts, bar)
     return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings)
 
 
@@ -371,8 +351,8 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     """``history`` (of :func:`train_runs` with these arguments) continued by ``refinement``'s passes.
 
     The passes train at level ``zoom`` only, through the whole chain ``s .. zoom`` (the forward of the
-    schedule's last level), from each run's last theta, on the torch path of :func:`train_runs` (packed runs,
-    each moved by its own flow); run ``r`` shuffles its passes with a generator seeded
+    schedule's last level), from each run's last theta, on the paths of :func:`train_runs` (compiled where
+    it applies: for ``group_crossing`` on float64 CPU points; else packed runs in torch); run ``r`` shuffles its passes with a generator seeded
     :func:`refine_seed` ``(settings[r].seed)``, one permutation per pass. Returns the whole history: the
     steps of ``history``, then those of the passes.
     """
@@ -385,11 +365,10 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
         train_set = train_set.to(_usable_device(device))
     orders = _shufflings([refine_seed(one.seed) for one in settings], len(train_set), refinement.epochs)
     rates = refinement.rates(common)
-    pyramids = _run_pyramids(train_set, targets, own_targets, common.s)
     starts = history.theta[-1].to(train_set.device)
     with tqdm(total=0, disable=True) as bar:
-        thetas, losses = _train_torch(train_set, pyramids, passes, camera, "fast", [common.zoom] * refinement.epochs,
-                                      rates, orders, starts, bar)
+        thetas, losses = _train_program(train_set, targets, own_targets, passes, camera, "fast",
+                                        [common.zoom] * refinement.epochs, rates, orders, starts, bar)
     per_pass = len(train_set) // common.batch_size
     return RunsHistory(torch.cat((history.theta, thetas[1:].cpu())), torch.cat((history.loss, losses.cpu())),
                        torch.cat((history.level, torch.full((refinement.epochs * per_pass,), common.zoom,
@@ -459,6 +438,34 @@ def _starts(theta0, n_runs: int, fit_depth: bool, device: torch.device) -> torch
             raise SDMInputError(f"{where} must be {n_params} finite numbers, got {one!r}")
         starts.append(start)
     return torch.stack(starts)
+
+
+def _train_program(train_set, targets, own_targets, settings, camera, method, levels, rates, orders, starts, bar):
+    """The steps of :func:`train_runs` at ``levels`` (``settings[0].n_epoch`` epochs each, rates ``rates``,
+    shufflings ``orders``) from ``starts``, on the compiled path where it applies, else the torch path:
+    ``(thetas (steps + 1, R, n), losses (steps, R))`` on the set's device."""
+    common = settings[0]
+    device = train_set.device
+    forms = [kernel_form(common.flow, level) for level in levels]
+    if not (method == "fast" and not common.fit_depth and None not in forms and device.type == "cpu"
+            and train_set.points.dtype == torch.float64 and native.enabled()
+            and native.trains_screen(camera.screen_shape)):
+        pyramids = _run_pyramids(train_set, targets, own_targets, common.s)  # run r's levels 0..s
+        return _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar)
+    windows = [window for window, _ in forms]
+    bases = [run_targets.to(device) for run_targets in targets]
+    run_levels = [_kernel_targets(train_set, base, own, common.s, levels, forms)
+                  for base, own in zip(bases, own_targets)]
+    thetas, losses, failed = native.train_program(
+        train_set.points, train_set.pixels, train_set.rank, train_set.offsets, camera, common.s, levels,
+        common.n_epoch, common.batch_size, rates, windows, orders, run_levels, starts, bases)
+    if bool((failed >= 0).any()):
+        step = int(failed[failed >= 0].min())
+        run = int((failed == step).nonzero()[0])
+        rate = rates[step // (common.n_epoch * (len(train_set) // common.batch_size))]
+        raise SDMInputError(f"theta of run {run} became non-finite at step {step + 1} (lr {rate!r} too large?)")
+    bar.update(thetas.shape[0] - 1)
+    return thetas, losses
 
 
 def _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar):

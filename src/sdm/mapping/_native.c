@@ -492,6 +492,106 @@ static void halve_targets(int64_t n, int64_t h, int64_t w, const uint8_t *restri
     }
 }
 
+/* ---- group_crossing at zoom 0 (sdm.mapping.research_rules._group_crossing, issue 20) ----
+ *
+ * One configuration's flow summed into (grad_a, grad_b) and its exact pixel mismatch, from its n points'
+ * projections (screen, and their floors in `projected`, as project() leaves them). The points are grouped
+ * rigidly (research_rules.rigid_groups: one configuration, one depth): group g lists its points' indices
+ * within the configuration, ascending, at members[group_start[g] .. group_start[g + 1]).
+ *
+ * group_move_changes, integer for integer: `cover` counts the points per on-screen pixel (all zero on entry,
+ * left so); a group's pixels near the screen (up to CROSSING_MARGIN off it) are stamped into `stamp`, a grid
+ * padded by CROSSING_MARGIN + 1, with a stamp no other group used (stamp[padded_cells] holds the last one),
+ * so "a point of the same group covers that pixel" is one load. For each of the moves y+, y-, x+, x-: a pixel
+ * the group leaves (covered by this point alone, not covered again by the moved group) adds 1 if the target
+ * holds it, else removes 1; a pixel it arrives in (on the screen, not its own, covered by no point) removes 1
+ * if the target holds it, else adds 1. The flow of the group's crossings: per axis
+ * scale * (lower(-e) K(behind) - lower(+e) K(ahead)), K = floor(max(0, 1 - d / width) * steps) / steps of the
+ * distance d in metres (sub-pixel offset of the group's first point over its pixels per metre), in the torch
+ * rule's operations and order; every term an exact binary fraction, so the sums are exact in any order.
+ * crossing: (width, scale, steps). Returns the configuration's mismatch (false positives + false negatives),
+ * given n_target, its target's active pixels.
+ */
+#define CROSSING_MARGIN 2
+
+static inline double crossing_kernel(double distance, double width, double steps) {
+    double x = 1.0 - distance / width;
+    x = x < 0.0 ? 0.0 : x;
+    return __builtin_floor(x * steps) / steps;
+}
+
+static int64_t crossing_pull(int64_t n, const double *restrict screen, const int32_t *restrict projected,
+                             const double *restrict q, int64_t g_lo, int64_t g_hi, const int64_t *restrict group_start,
+                             const int32_t *restrict members, const uint8_t *restrict target, int64_t height,
+                             int64_t width, double k_row, double k_col, const double *crossing, int32_t *restrict cover,
+                             uint32_t *restrict stamp, int64_t padded_cells, int64_t n_target, double *grad_a,
+                             double *grad_b) {
+    const int64_t margin = CROSSING_MARGIN, padded_width = width + 2 * (margin + 1);
+    int64_t distinct = 0, hit = 0;
+    for (int64_t i = 0; i < n; ++i) {
+        const int64_t row = projected[2 * i], col = projected[2 * i + 1];
+        if (row >= 0 && row < height && col >= 0 && col < width) {
+            const int64_t at = row * width + col;
+            if (cover[at]++ == 0) {
+                ++distinct;
+                hit += target[at] != 0;
+            }
+        }
+    }
+    static const int moves[4][2] = {{1, 0}, {-1, 0}, {0, 1}, {0, -1}};
+    double pull_a = 0.0, pull_b = 0.0;
+    for (int64_t g = g_lo; g < g_hi; ++g) {
+        if (stamp[padded_cells] >= UINT32_MAX - 1) { /* wipe before a stamp repeats */
+            for (int64_t i = 0; i <= padded_cells; ++i) stamp[i] = 0;
+        }
+        const uint32_t mark = ++stamp[padded_cells];
+        for (int64_t m = group_start[g]; m < group_start[g + 1]; ++m) {
+            const int64_t i = members[m], row = projected[2 * i], col = projected[2 * i + 1];
+            if (row >= -margin && row < height + margin && col >= -margin && col < width + margin)
+                stamp[(row + margin + 1) * padded_width + (col + margin + 1)] = mark;
+        }
+        int64_t change[4] = {0, 0, 0, 0};
+        for (int64_t m = group_start[g]; m < group_start[g + 1]; ++m) {
+            const int64_t i = members[m], row = projected[2 * i], col = projected[2 * i + 1];
+            if (!(row >= -margin && row < height + margin && col >= -margin && col < width + margin)) continue;
+            const int on_screen = row >= 0 && row < height && col >= 0 && col < width;
+            const int alone = on_screen && cover[row * width + col] == 1;
+            const int64_t leave = on_screen && target[row * width + col] ? 1 : -1;
+            const int64_t here = (row + margin + 1) * padded_width + (col + margin + 1);
+            for (int k = 0; k < 4; ++k) {
+                const int64_t step = moves[k][0] * padded_width + moves[k][1];
+                if (alone && stamp[here - step] != mark) change[k] += leave;
+                const int64_t to_row = row + moves[k][0], to_col = col + moves[k][1];
+                if (to_row >= 0 && to_row < height && to_col >= 0 && to_col < width && stamp[here + step] != mark &&
+                    cover[to_row * width + to_col] == 0)
+                    change[k] += target[to_row * width + to_col] ? -1 : 1;
+            }
+        }
+        double lower[4];
+        for (int k = 0; k < 4; ++k) lower[k] = change[k] < 0 ? (double)-change[k] : 0.0;
+        const int64_t first = members[group_start[g]];
+        const double z = q[3 * first + 2] + 0.0;
+        const double gain_row = k_row / z, gain_col = k_col / z;
+        const double sub_row = screen[2 * first] - __builtin_floor(screen[2 * first]);
+        const double sub_col = screen[2 * first + 1] - __builtin_floor(screen[2 * first + 1]);
+        const double ahead_row = crossing_kernel((1.0 - sub_row) / gain_row, crossing[0], crossing[2]);
+        const double behind_row = crossing_kernel(sub_row / gain_row, crossing[0], crossing[2]);
+        const double ahead_col = crossing_kernel((1.0 - sub_col) / gain_col, crossing[0], crossing[2]);
+        const double behind_col = crossing_kernel(sub_col / gain_col, crossing[0], crossing[2]);
+        const double pull_y = lower[1] * behind_row - lower[0] * ahead_row;
+        const double pull_x = lower[3] * behind_col - lower[2] * ahead_col;
+        pull_a += crossing[1] * pull_x;
+        pull_b += crossing[1] * pull_y;
+    }
+    for (int64_t i = 0; i < n; ++i) { /* leave cover all zero */
+        const int64_t row = projected[2 * i], col = projected[2 * i + 1];
+        if (row >= 0 && row < height && col >= 0 && col < width) cover[row * width + col] = 0;
+    }
+    *grad_a += pull_a;
+    *grad_b += pull_b;
+    return n_target + distinct - 2 * hit;
+}
+
 /* R whole training runs (sdm.train.train_runs): every level, epoch, mini-batch, chain, flow, loss and
  * SGD step, run after run (runs never interact, so each keeps its own targets hot in the cache).
  *
@@ -499,9 +599,14 @@ static void halve_targets(int64_t n, int64_t h, int64_t w, const uint8_t *restri
  *   offsets (N + 1,) row offsets; points (P, 3) q in metres; pixels (P, 2); rank (P,) rmin priority
  * camera:  fx, fy, cx, cy, rows_per_image_pixel, cols_per_image_pixel, fy * rows_per_image_pixel,
  *          fx * cols_per_image_pixel (the last two: metres per screen pixel are depth / them)
- * Levels:  n_levels loss levels steps, steps - 1, ...; rates (n_levels,) the learning rate of each;
- *          centred (n_levels,) 1 where the level uses the closed_centred_r1 window (centred on the
- *          landing block; its target already closed by the caller), 0 for the paper's flow
+ * Levels:  levels (n_levels,) the loss level of each entry, one after another (each in 0..steps; the chain
+ *          always starts at steps); rates (n_levels,) the learning rate of each; modes (n_levels,) the
+ *          flow of each: 0 the paper's, 1 the closed_centred_r1 window (centred on the landing block; its
+ *          target already closed by the caller), 2 group_crossing (crossing_pull; level 0 only: it reads
+ *          the chain's projections, not its survivors, so that level runs no chain)
+ * groups:  for mode 2: config_group (N + 1,) each configuration's first group; group_start (G + 1,) and
+ *          members (P,) int32 the groups' points (indices within their configuration, see crossing_pull);
+ *          crossing (3,) its kernel's width (metres), scale and steps. Unread (may be 0) without mode 2.
  * orders:  (n_levels * n_epoch, R, N) each epoch's shuffling of each run
  * targets: (R, n_levels) addresses of run r's (N, H >> level, W >> level) 0/1 target at each level, 0
  *          where the kernel zooms it out itself from bases[r] (levels 1..steps of the run's pyramid, made
@@ -518,22 +623,26 @@ static void halve_targets(int64_t n, int64_t h, int64_t w, const uint8_t *restri
  * (same operations, same order: project); the chain per configuration (train_chain: chain_level's
  * integer arithmetic in int32); the flow by
  * window_pull; grad = the summed flow (integers: exact in any order); theta = theta - rate * grad
- * (two roundings, as torch's theta -= rate * theta.grad). A batch without points pulls nothing.
+ * (two roundings, as torch's theta -= rate * theta.grad). A batch without points pulls nothing. At a
+ * mode-2 level the flow and loss are crossing_pull's (the loss: the mismatched pixels, summed exactly).
  * The loss is the sum over the pulled points of l1_row * (z / k_row) + l1_col * (z / k_col), the
  * products as sdm.mapping.flow.pull_loss forms them, the sum compensated in point order (torch's
  * .sum() adds in its own order, which is not reproduced: the two agree to the last bits,
  * tests/test_native.py holds them to 1e-12 relative). Theta never depends on the loss.
- * Returns 0, -1 where no memory could be had, or -2 for a screen beyond the int32 chain (TRAIN_MAX_SIDE).
+ * Returns 0, -1 where no memory could be had, -2 for a screen beyond the int32 chain (TRAIN_MAX_SIDE), or -3
+ * for a level outside 0..steps or a mode-2 level above 0.
  */
 #define TRAIN_PARAMETERS                                                                                         \
     int64_t n_runs, int64_t n_configs, const int64_t *offsets, const double *points, const int64_t *pixels,     \
         const int64_t *rank, int64_t height, int64_t width, const double *camera, int64_t steps, int64_t n_levels, \
-        int64_t n_epoch, int64_t batch_size, const double *rates, const uint8_t *centred, const int64_t *orders,  \
-        const int64_t *targets, const int64_t *bases, uint8_t *pyramid, int64_t no_rank, const double *theta0, \
-        double *thetas, double *losses, int64_t *failed
+        int64_t n_epoch, int64_t batch_size, const int64_t *levels, const double *rates, const uint8_t *modes,      \
+        const int64_t *config_group, const int64_t *group_start, const int32_t *members, const double *crossing,   \
+        const int64_t *orders, const int64_t *targets, const int64_t *bases, uint8_t *pyramid, int64_t no_rank,     \
+        const double *theta0, double *thetas, double *losses, int64_t *failed
 #define TRAIN_ARGUMENTS                                                                                          \
     n_runs, n_configs, offsets, points, pixels, rank, height, width, camera, steps, n_levels, n_epoch, batch_size, \
-        rates, centred, orders, targets, bases, pyramid, no_rank, theta0, thetas, losses, failed
+        levels, rates, modes, config_group, group_start, members, crossing, orders, targets, bases, pyramid,       \
+        no_rank, theta0, thetas, losses, failed
 
 /* Points projected per piece between prefetches (even: AVX2's pairs cover every piece but the last). */
 #define PROJECT_PIECE 32
@@ -546,6 +655,11 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     const double screen_height = (double)height;
     const int64_t batches = n_configs / batch_size;
     if (height > TRAIN_MAX_SIDE || width > TRAIN_MAX_SIDE || height * width >= TRAIN_MAX_CELLS || steps > 62) return -2;
+    int crosses = 0;
+    for (int64_t li = 0; li < n_levels; ++li) {
+        if (levels[li] < 0 || levels[li] > steps || (modes[li] == 2 && levels[li] != 0)) return -3;
+        crosses |= modes[li] == 2;
+    }
     int64_t largest = 1;
     for (int64_t c = 0; c < n_configs; ++c)
         if (offsets[c + 1] - offsets[c] > largest) largest = offsets[c + 1] - offsets[c];
@@ -569,12 +683,19 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     uint8_t *alive = malloc((size_t)largest);
     int32_t *cell_min = malloc(sizeof(int32_t) * (size_t)(2 * (cells + 1)));
     int32_t *pulled = malloc(sizeof(int32_t) * (size_t)largest);
+    /* group_crossing's pixel counts and stamps, and each configuration's active target pixels (-1: not yet
+     * counted; per run: its level-0 target) */
+    const int64_t padded_cells = (height + 2 * (CROSSING_MARGIN + 1)) * (width + 2 * (CROSSING_MARGIN + 1));
+    int32_t *cover = crosses ? calloc((size_t)cells, sizeof(int32_t)) : NULL;
+    uint32_t *stamp = crosses ? calloc((size_t)(padded_cells + 1), sizeof(uint32_t)) : NULL;
+    int64_t *n_target = crosses ? malloc(sizeof(int64_t) * (size_t)n_configs) : NULL;
     /* where the zoomed-out levels 1..steps of a run's pyramid lie in `pyramid` */
     int64_t level_start[64] = {0};
     for (int64_t k = 2; k <= steps; ++k)
         level_start[k] = level_start[k - 1] + n_configs * (height >> (k - 1)) * (width >> (k - 1));
     int64_t code = 0;
-    if (no_memory || !screen || !rows || !cell_min || !pulled || !alive || !pixels32 || !rank32) {
+    if (no_memory || !screen || !rows || !cell_min || !pulled || !alive || !pixels32 || !rank32 ||
+        (crosses && (!cover || !stamp || !n_target))) {
         code = -1;
         goto done;
     }
@@ -591,16 +712,22 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
         int64_t step = 0;
         const uint8_t *base = (const uint8_t *)(intptr_t)bases[run];
         int zoom_run = 0;
-        for (int64_t li = 0; li < n_levels; ++li) zoom_run |= targets[run * n_levels + li] == 0;
+        for (int64_t li = 0; li < n_levels; ++li) zoom_run |= targets[run * n_levels + li] == 0 && levels[li] > 0;
+        const uint8_t *counted = NULL; /* the level-0 target whose active pixels n_target holds */
         for (int64_t k = 1; zoom_run && k <= steps; ++k)
             halve_targets(n_configs, height >> (k - 1), width >> (k - 1), k == 1 ? base : pyramid + level_start[k - 1],
                           pyramid + level_start[k]);
         for (int64_t li = 0; li < n_levels && failed[run] < 0; ++li) {
-            const int64_t level = steps - li, grid_h = height >> level, grid_w = width >> level;
+            const int64_t level = levels[li], grid_h = height >> level, grid_w = width >> level;
             const int64_t given = targets[run * n_levels + li];
             const uint8_t *target =
                 given ? (const uint8_t *)(intptr_t)given : (level ? pyramid + level_start[level] : base);
             const double rate = rates[li], block_size = (double)((int64_t)1 << level);
+            const int mode = modes[li];
+            if (mode == 2 && counted != target) {
+                for (int64_t c = 0; c < n_configs; ++c) n_target[c] = -1;
+                counted = target;
+            }
             for (int64_t epoch = 0; epoch < n_epoch && failed[run] < 0; ++epoch) {
                 const int64_t *order = orders + ((li * n_epoch + epoch) * n_runs + run) * n_configs;
                 for (int64_t batch = 0; batch < batches; ++batch) {
@@ -638,15 +765,28 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
                             prefetch_some(&plan, per_piece);
                         }
                         prefetch_some(&plan, INT64_MAX);
+                        if (mode == 2) {
+                            if (n_target[c] < 0) {
+                                int64_t active = 0;
+                                for (int64_t k = 0; k < grid_h * grid_w; ++k) active += own[k] != 0;
+                                n_target[c] = active;
+                            }
+                            const int64_t mismatch = crossing_pull(
+                                n, screen, projected, points + 3 * lo, config_group[c], config_group[c + 1], group_start,
+                                members, own, height, width, k_row, k_col, crossing, cover, stamp, padded_cells,
+                                n_target[c], &grad_a, &grad_b);
+                            sum_add(&loss, (double)mismatch);
+                            continue;
+                        }
                         const int64_t n_pulled = train_chain(
                             n, projected, pixels32 + 2 * lo, rank32 + lo, (int32_t)height, (int32_t)width, (int32_t)steps,
                             (int32_t)level, table, sentinel, own, (int32_t)grid_h, (int32_t)grid_w, current, block,
                             landing, cell, alive, pulled);
                         for (int64_t k = 0; k < n_pulled; ++k) { /* in point order, as before: the loss's order */
                             const int64_t i = pulled[k];
-                            const int64_t centre_row = centred[li] ? landing[2 * i] : block[2 * i];
-                            const int64_t centre_col = centred[li] ? landing[2 * i + 1] : block[2 * i + 1];
-                            const int64_t skip = centred[li] ? 4 : (landing[2 * i] - block[2 * i]) * 3 +
+                            const int64_t centre_row = mode ? landing[2 * i] : block[2 * i];
+                            const int64_t centre_col = mode ? landing[2 * i + 1] : block[2 * i + 1];
+                            const int64_t skip = mode ? 4 : (landing[2 * i] - block[2 * i]) * 3 +
                                                                        (landing[2 * i + 1] - block[2 * i + 1]) + 4;
                             double pull[2], l1[2];
                             window_pull(screen[2 * i], screen[2 * i + 1], centre_row, centre_col, skip, own, grid_h,
@@ -675,6 +815,7 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     }
 done:
     free(dense), free(screen), free(rows), free(cell_min), free(pulled), free(alive), free(pixels32), free(rank32);
+    free(cover), free(stamp), free(n_target);
     return code;
 }
 

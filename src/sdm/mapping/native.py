@@ -43,7 +43,7 @@ It serves two callers. The layer (:func:`~sdm.mapping.fast.fast_mapping`) calls
 :func:`chain` and :func:`paper_flow` once per forward pass. The trainer
 (:func:`sdm.train.train_runs`) calls :func:`train_program` once per program of
 ``R`` runs: every level, epoch, mini-batch, projection, chain, flow (the paper's,
-or ``closed_centred_r1``'s: :func:`sdm.mapping.rules.kernel_form`), loss and SGD step in C, the
+``closed_centred_r1``'s or ``group_crossing``'s: :func:`sdm.mapping.rules.kernel_form`), loss and SGD step in C, the
 per-step Python work gone; theta histories equal the torch path's to the bit
 (the loss to 1e-12 relative: its sum is compensated, not in torch's order). The
 paper's flow and the centred closed rule share one window function in C. Its
@@ -99,7 +99,7 @@ SIGNATURES: dict[str, tuple[object, list]] = {
     "sdm_paper_flow": (_I64, [_I64, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _I64,
                               _PTR, _PTR, _PTR, _PTR]),
     "sdm_train": (_I64, [_I64, _I64, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _PTR, _I64, _I64, _I64, _I64,
-                         _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _PTR, _PTR, _PTR, _PTR]),
+                         *[_PTR] * 11, _I64, _PTR, _PTR, _PTR, _PTR]),
     "sdm_noise_fill": (_I64, [_I64, _PTR, _I64, _PTR, _PTR, _I64, _I64, _PTR, _PTR, _I64]),
     # the CMA-ES baseline's count (pixel_mismatch below)
     "sdm_pixel_mismatch": (None, [_I64, _PTR, _I64, _I64, *[_PTR] * 8, _I64, _I64, _PTR, _I64, *[_PTR] * 3]),
@@ -422,7 +422,7 @@ def trains_screen(screen_shape) -> bool:
 
 def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor, offsets: torch.Tensor,
                   camera, steps: int, levels: list[int], n_epoch: int, batch_size: int, rates: list[float],
-                  centred: list[bool], orders: torch.Tensor, targets: list[list[torch.Tensor | None]],
+                  windows: list[str], orders: torch.Tensor, targets: list[list[torch.Tensor | None]],
                   theta0: torch.Tensor, bases: list[torch.Tensor] | None = None):
     """``R`` whole SGD runs in one call (``sdm_train``): the compiled path of :func:`sdm.train.train_runs`.
 
@@ -430,11 +430,13 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
         points: ``(P, 3)`` float64 points ``Q`` (metres), ``pixels`` ``(P, 2)`` int64, ``rank`` ``(P,)`` int64,
             ``offsets`` ``(N + 1,)`` int64: the packed set (:class:`~sdm.batch.ConfigurationSet`).
         camera: :class:`~sdm.camera.Camera` (intrinsics and screen ``(H, W)``).
-        steps: the chain's coarsest level ``s``; ``levels``: the loss levels ``s, s - 1, ...``, one after another.
+        steps: the chain's coarsest level ``s``; ``levels``: the loss levels (each in ``0..s``), one after
+            another (the paper's ``s, s - 1, ...``; a refinement's ``0, 0, ...``).
         n_epoch, batch_size: epochs per level, configurations per mini-batch (the last incomplete one dropped).
         rates: the learning rate at each of ``levels``.
-        centred: per level, whether it takes ``closed_centred_r1``'s window (centred on the landing block,
-            on a target the caller closed) instead of the paper's flow.
+        windows: per level, the flow (:func:`sdm.mapping.rules.kernel_form`): ``"paper"``; ``"centred"``,
+            ``closed_centred_r1``'s window (centred on the landing block, on a target the caller closed);
+            ``"crossing"``, ``group_crossing``'s flow (level 0 only; the loss is then the mismatch count).
         orders: ``(len(levels) * n_epoch, R, N)`` int64, each epoch's shuffling of each run.
         targets: ``R`` lists, one ``(N, H >> level, W >> level)`` bool target per level of ``levels``, or
             ``None``: the kernel zooms ``bases[r]`` out to that level itself (as
@@ -463,7 +465,14 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
                               camera.cols_per_image_pixel, camera.fy * camera.rows_per_image_pixel,
                               camera.fx * camera.cols_per_image_pixel], dtype=torch.float64, device=device)
     rates_t = torch.tensor(rates, dtype=torch.float64, device=device)
-    centred_t = torch.tensor(centred, dtype=torch.uint8, device=device)
+    levels_t = torch.tensor(levels, dtype=torch.int64, device=device)
+    if any(window not in _WINDOWS for window in windows) or any(
+            window == "crossing" and level != 0 for window, level in zip(windows, levels)):
+        raise ValueError(f"train_program: windows must be {sorted(_WINDOWS)} ('crossing' at level 0), got "
+                         f"{list(zip(windows, levels))}")
+    modes_t = torch.tensor([_WINDOWS[window] for window in windows], dtype=torch.uint8, device=device)
+    groups = _crossing_groups(points, offsets) if "crossing" in windows else (torch.zeros(1, dtype=torch.int64),) * 3
+    crossing = _crossing_constants(device)
     addresses = torch.tensor([[level.data_ptr() if level is not None else 0 for level in run] for run in targets],
                              dtype=torch.int64, device=device)
     height, width = camera.screen_shape
@@ -477,14 +486,53 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     failed = torch.empty(n_runs, dtype=torch.int64, device=device)
     code = _library().sdm_train(
         n_runs, n_configs, offsets.data_ptr(), points.data_ptr(), pixels.data_ptr(), rank.data_ptr(), height, width,
-        constants.data_ptr(), steps, len(levels), n_epoch, batch_size, rates_t.data_ptr(), centred_t.data_ptr(),
-        orders.data_ptr(), addresses.data_ptr(), base_addresses.data_ptr(), pyramid.data_ptr(), NO_RANK,
+        constants.data_ptr(), steps, len(levels), n_epoch, batch_size, levels_t.data_ptr(), rates_t.data_ptr(),
+        modes_t.data_ptr(), *(group.data_ptr() for group in groups), crossing.data_ptr(), orders.data_ptr(), addresses.data_ptr(), base_addresses.data_ptr(), pyramid.data_ptr(), NO_RANK,
         theta0.data_ptr(), thetas.data_ptr(), losses.data_ptr(), failed.data_ptr())
     if code == -2:
         raise ValueError(f"sdm_train: a {height} x {width} screen is beyond its int32 chain (trains_screen)")
+    if code == -3:
+        raise ValueError(f"sdm_train: levels {levels} outside 0..{steps}")
     if code != 0:
         raise MemoryError("sdm_train: no memory for one configuration's working rows")
     return thetas, losses, failed
+
+
+#: train_program's flows, by kernel_form's name, as sdm_train's modes.
+_WINDOWS = {"paper": 0, "centred": 1, "crossing": 2}
+
+
+def _crossing_groups(points: torch.Tensor, offsets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """``group_crossing``'s rigid groups of a packed set for ``sdm_train``, on the device of ``points``.
+
+    Returns ``(config_group (N + 1,) int64, group_start (G + 1,) int64, members (P,) int32)``: configuration
+    ``c``'s groups are ``config_group[c] .. config_group[c + 1]``, group ``g``'s points (indices within their
+    configuration, ascending) ``members[group_start[g] .. group_start[g + 1]]``; groups as
+    :func:`sdm.mapping.research_rules.rigid_groups` numbers them (configuration, then depth).
+    """
+    from .research_rules import rigid_groups  # the rules import this module
+
+    counts = offsets[1:] - offsets[:-1]
+    config = torch.repeat_interleave(torch.arange(counts.numel(), device=points.device), counts)
+    if points.shape[0] == 0:
+        return (torch.zeros(counts.numel() + 1, dtype=torch.int64, device=points.device),
+                torch.zeros(1, dtype=torch.int64, device=points.device),
+                torch.zeros(1, dtype=torch.int32, device=points.device))
+    group, first = rigid_groups(points[:, :2], points[:, 2], config)
+    order = torch.argsort(group, stable=True)
+    members = (order - offsets.index_select(0, config.index_select(0, order))).to(torch.int32)
+    sizes = torch.bincount(group, minlength=first.numel())
+    group_start = torch.cat((sizes.new_zeros(1), torch.cumsum(sizes, 0)))
+    per_config = torch.bincount(config.index_select(0, first), minlength=counts.numel())
+    config_group = torch.cat((per_config.new_zeros(1), torch.cumsum(per_config, 0)))
+    return config_group, group_start, members.contiguous()
+
+
+def _crossing_constants(device: torch.device) -> torch.Tensor:
+    """``(3,)`` float64: ``group_crossing``'s kernel width (metres), flow scale and kernel steps."""
+    from .research_rules import CROSSING_SCALE, CROSSING_STEPS, CROSSING_WIDTH
+
+    return torch.tensor([CROSSING_WIDTH, CROSSING_SCALE, float(CROSSING_STEPS)], dtype=torch.float64, device=device)
 
 #: Per thread, the compiled trainer's pyramid scratch (:func:`train_program`): kept, because on the machines
 #: measured the first touch of fresh pages (a noise run's pyramid is 5.6 MB) cost more than zooming out.

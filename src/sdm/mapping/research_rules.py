@@ -138,6 +138,8 @@ CROSSING_SCALE = 8.0
 #: The kernel is quantised to multiples of ``1 / CROSSING_STEPS``: every flow value is then an exact binary
 #: fraction, so its sum over points is the same in any order (float64).
 CROSSING_STEPS = 4096
+#: ``group_crossing`` is eq. 19 at the levels ``>=`` this one (its crossing flow reads zoom 0's pixels).
+CROSSING_FINEST_COARSE = 1
 
 
 def rigid_groups(screen: torch.Tensor, depth: torch.Tensor, config: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -292,5 +294,5 @@ RESEARCH_RULES: dict[str, FlowRule] = {
     "two_sided": _two_sided(),
     "closed_two_sided": _two_sided(prepare=closing(3)),
     # Issue 20: the kernel-weighted discrete derivative of CMA-ES's objective at zoom 0, eq. 19 at the coarser levels.
-    "group_crossing": by_zoom(_group_crossing, dynamic_flow, finest_coarse=1),
+    "group_crossing": by_zoom(_group_crossing, dynamic_flow, finest_coarse=CROSSING_FINEST_COARSE),
 }

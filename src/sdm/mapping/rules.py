@@ -154,14 +154,19 @@ def kernel_form(name: str, level: int):
 
     Returns:
         ``None`` where the rule has no compiled form (the trainer then takes the torch path);
-        ``(centred, prepare)`` otherwise: ``centred`` the window on the landing block (else eq. 19's on
-        the input block), on the target ``prepare(target, level)`` (``None``: the target as it is).
-        Read from the same constants that build :data:`FLOW_RULES`, so the two cannot drift.
+        ``(window, prepare)`` otherwise: ``window`` ``"paper"`` (eq. 19's window on the input block),
+        ``"centred"`` (the window on the landing block) or ``"crossing"`` (``group_crossing``'s flow), on
+        the target ``prepare(target, level)`` (``None``: the target as it is). Read from the same constants
+        that build :data:`FLOW_RULES` and the experiments' ``group_crossing``, so the two cannot drift.
     """
+    from .research_rules import CROSSING_FINEST_COARSE  # the experiments are built from this module
+
     if name == "paper":
-        return False, None
+        return "paper", None
     if name == "closed_centred_r1":
-        return (False, None) if level >= _R1_FINEST_COARSE else (True, _CLOSE_3)
+        return ("paper", None) if level >= _R1_FINEST_COARSE else ("centred", _CLOSE_3)
+    if name == "group_crossing":
+        return ("paper", None) if level >= CROSSING_FINEST_COARSE else ("crossing", None)
     return None
 
 
