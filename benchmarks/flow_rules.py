@@ -24,7 +24,7 @@ import torch
 from sdm import FLOW_RULES
 from sdm.mapping.research_rules import RESEARCH_RULES
 from sdm.experiments import flow_at_true_shift, load_split, noise_runs, settings_for
-from sdm.train import Refinement
+from sdm.train import parse_schedule
 
 TUNED = dict(n_epoch=2, lr=1e-4, s=4, batch_size=16, lr_decay=0.5, seed=0)
 #: Table 2 of the paper, mean distance (metres) per noise level 1..4; the issue's bar is half of it.
@@ -51,11 +51,7 @@ def main(argv=None) -> int:
     rows, table, flows = [], [], []
     for rule in args.rules.split(","):
         start, cpu = time.time(), time.process_time()
-        base, _, refined = rule.partition("+")
-        refine = None
-        if refined:
-            name, _, epochs = refined.partition(":")
-            refine = Refinement(name, int(epochs or 4))
+        base, refine = parse_schedule(rule)
         for level in levels:
             frame = noise_runs(train_set, level, range(args.runs), replace(settings, flow=base), refine=refine)
             frame.insert(0, "rule", rule)

@@ -12,8 +12,8 @@ from sdm.camera import APOLLO_CAMERA_5
 from sdm.errors import SDMInputError
 from sdm.mapping import SpatialDomainMapping, dynamic_flow
 from sdm.mapping.fast import fast_mapping
-from sdm.mapping.research_rules import (CROSSING_SCALE, CROSSING_STEPS, CROSSING_WIDTH, RESEARCH_RULES,
-                                         group_move_changes, rigid_groups)
+from sdm.mapping.crossing import CROSSING_SCALE, CROSSING_STEPS, CROSSING_WIDTH, group_move_changes, rigid_groups
+from sdm.mapping.research_rules import RESEARCH_RULES
 from sdm.mapping.rules import closing, flow_rule, window_rule
 from sdm.sky import SKY_SHIFT, add_target_noise, shift_vector
 from sdm.zoom import zoom_out
@@ -55,7 +55,7 @@ def test_experiments_are_chosen_by_name_or_as_functions():
     assert SpatialDomainMapping(flow="nearest").flow_rule is nearest
     assert SpatialDomainMapping(flow=nearest).flow_rule is nearest
     assert TrainSettings(flow="nearest").flow == "nearest"
-    with pytest.raises(SDMInputError, match=r"^flow must be a rule of sdm\.FLOW_RULES \['closed_centred_r1', 'paper'\] "
+    with pytest.raises(SDMInputError, match=r"^flow must be a rule of sdm\.FLOW_RULES \['closed_centred_r1', 'group_crossing', 'paper'\] "
                                             r"or an experiment of .*RESEARCH_RULES \[.*'nearest'.*\], got 'no-such'"):
         flow_rule("no-such")
 

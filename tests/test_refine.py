@@ -9,7 +9,7 @@ from sdm.errors import SDMInputError
 from sdm.mapping import native
 from sdm.experiments import noisy_targets, train_group
 from sdm.sky import SKY_SHIFT
-from sdm.train import Refinement, TrainSettings, refine_runs, refine_seed, train_runs
+from sdm.train import Refinement, TrainSettings, parse_schedule, refine_runs, refine_seed, train_runs
 
 BASE = TrainSettings(lr=1e-4, n_epoch=1, s=4, flow="closed_centred_r1")
 
@@ -83,3 +83,19 @@ def test_refinement_keeps_the_true_shift_without_noise(small):
 def test_bad_refinements_are_refused_naming_the_field(kwargs, match):
     with pytest.raises(SDMInputError, match=match):
         Refinement(**kwargs)
+
+
+@pytest.mark.parametrize("name,expected", [
+    ("closed_centred_r1", ("closed_centred_r1", None)),
+    ("closed_centred_r1+group_crossing:3", ("closed_centred_r1", Refinement("group_crossing", 3))),
+    ("paper+group_crossing", ("paper", Refinement("group_crossing", 4))),
+])
+def test_schedules_are_parsed_by_name(name, expected):
+    assert parse_schedule(name) == expected
+
+
+@pytest.mark.parametrize("name,match", [("closedd", "flow"), ("paper+nope:2", "flow"), ("paper+group_crossing:0", ":"),
+                                        ("paper+group_crossing:x", ":"), (3, "schedule")])
+def test_bad_schedules_are_refused_naming_the_part(name, match):
+    with pytest.raises(SDMInputError, match=match):
+        parse_schedule(name)

@@ -20,6 +20,7 @@ import yaml
 from scenes import configuration_set
 from sdm import FLOW_RULES, TrainSettings
 from sdm.errors import SDMInputError
+from sdm.train import parse_schedule
 from sdm.mapping.research_rules import RESEARCH_RULES
 from sdm.experiments import (
     DEPTH_RUN_COLUMNS, RUN_COLUMNS, depth_noise_runs, noise_runs, rule_noise_runs, run_seed,
@@ -228,7 +229,7 @@ def test_the_schema_lists_the_library_rules():
     schema = yaml.safe_load((ROOT / "workflow" / "schemas" / "config.schema.yaml").read_text())
     research = schema["properties"]["research"]["properties"]
     accepted = sorted(FLOW_RULES | RESEARCH_RULES)
-    assert sorted(research["rules"]["properties"]["names"]["items"]["enum"]) == accepted
+    assert sorted(research["rules"]["properties"]["names"]["items"]["anyOf"][0]["enum"]) == accepted
     assert sorted(research["depth"]["properties"]["flow"]["enum"]) == accepted
     for name in accepted:
         TrainSettings(flow=name)
@@ -238,7 +239,11 @@ def test_the_public_registry_holds_the_rules_the_configuration_trains_with():
     """sdm.FLOW_RULES: the paper's rule (Table 2) and the ones config.yaml's Tables 4 and 5 train with; every
     other rule is an experiment, in RESEARCH_RULES only."""
     research = _config()["research"]
-    assert set(FLOW_RULES) == {"paper", *research["rules"]["names"], research["depth"]["flow"]}
+    trained = {research["depth"]["flow"]}
+    for name in research["rules"]["names"]:
+        flow, refine = parse_schedule(name)
+        trained |= {flow, refine.flow} if refine else {flow}
+    assert set(FLOW_RULES) == {"paper", *trained}
     assert not set(FLOW_RULES) & set(RESEARCH_RULES)
 
 
@@ -259,6 +264,8 @@ def test_the_schema_defaults_are_the_rules_config_yaml_names():
     [
         ({"rules": {"names": ["closedd"]}}, "research.rules.names[0]"),
         ({"rules": {"names": ["paper"]}}, "research.rules.names"),
+        ({"rules": {"names": ["closed_centred_r1+closedd:4"]}}, "research.rules.names[0]"),
+        ({"rules": {"names": ["closed_centred_r1", "closed+group_crossing:0"]}}, "research.rules.names[1]"),
         ({"rules": {"runs": 61}}, "research.rules.runs"),
         ({"rules": {"runs": 0}}, "research.rules.runs"),
         ({"depth": {"enabled": True, "shifts_c": [1.0, float("inf")]}}, "research.depth.shifts_c[1]"),

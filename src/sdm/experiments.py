@@ -29,7 +29,7 @@ from .errors import SDMInputError
 from .mapping import SpatialDomainMapping
 from .metrics import dev_loss, distance
 from .sky import SKY_SHIFT, NoiseBuffer, add_target_noise, shift_vector
-from .train import Refinement, TrainSettings, refine_runs, train, train_runs
+from .train import Refinement, TrainSettings, parse_schedule, refine_runs, train, train_runs
 
 #: Runs packed into one :func:`sdm.train.train_runs` call by default (:func:`paired_runs`'s
 #: ``group_size``). The group size changes no result of the paper's rule (flows are exact sums of
@@ -309,6 +309,9 @@ def rule_bias(train_set: ConfigurationSet, flow: str, levels: Sequence[int], see
     """Where a rule's SGD settles, predicted from two measurements at the last level (zoom 0): the flow's
     bias at theta* under noise and its stiffness near theta* without noise.
 
+    ``flow`` may name a schedule (:func:`sdm.train.parse_schedule`): its last rule (the refinement's) is
+    measured, the one whose fixed point the runs end at.
+
     SGD stops moving on average where the mean flow vanishes. Near theta* the flow per configuration is
     about ``bias + stiffness * (theta - theta*)`` per axis, so it vanishes ``-bias / stiffness`` from theta*.
     ``bias`` is :func:`flow_at_true_shift` at zoom 0 (run 0's noise draw of each level); ``stiffness`` the
@@ -319,6 +322,8 @@ def rule_bias(train_set: ConfigurationSet, flow: str, levels: Sequence[int], see
         One row per level: ``level, bias_a, bias_b`` (flow per configuration), ``stiffness_a, stiffness_b``
         (per metre), ``offset_a, offset_b`` (metres, ``-bias / stiffness``) and ``predicted_m`` (their norm).
     """
+    _, refine = parse_schedule(flow)
+    flow = refine.flow if refine is not None else flow
     camera = camera or train_set.camera
     rows = []
     for level in levels:
@@ -355,22 +360,23 @@ DEPTH_RUN_COLUMNS = ["c_true", "level", "run", "seed", "a", "b", "c", "error_a",
 def rule_noise_runs(train_set, rule: str, level: int, runs: Sequence[int], settings: TrainSettings,
                     shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
                     group_size: int = NOISE_GROUP_SIZE, device: torch.device | str | None = None) -> pd.DataFrame:
-    """Table 4: Table 2's runs at one level trained with another gradient rule, one row each.
+    """Table 4: Table 2's runs at one level trained with another gradient rule or schedule, one row each.
 
-    :func:`noise_runs` with ``replace(settings, flow=rule)``: run ``r`` draws the same noisy
-    targets and shuffling as Table 2's run ``r`` (:func:`run_seed` ``(settings.seed, level, r)``
+    :func:`noise_runs` with ``replace(settings, flow=rule)`` (and its refinement): run ``r`` draws the same
+    noisy targets and shuffling as Table 2's run ``r`` (:func:`run_seed` ``(settings.seed, level, r)``
     does not depend on the rule), so the comparison with the paper's rule is paired.
 
     Args:
-        rule: a name of :data:`sdm.FLOW_RULES`.
+        rule: a schedule (:func:`sdm.train.parse_schedule`): a rule name, or ``"RULE+REFINE:E"``.
         the rest: as :func:`noise_runs`.
 
     Returns:
-        Columns ``flow`` (the rule) then :data:`RUN_COLUMNS`, in the order of ``runs``.
+        Columns ``flow`` (the schedule's name) then :data:`RUN_COLUMNS`, in the order of ``runs``.
     """
-    return _sdm_runs(train_set, train_set.targets, level, runs, replace(settings, flow=rule),
+    flow, refine = parse_schedule(rule)
+    return _sdm_runs(train_set, train_set.targets, level, runs, replace(settings, flow=flow),
                      lambda theta: {"flow": rule} | shift_record(theta, shift), ["flow", *RUN_COLUMNS], camera,
-                     group_size, device)
+                     group_size, device, refine)
 
 
 def depth_noise_runs(train_set, c: float, level: int, runs: Sequence[int], settings: TrainSettings,

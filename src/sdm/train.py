@@ -340,6 +340,30 @@ class Refinement:
         return [rate * settings.lr_decay ** i for i in range(self.epochs)]
 
 
+def parse_schedule(name: str) -> tuple[str, Refinement | None]:
+    """A training schedule by name: ``"RULE"`` (the paper's schedule, rule ``RULE``) or ``"RULE+REFINE:E"``
+    (then ``E`` refinement passes with rule ``REFINE``, :class:`Refinement`; ``"RULE+REFINE"``: 4 passes).
+
+    Table 4 (``research.rules.names``) and ``benchmarks/flow_rules.py --rules`` name schedules this way.
+
+    Returns:
+        ``(flow, refinement)``: the schedule's rule and its :class:`Refinement`, or ``None``.
+
+    Raises:
+        SDMInputError: naming ``flow`` for an unknown rule, the schedule for a malformed pass count.
+    """
+    if not isinstance(name, str):
+        raise SDMInputError(f"a schedule is a rule name or 'RULE+REFINE:E', got {name!r}")
+    flow, plus, refined = name.partition("+")
+    rule_by_name(flow)
+    if not plus:
+        return flow, None
+    refine, colon, epochs = refined.partition(":")
+    if colon and not (epochs.isdigit() and epochs[0] != "0"):
+        raise SDMInputError(f"schedule {name!r}: the passes after ':' must be a positive integer, got {epochs!r}")
+    return flow, Refinement(refine, int(epochs) if colon else Refinement.epochs)
+
+
 def refine_seed(seed: int) -> int:
     """The seed of the refinement passes' shuffling of a run seeded ``seed`` (a hash, stable across platforms)."""
     return int(np.random.SeedSequence([int(seed), 20]).generate_state(1, dtype=np.uint32)[0])
@@ -392,23 +416,16 @@ def _run_pyramids(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], 
             for own, run_targets in zip(own_targets, targets)]
 
 
-def _kernel_targets(train_set: ConfigurationSet, target: torch.Tensor, own: bool, steps: int, levels: list[int],
-                    forms: list) -> list[torch.Tensor | None]:
+def _kernel_targets(train_set: ConfigurationSet, target: torch.Tensor, own: bool, steps: int,
+                    levels: list[int]) -> list[torch.Tensor | None]:
     """One run's target at each loss level for the compiled trainer (:func:`sdm.mapping.native.train_program`).
 
-    ``target`` ``(N, H, W)`` bool is the run's; ``forms`` the rule's :func:`~sdm.mapping.rules.kernel_form` per
-    level. The set's cached pyramid level where ``own``; else ``None`` where the kernel zooms ``target`` out
-    itself (a level above 0 taken as it is: no torch pyramid is made for it), ``target`` at level 0, and
-    the rule's prepared target where it has one (on the level of a torch pyramid, made only then).
+    ``target`` ``(N, H, W)`` bool is the run's. The set's cached pyramid level where ``own``; else ``target``
+    at level 0 and ``None`` above it, where the kernel zooms ``target`` out itself (no torch pyramid is made).
+    A rule's prepared target (``closed_centred_r1``'s closing) is the kernel's own work.
     """
     pyramid = train_set.pyramid(steps) if own else None
-    out = []
-    for level, (_, prepare) in zip(levels, forms):
-        if pyramid is None and prepare is not None and level > 0:
-            pyramid = target_pyramid(target, steps)
-        zoomed = pyramid[level] if pyramid is not None else (target if level == 0 else None)
-        out.append(prepare(zoomed, level) if prepare is not None else zoomed)
-    return out
+    return [pyramid[level] if pyramid is not None else (target if level == 0 else None) for level in levels]
 
 
 def _usable_device(device: torch.device | str) -> torch.device:
@@ -446,15 +463,14 @@ def _train_program(train_set, targets, own_targets, settings, camera, method, le
     ``(thetas (steps + 1, R, n), losses (steps, R))`` on the set's device."""
     common = settings[0]
     device = train_set.device
-    forms = [kernel_form(common.flow, level) for level in levels]
-    if not (method == "fast" and not common.fit_depth and None not in forms and device.type == "cpu"
+    windows = [kernel_form(common.flow, level) for level in levels]
+    if not (method == "fast" and not common.fit_depth and None not in windows and device.type == "cpu"
             and train_set.points.dtype == torch.float64 and native.enabled()
             and native.trains_screen(camera.screen_shape)):
         pyramids = _run_pyramids(train_set, targets, own_targets, common.s)  # run r's levels 0..s
         return _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar)
-    windows = [window for window, _ in forms]
     bases = [run_targets.to(device) for run_targets in targets]
-    run_levels = [_kernel_targets(train_set, base, own, common.s, levels, forms)
+    run_levels = [_kernel_targets(train_set, base, own, common.s, levels)
                   for base, own in zip(bases, own_targets)]
     thetas, losses, failed = native.train_program(
         train_set.points, train_set.pixels, train_set.rank, train_set.offsets, camera, common.s, levels,

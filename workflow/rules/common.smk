@@ -165,6 +165,9 @@ RESEARCH = config.get("research", {})
 RESEARCH_RULES = RESEARCH.get("rules", {"enabled": False})
 RESEARCH_DEPTH = RESEARCH.get("depth", {"enabled": False})
 RULE_NAMES = list(RESEARCH_RULES["names"]) if RESEARCH_RULES["enabled"] else []
+# A schedule's name in file names: "closed_centred_r1+group_crossing:4" -> "closed_centred_r1_then_group_crossing_x4"
+# (only a label: the notebook gets the name itself).
+RULE_LABELS = {name.replace("+", "_then_").replace(":", "_x"): name for name in RULE_NAMES}
 RULE_RUNS = int(RESEARCH_RULES.get("runs", 1))  # counts, as BASELINE_RUNS
 DEPTH_SHIFTS = {c_label(c): float(c) for c in RESEARCH_DEPTH["shifts_c"]} if RESEARCH_DEPTH["enabled"] else {}
 DEPTH_LEVELS = [int(level) for level in RESEARCH_DEPTH.get("levels", [])]

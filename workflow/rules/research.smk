@@ -8,13 +8,13 @@ notebook_stage(
     "rule_runs",
     "One rule's runs at every noise level (one file per level): Table 2's noisy targets and shuffling, the "
     "rule's flow.",
-    jobs=[{"flow": name} for name in RULE_NAMES],
+    jobs=[{"flow": label} for label in RULE_LABELS],
     job="research_rules_{flow}",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE, best=BEST_FILE),
     output=dict(runs_files=[result(f"research/rules/{{flow}}_level{level}.csv") for level in LEVELS]),
     params=dict(
         **training(seed=config["noise"]["seed"]),
-        flow=wildcard("flow"),
+        flow=lambda wildcards: RULE_LABELS[wildcards.flow],
         levels=LEVELS,
         runs=RULE_RUNS,
     ),

@@ -197,7 +197,8 @@ def _check_research(config: Mapping[str, Any], noise_runs: int) -> None:
     """The research section (issue 12): Table 4's runs are paired with Table 2's; Table 5's c* are finite.
 
     The rule names are the schema's enum (the library's ``sdm.FLOW_RULES``, which this module does not
-    import); the paper's own rule is refused here with the reason.
+    import); the paper's own rule is refused here with the reason, and both rules of a schedule
+    ``RULE+REFINE:E`` (the schema checks its form) must be of that enum.
     """
     research = config.get("research") or {}
     rules = research.get("rules") or {}
@@ -205,6 +206,14 @@ def _check_research(config: Mapping[str, Any], noise_runs: int) -> None:
         if "paper" in (rules.get("names") or []):
             raise ConfigError("config key 'research.rules.names': 'paper' is Table 2 itself, always beside the "
                               "other rules in Table 4; list only the others")
+        known = _validator(str(SCHEMA_PATH.resolve()))[0]["properties"]["research"]["properties"]["depth"][
+            "properties"]["flow"]["enum"]
+        for index, name in enumerate(rules.get("names") or []):
+            parts = name.split(":")[0].split("+") if "+" in name else []
+            unknown = [part for part in parts if part not in known]
+            if unknown:
+                raise ConfigError(f"config key 'research.rules.names[{index}]': schedule {name!r} names "
+                                  f"{unknown[0]!r}, not a rule of {known}")
         _check_paired_runs(rules, "research.rules", noise_runs)
     depth = research.get("depth") or {}
     if depth.get("enabled"):

@@ -492,11 +492,11 @@ static void halve_targets(int64_t n, int64_t h, int64_t w, const uint8_t *restri
     }
 }
 
-/* ---- group_crossing at zoom 0 (sdm.mapping.research_rules._group_crossing, issue 20) ----
+/* ---- group_crossing at zoom 0 (sdm.mapping.crossing.group_crossing_flow, issue 20) ----
  *
  * One configuration's flow summed into (grad_a, grad_b) and its exact pixel mismatch, from its n points'
  * projections (screen, and their floors in `projected`, as project() leaves them). The points are grouped
- * rigidly (research_rules.rigid_groups: one configuration, one depth): group g lists its points' indices
+ * rigidly (crossing.rigid_groups: one configuration, one depth): group g lists its points' indices
  * within the configuration, ascending, at members[group_start[g] .. group_start[g + 1]).
  *
  * group_move_changes, integer for integer: `cover` counts the points per on-screen pixel (all zero on entry,
@@ -518,6 +518,14 @@ static inline double crossing_kernel(double distance, double width, double steps
     double x = 1.0 - distance / width;
     x = x < 0.0 ? 0.0 : x;
     return __builtin_floor(x * steps) / steps;
+}
+
+/* Whether any run's level above 0 is left to the kernel to zoom out (its pyramid then fills `pyramid`). */
+static int zooms_any(int64_t n_runs, int64_t n_levels, const int64_t *targets, const int64_t *levels) {
+    for (int64_t run = 0; run < n_runs; ++run)
+        for (int64_t li = 0; li < n_levels; ++li)
+            if (targets[run * n_levels + li] == 0 && levels[li] > 0) return 1;
+    return 0;
 }
 
 static int64_t crossing_pull(int64_t n, const double *restrict screen, const int32_t *restrict projected,
@@ -592,6 +600,40 @@ static int64_t crossing_pull(int64_t n, const double *restrict screen, const int
     return n_target + distinct - 2 * hit;
 }
 
+/* closed_centred_r1's target: the 3x3 closing of one configuration's h x w 0/1 target (sdm.mapping.rules.closing(3),
+ * _spread's OR then AND of the neighbours along rows, then columns; neighbours beyond the grid left out), from
+ * src into dst through tmp (h * w bytes each). */
+static void close3(int64_t h, int64_t w, const uint8_t *restrict src, uint8_t *restrict dst, uint8_t *restrict tmp) {
+    for (int pass = 0; pass < 2; ++pass) { /* 0: dilation (OR), 1: erosion (AND) */
+        const uint8_t *in = pass ? dst : src;
+        for (int64_t r = 0; r < h; ++r) { /* along rows: in -> tmp */
+            const uint8_t *row = in + r * w;
+            uint8_t *out = tmp + r * w;
+            if (w == 1) {
+                out[0] = row[0];
+                continue;
+            }
+            if (pass) {
+                out[0] = row[0] & row[1];
+                for (int64_t c = 1; c < w - 1; ++c) out[c] = row[c] & row[c - 1] & row[c + 1];
+                out[w - 1] = row[w - 1] & row[w - 2];
+            } else {
+                out[0] = row[0] | row[1];
+                for (int64_t c = 1; c < w - 1; ++c) out[c] = row[c] | row[c - 1] | row[c + 1];
+                out[w - 1] = row[w - 1] | row[w - 2];
+            }
+        }
+        for (int64_t r = 0; r < h; ++r) { /* along columns: tmp -> dst */
+            const uint8_t *row = tmp + r * w, *up = r > 0 ? row - w : row, *down = r < h - 1 ? row + w : row;
+            uint8_t *out = dst + r * w;
+            if (pass)
+                for (int64_t c = 0; c < w; ++c) out[c] = row[c] & up[c] & down[c];
+            else
+                for (int64_t c = 0; c < w; ++c) out[c] = row[c] | up[c] | down[c];
+        }
+    }
+}
+
 /* R whole training runs (sdm.train.train_runs): every level, epoch, mini-batch, chain, flow, loss and
  * SGD step, run after run (runs never interact, so each keeps its own targets hot in the cache).
  *
@@ -601,8 +643,9 @@ static int64_t crossing_pull(int64_t n, const double *restrict screen, const int
  *          fx * cols_per_image_pixel (the last two: metres per screen pixel are depth / them)
  * Levels:  levels (n_levels,) the loss level of each entry, one after another (each in 0..steps; the chain
  *          always starts at steps); rates (n_levels,) the learning rate of each; modes (n_levels,) the
- *          flow of each: 0 the paper's, 1 the closed_centred_r1 window (centred on the landing block; its
- *          target already closed by the caller), 2 group_crossing (crossing_pull; level 0 only: it reads
+ *          flow of each: 0 the paper's, 1 the closed_centred_r1 window (centred on the landing block, on the
+ *          level's target closed by close3: the kernel closes each configuration's the first time a run
+ *          needs it, into `pyramid`), 2 group_crossing (crossing_pull; level 0 only: it reads
  *          the chain's projections, not its survivors, so that level runs no chain)
  * groups:  for mode 2: config_group (N + 1,) each configuration's first group; group_start (G + 1,) and
  *          members (P,) int32 the groups' points (indices within their configuration, see crossing_pull);
@@ -611,7 +654,8 @@ static int64_t crossing_pull(int64_t n, const double *restrict screen, const int
  * targets: (R, n_levels) addresses of run r's (N, H >> level, W >> level) 0/1 target at each level, 0
  *          where the kernel zooms it out itself from bases[r] (levels 1..steps of the run's pyramid, made
  *          once per run into `pyramid`); bases: (R,) address of run r's (N, H, W) 0/1 target
- * pyramid: scratch of N * sum over k = 1..steps of (H >> k) * (W >> k) bytes where any target is 0, reused
+ * pyramid: scratch of N * sum over k = 1..steps of (H >> k) * (W >> k) bytes where any target above level 0
+ *          is 0, then N * H * W more where any level is mode 1 (the closed targets), reused
  *          by the runs and (kept by the caller) the calls: in torch (zoom.target_pyramid) a noise run's
  *          pyramid cost a tenth of its training, most of it in the first touch of fresh pages
  * theta0:  (R, 2) starts (a, b), metres
@@ -689,13 +733,17 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     int32_t *cover = crosses ? calloc((size_t)cells, sizeof(int32_t)) : NULL;
     uint32_t *stamp = crosses ? calloc((size_t)(padded_cells + 1), sizeof(uint32_t)) : NULL;
     int64_t *n_target = crosses ? malloc(sizeof(int64_t) * (size_t)n_configs) : NULL;
+    int closes = 0;
+    for (int64_t li = 0; li < n_levels; ++li) closes |= modes[li] == 1;
+    uint8_t *closed_done = closes ? malloc((size_t)n_configs) : NULL, *close_tmp = closes ? malloc((size_t)cells) : NULL;
     /* where the zoomed-out levels 1..steps of a run's pyramid lie in `pyramid` */
     int64_t level_start[64] = {0};
-    for (int64_t k = 2; k <= steps; ++k)
+    for (int64_t k = 2; k <= steps + 1; ++k)
         level_start[k] = level_start[k - 1] + n_configs * (height >> (k - 1)) * (width >> (k - 1));
+    uint8_t *closed = pyramid + (zooms_any(n_runs, n_levels, targets, levels) ? level_start[steps + 1] : 0);
     int64_t code = 0;
     if (no_memory || !screen || !rows || !cell_min || !pulled || !alive || !pixels32 || !rank32 ||
-        (crosses && (!cover || !stamp || !n_target))) {
+        (crosses && (!cover || !stamp || !n_target)) || (closes && (!closed_done || !close_tmp))) {
         code = -1;
         goto done;
     }
@@ -714,6 +762,7 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
         int zoom_run = 0;
         for (int64_t li = 0; li < n_levels; ++li) zoom_run |= targets[run * n_levels + li] == 0 && levels[li] > 0;
         const uint8_t *counted = NULL; /* the level-0 target whose active pixels n_target holds */
+        const uint8_t *closing = NULL; /* the target whose configurations `closed` holds closed (closed_done) */
         for (int64_t k = 1; zoom_run && k <= steps; ++k)
             halve_targets(n_configs, height >> (k - 1), width >> (k - 1), k == 1 ? base : pyramid + level_start[k - 1],
                           pyramid + level_start[k]);
@@ -728,6 +777,10 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
                 for (int64_t c = 0; c < n_configs; ++c) n_target[c] = -1;
                 counted = target;
             }
+            if (mode == 1 && closing != target) {
+                for (int64_t c = 0; c < n_configs; ++c) closed_done[c] = 0;
+                closing = target;
+            }
             for (int64_t epoch = 0; epoch < n_epoch && failed[run] < 0; ++epoch) {
                 const int64_t *order = orders + ((li * n_epoch + epoch) * n_runs + run) * n_configs;
                 for (int64_t batch = 0; batch < batches; ++batch) {
@@ -737,6 +790,12 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
                         const int64_t c = order[batch * batch_size + j];
                         const int64_t lo = offsets[c], n = offsets[c + 1] - lo;
                         const uint8_t *own = target + c * grid_h * grid_w;
+                        if (mode == 1) {
+                            uint8_t *closed_own = closed + c * grid_h * grid_w;
+                            if (!closed_done[c]) close3(grid_h, grid_w, own, closed_own, close_tmp);
+                            closed_done[c] = 1;
+                            own = closed_own;
+                        }
                         const int64_t position = batch * batch_size + j;
                         /* the next configuration's rows, fetched while this one is projected */
                         prefetch_plan plan = {{0}, {0, 0, 0}, 0, 3};
@@ -815,7 +874,7 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     }
 done:
     free(dense), free(screen), free(rows), free(cell_min), free(pulled), free(alive), free(pixels32), free(rank32);
-    free(cover), free(stamp), free(n_target);
+    free(cover), free(stamp), free(n_target), free(closed_done), free(close_tmp);
     return code;
 }
 

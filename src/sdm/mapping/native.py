@@ -68,6 +68,7 @@ import sys
 import tempfile
 import threading
 import warnings
+import weakref
 from pathlib import Path
 
 import torch
@@ -435,7 +436,8 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
         n_epoch, batch_size: epochs per level, configurations per mini-batch (the last incomplete one dropped).
         rates: the learning rate at each of ``levels``.
         windows: per level, the flow (:func:`sdm.mapping.rules.kernel_form`): ``"paper"``; ``"centred"``,
-            ``closed_centred_r1``'s window (centred on the landing block, on a target the caller closed);
+            ``closed_centred_r1``'s window (centred on the landing block, on the level's target closed 3 x 3
+            by the kernel, as :func:`sdm.mapping.rules.closing` ``(3)``);
             ``"crossing"``, ``group_crossing``'s flow (level 0 only; the loss is then the mismatch count).
         orders: ``(len(levels) * n_epoch, R, N)`` int64, each epoch's shuffling of each run.
         targets: ``R`` lists, one ``(N, H >> level, W >> level)`` bool target per level of ``levels``, or
@@ -476,9 +478,10 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     addresses = torch.tensor([[level.data_ptr() if level is not None else 0 for level in run] for run in targets],
                              dtype=torch.int64, device=device)
     height, width = camera.screen_shape
-    zooms = any(level is None for run in targets for level in run)
-    pyramid = _pyramid_scratch(n_configs * sum((height >> k) * (width >> k) for k in range(1, steps + 1))
-                               if zooms else 0, device)
+    # as sdm_train lays it out: the zoomed-out levels where it zooms any out, then the closed targets
+    zooms = any(target is None and level > 0 for run in targets for target, level in zip(run, levels))
+    pyramid = _pyramid_scratch(n_configs * sum((height >> k) * (width >> k) for k in range(1, steps + 1)) * zooms
+                               + n_configs * height * width * ("centred" in windows), device)
     base_addresses = torch.tensor([base.data_ptr() for base in bases] if bases is not None else [0] * n_runs,
                                   dtype=torch.int64, device=device)
     thetas = torch.empty(total + 1, n_runs, 2, dtype=torch.float64, device=device)
@@ -502,15 +505,30 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
 _WINDOWS = {"paper": 0, "centred": 1, "crossing": 2}
 
 
+#: _crossing_groups' last layout: (weak references to points and offsets, their versions, the layout). A set's groups depend on its
+#: points only, and the paired runs train the same set again and again (one call per group of runs).
+_GROUPS_CACHE: list = []
+
+
 def _crossing_groups(points: torch.Tensor, offsets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``group_crossing``'s rigid groups of a packed set for ``sdm_train``, on the device of ``points``.
 
     Returns ``(config_group (N + 1,) int64, group_start (G + 1,) int64, members (P,) int32)``: configuration
     ``c``'s groups are ``config_group[c] .. config_group[c + 1]``, group ``g``'s points (indices within their
     configuration, ascending) ``members[group_start[g] .. group_start[g + 1]]``; groups as
-    :func:`sdm.mapping.research_rules.rigid_groups` numbers them (configuration, then depth).
+    :func:`sdm.mapping.crossing.rigid_groups` numbers them (configuration, then depth).
     """
-    from .research_rules import rigid_groups  # the rules import this module
+    key = (points._version, offsets._version)
+    if _GROUPS_CACHE and _GROUPS_CACHE[0]() is points and _GROUPS_CACHE[1]() is offsets and _GROUPS_CACHE[2] == key:
+        return _GROUPS_CACHE[3]
+    layout = _crossing_layout(points, offsets)
+    _GROUPS_CACHE[:] = [weakref.ref(points), weakref.ref(offsets), key, layout]  # weak: the set may go
+    return layout
+
+
+def _crossing_layout(points: torch.Tensor, offsets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """:func:`_crossing_groups`, computed."""
+    from .crossing import rigid_groups  # the rules import this module
 
     counts = offsets[1:] - offsets[:-1]
     config = torch.repeat_interleave(torch.arange(counts.numel(), device=points.device), counts)
@@ -530,7 +548,7 @@ def _crossing_groups(points: torch.Tensor, offsets: torch.Tensor) -> tuple[torch
 
 def _crossing_constants(device: torch.device) -> torch.Tensor:
     """``(3,)`` float64: ``group_crossing``'s kernel width (metres), flow scale and kernel steps."""
-    from .research_rules import CROSSING_SCALE, CROSSING_STEPS, CROSSING_WIDTH
+    from .crossing import CROSSING_SCALE, CROSSING_STEPS, CROSSING_WIDTH
 
     return torch.tensor([CROSSING_WIDTH, CROSSING_SCALE, float(CROSSING_STEPS)], dtype=torch.float64, device=device)
 

@@ -32,6 +32,7 @@ import torch
 
 from ..camera import Camera
 from ..errors import SDMInputError
+from .crossing import CROSSING_FINEST_COARSE, group_crossing_flow
 from .flow import block_window, dynamic_flow, landing_matched, nine, pull_loss
 
 FlowRule = Callable[..., tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
@@ -146,6 +147,9 @@ FLOW_RULES: dict[str, FlowRule] = {
     # 3x3 closing and the window centred on the landing block at zoom 0, eq. 19 at the coarser levels.
     "closed_centred_r1": by_zoom(window_rule(prepare=_CLOSE_3, centred=True), dynamic_flow,
                                  finest_coarse=_R1_FINEST_COARSE),
+    # Issue 20: the kernel-weighted discrete derivative of CMA-ES's objective at zoom 0 (sdm.mapping.crossing),
+    # eq. 19 at the coarser levels; Table 4 refines closed_centred_r1's runs with it (sdm.train.Refinement).
+    "group_crossing": by_zoom(group_crossing_flow, dynamic_flow, finest_coarse=CROSSING_FINEST_COARSE),
 }
 
 
@@ -153,20 +157,18 @@ def kernel_form(name: str, level: int):
     """How the compiled trainer (:func:`sdm.mapping.native.train_program`) runs rule ``name`` at loss ``level``.
 
     Returns:
-        ``None`` where the rule has no compiled form (the trainer then takes the torch path);
-        ``(window, prepare)`` otherwise: ``window`` ``"paper"`` (eq. 19's window on the input block),
-        ``"centred"`` (the window on the landing block) or ``"crossing"`` (``group_crossing``'s flow), on
-        the target ``prepare(target, level)`` (``None``: the target as it is). Read from the same constants
-        that build :data:`FLOW_RULES` and the experiments' ``group_crossing``, so the two cannot drift.
+        ``None`` where the rule has no compiled form (the trainer then takes the torch path); otherwise the
+        kernel's flow: ``"paper"`` (eq. 19's window on the input block), ``"centred"`` (the window on the
+        landing block, over the target closed as ``closing(3)`` closes it) or ``"crossing"``
+        (``group_crossing``'s flow). Read from the same constants that build :data:`FLOW_RULES`, so the two
+        cannot drift.
     """
-    from .research_rules import CROSSING_FINEST_COARSE  # the experiments are built from this module
-
     if name == "paper":
-        return "paper", None
-    if name == "closed_centred_r1":
-        return ("paper", None) if level >= _R1_FINEST_COARSE else ("centred", _CLOSE_3)
+        return "paper"
+    if name == "closed_centred_r1":  # window_rule(prepare=_CLOSE_3, centred=True) below the coarse levels
+        return "paper" if level >= _R1_FINEST_COARSE else "centred"
     if name == "group_crossing":
-        return ("paper", None) if level >= CROSSING_FINEST_COARSE else ("crossing", None)
+        return "paper" if level >= CROSSING_FINEST_COARSE else "crossing"
     return None
 
 
