@@ -41,7 +41,7 @@ wildcard_constraints:
     level=r"\d+",
     chunk=r"\d+",
     method=one_of(BASELINES),
-    flow=one_of(RULE_NAMES),
+    flow=one_of(RULE_LABELS),
     c=one_of(DEPTH_SHIFTS),
 
 

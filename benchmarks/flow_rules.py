@@ -39,6 +39,10 @@ def main(argv=None) -> int:
                         help=f"comma-separated, of {','.join(FLOW_RULES)} or the experiments {','.join(RESEARCH_RULES)}; "
                              "RULE+REFINE:E trains RULE, then E refinement passes with REFINE (sdm.train.Refinement)")
     parser.add_argument("--runs", type=int, default=20)
+    parser.add_argument("--first-run", type=int, default=0,
+                        help="runs FIRST..FIRST+runs-1 (60 and up: runs no table of the default run holds)")
+    parser.add_argument("--refine-rate-from", type=int, default=None,
+                        help="Refinement.rate_from of the refined schedules (default: the class's)")
     parser.add_argument("--levels", default="0,1,2,3,4")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--no-flow", action="store_true", help="skip the flow at theta*")
@@ -52,8 +56,11 @@ def main(argv=None) -> int:
     for rule in args.rules.split(","):
         start, cpu = time.time(), time.process_time()
         base, refine = parse_schedule(rule)
+        if refine is not None and args.refine_rate_from is not None:
+            refine = replace(refine, rate_from=args.refine_rate_from)
         for level in levels:
-            frame = noise_runs(train_set, level, range(args.runs), replace(settings, flow=base), refine=refine)
+            frame = noise_runs(train_set, level, range(args.first_run, args.first_run + args.runs),
+                               replace(settings, flow=base), refine=refine)
             frame.insert(0, "rule", rule)
             rows.append(frame)
             table.append({"rule": rule, "level": level, "mean_mm": 1e3 * frame.distance.mean(),

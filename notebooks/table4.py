@@ -24,6 +24,7 @@ sky = "results/sky/sky.bin"  # input: the rules' bias is measured on the trainin
 split = "results/split/split.json"  # input
 table2_distances = "results/noise/distances.csv"  # input: Table 2's runs (the paper's rule)
 baseline_run_files = []  # optional input: Table 3's per-run files (the rules beside the baselines, CMA-ES's rows)
+sdm_timings = []  # input: Table 2's noise jobs' timing records (the paper's rule's time per run)
 floor_files = []  # optional input: the floor_runs files (the floor's rows)
 names = ["closed"]  # the rules expected
 levels = [0, 1, 2, 3, 4]  # the levels expected
@@ -50,7 +51,8 @@ from sdm.experiments import load_split, rule_bias, single_thread
 from sdm.report.figures import show_figure
 from sdm.report.io import read_json, write_csv, write_text
 from sdm.report.research import (
-    CMAES_ROW, TABLE4_FORMAT, bias_summary, gathered_runs, reference_rows, rules_against_baselines, rules_figure, table4_display,
+    CMAES_ROW, TABLE4_FORMAT, bias_summary, gathered_runs, reference_rows, rule_times, rules_against_baselines, rules_figure,
+    table4_display,
     table4_frame, table4_summary as summary_of_table4, write_research_table,
 )
 from sdm.report.tables import to_markdown
@@ -75,7 +77,7 @@ show_figure(rules_figure(table4), figure)
 # ## In plain words (every number from the table above)
 
 # %%
-answer = summary_of_table4(table4)
+answer = summary_of_table4(table4) + rule_times(rule_runs, [read_json(path) for path in sdm_timings])
 if baseline_runs is not None:  # Table 3 ran: the rules beside its baselines, on the same (level, run)
     answer += rules_against_baselines(rule_runs, baseline_runs)
 

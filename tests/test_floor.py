@@ -115,6 +115,18 @@ def test_a_poor_start_is_searched_from_wherever_a_probe_counts_lower(tiny):
         assert reference(at(low - eps)) > result.min_mismatch < reference(at(high + eps))
 
 
+def test_theta_star_is_a_candidate_of_both_budgets(tiny):
+    """A search too weak to leave its start far from theta* (one generation, from (0, 0)) still ends no higher
+    than theta*'s count, in the full and the half-budget floor: theta* is one more candidate of each."""
+    train_set = noisy(tiny, 3, 5)
+    weak = FloorSettings(restarts=2, budget=1, sigma0=1e-4, refine_step=1e-6, refine_tol=1e-6)
+    result = floor_search(PixelMismatch(train_set), seed=0, settings=weak, theta0=(0.0, 0.0))
+    assert PixelMismatch(train_set)((0.0, 0.0)) > result.mismatch_at_truth  # the start is far worse
+    assert result.min_mismatch <= result.mismatch_at_truth
+    assert result.half.mismatch <= result.mismatch_at_truth
+    assert result.restart_best[-1][0] > result.mismatch_at_truth  # CMA-ES itself stayed above it
+
+
 @pytest.mark.parametrize("field, value", [
     ("restarts", 3), ("restarts", 0), ("budget", 0), ("budget", 2.5), ("sigma0", -0.1), ("sigma_decay", 1.5),
     ("sigma_decay", 0.0), ("popsize", -1), ("tolx", 0.0), ("refine_step", float("nan")), ("refine_tol", 0.1),

@@ -58,12 +58,14 @@ def test_the_compiled_refinement_equals_the_torch_path_bit_for_bit(small, monkey
 
 
 def test_refinement_passes_continue_the_halving_at_the_finest_level(small):
-    """Pass i runs at level zoom, at twice the last level's rate times lr_decay^i, shuffled by its own seed."""
+    """Pass i runs at level zoom, at four times the last level's rate times lr_decay^i (rate_from 2), shuffled by
+    its own seed; rate_from 1 starts at twice the last level's."""
     history = train_group(small, [small.targets], BASE, [7], refine=Refinement("group_crossing", 3))
     per_pass = 64 // 16
     assert history.level[-3 * per_pass:].tolist() == [0] * (3 * per_pass)
     rates = history.lr[-3 * per_pass:].reshape(3, per_pass)
-    assert rates[:, 0].tolist() == [1e-4 * 0.5**3, 1e-4 * 0.5**4, 1e-4 * 0.5**5]
+    assert rates[:, 0].tolist() == [1e-4 * 0.5**2, 1e-4 * 0.5**3, 1e-4 * 0.5**4]
+    assert Refinement("group_crossing", 2, rate_from=1).rates(BASE) == [1e-4 * 0.5**3, 1e-4 * 0.5**4]
     assert bool((rates == rates[:, :1]).all())
     assert refine_seed(7) != 7 and refine_seed(7) != refine_seed(8)
 
@@ -79,7 +81,8 @@ def test_refinement_keeps_the_true_shift_without_noise(small):
 
 
 @pytest.mark.parametrize("kwargs,match", [({"flow": "no-such"}, "flow"), ({"epochs": 0}, "epochs"),
-                                          ({"epochs": 2.0}, "epochs"), ({"epochs": True}, "epochs")])
+                                          ({"epochs": 2.0}, "epochs"), ({"epochs": True}, "epochs"),
+                                          ({"rate_from": -1}, "rate_from"), ({"rate_from": 1.5}, "rate_from")])
 def test_bad_refinements_are_refused_naming_the_field(kwargs, match):
     with pytest.raises(SDMInputError, match=match):
         Refinement(**kwargs)

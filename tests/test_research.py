@@ -29,7 +29,7 @@ from run_reference import depth_noise_run, noise_run
 from sdm import paper
 from sdm.report.research import (
     DEPTH_BAR_M, beyond_the_paper, depth_figure, issue_bar_m, rules_against_baselines, rules_figure, table4_frame,
-    table4_summary,
+    table4_summary, rule_times,
     table5_frame, table5_summary, write_research_table,
 )
 
@@ -289,3 +289,14 @@ def test_a_config_without_the_research_section_is_valid_with_both_off():
     validate_schema(config)
     check_config(config)
     assert not config["research"]["rules"]["enabled"] and not config["research"]["depth"]["enabled"]
+
+
+def test_rule_times_set_each_rule_beside_the_paper_rule_with_the_bar():
+    runs = pd.DataFrame({"flow": ["fast"] * 2 + ["slow"] * 2, "level": [0, 1, 0, 1], "run": [0, 0, 0, 0],
+                         "distance": [1e-3] * 4, "seconds": [0.10, 0.14, 0.30, 0.34]})
+    text = rule_times(runs, [{"runs": 60, "seconds": 6.0}, {"runs": 40, "seconds": 4.0}])
+    fast, slow = text.strip().splitlines()
+    assert "rule `fast`: 0.120 s against 0.100 s" in fast and "1.20x: within" in fast
+    assert "rule `slow`: 0.320 s against 0.100 s" in slow and "3.20x: beyond" in slow
+    assert rule_times(runs.drop(columns="seconds"), [{"runs": 1, "seconds": 1.0}]) == ""
+    assert rule_times(runs, []) == ""

@@ -313,9 +313,9 @@ class Refinement:
     """A documented extension of the paper's schedule: more epochs at the finest level with another rule.
 
     After the levels ``s .. zoom`` of :class:`TrainSettings`, ``epochs`` more passes at level ``zoom`` with the
-    gradient rule ``flow``; pass ``i`` (from 0) runs at the rate of level ``zoom + 1`` times ``lr_decay^i``
-    (twice the last level's rate, then halving each pass: the paper's halving, continued per epoch), with the
-    chain ``s .. zoom`` of the last level (:func:`refine_runs`).
+    gradient rule ``flow``; pass ``i`` (from 0) runs at the rate of level ``zoom + rate_from`` times
+    ``lr_decay^i`` (by default four times the last level's rate, then halving each pass: the paper's halving,
+    continued per epoch), with the chain ``s .. zoom`` of the last level (:func:`refine_runs`).
 
     Issue 20 (docs/method.md, "A rule aimed at the floor"): ``closed_centred_r1`` brings theta within a few
     millimetres, where ``group_crossing`` (whose fixed point is near the floor but whose pull far from it is
@@ -324,19 +324,24 @@ class Refinement:
     Attributes:
         flow: a rule name (:func:`sdm.mapping.rules.flow_rule`).
         epochs: passes, a positive integer.
+        rate_from: the first pass's rate is level ``zoom + rate_from``'s (a non-negative integer; 2 was chosen
+            on runs no table holds: docs/method.md, "The schedule that reaches the floor").
     """
 
     flow: str = "group_crossing"
     epochs: int = 4
+    rate_from: int = 2
 
     def __post_init__(self) -> None:
         rule_by_name(self.flow)
         if isinstance(self.epochs, bool) or not isinstance(self.epochs, int) or self.epochs < 1:
             raise SDMInputError(f"refinement epochs must be a positive integer, got {self.epochs!r}")
+        if isinstance(self.rate_from, bool) or not isinstance(self.rate_from, int) or self.rate_from < 0:
+            raise SDMInputError(f"refinement rate_from must be a non-negative integer, got {self.rate_from!r}")
 
     def rates(self, settings: TrainSettings) -> list[float]:
         """The learning rate of each pass (metres per unit of summed flow)."""
-        rate = settings.lr * settings.lr_decay ** max(settings.s - settings.zoom - 1, 0)
+        rate = settings.lr * settings.lr_decay ** max(settings.s - settings.zoom - self.rate_from, 0)
         return [rate * settings.lr_decay ** i for i in range(self.epochs)]
 
 

@@ -51,6 +51,7 @@ notebook_stage(
         table2_distances=result("noise/distances.csv"),
         baseline_run_files=each("baseline_runs", "runs_files"),
         floor_files=each("floor_runs", "runs_files"),
+        sdm_timings=each("noise", "timing_file"),
     ),
     output=dict(
         **table_files("table4"),

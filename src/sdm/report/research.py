@@ -222,6 +222,37 @@ def table4_summary(frame: pd.DataFrame) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: Issue 20's time bar: a rule's time per run at most this many times the paper's rule's (Table 2's runs).
+TIME_FACTOR = 1.5
+
+
+def rule_times(rule_runs: pd.DataFrame, sdm_timings: Sequence[dict]) -> str:
+    """Each rule's time per run beside the paper's rule's, in words (Markdown), every number measured.
+
+    Args:
+        rule_runs: Table 4's runs with ``seconds`` (a run's share of its level's wall time, ``rule_runs``).
+        sdm_timings: Table 2's noise jobs' records ``{"runs", "seconds"}`` (the same measure: the wall time of
+            the runs trained together, without the job's start-up).
+
+    Returns:
+        One line per rule with issue 20's bar (at most :data:`TIME_FACTOR` times the paper's rule), or ``""``
+        where either side has no timing.
+    """
+    runs = sum(int(record["runs"]) for record in sdm_timings)
+    if "seconds" not in rule_runs or not runs:
+        return ""
+    paper_rule = sum(float(record["seconds"]) for record in sdm_timings) / runs
+    lines = []
+    for flow in pd.unique(rule_runs["flow"]):
+        own = float(rule_runs.loc[rule_runs["flow"] == flow, "seconds"].mean())
+        ratio = own / paper_rule
+        verdict = "within" if ratio <= TIME_FACTOR else "beyond"
+        lines.append(f"- time per run, rule `{flow}`: {own:.3f} s against {paper_rule:.3f} s for the paper's rule "
+                     f"(Table 2's {runs} runs, the same measure: wall time of the runs trained together, one thread), "
+                     f"{ratio:.2f}x: {verdict} issue 20's bar of {TIME_FACTOR:g}x.")
+    return "\n".join(lines) + "\n"
+
+
 def _cmaes_verdict(flow: str, rows: pd.DataFrame) -> str:
     """Issue 20's bar for one rule's rows of Table 4, in words, every number from the rows."""
     judged = rows[rows["cmaes_runs"] > 0]
