@@ -125,3 +125,18 @@ def test_bad_floor_values_are_refused_naming_the_key(change, key):
     with pytest.raises(ConfigError, match=re.escape(f"config key '{key}'")):
         validate_schema(config)
         check_config(config)
+
+
+@pytest.mark.parametrize("change, key", [
+    ({"runs_by_method": {"cmaes": 61}}, "baselines.runs_by_method.cmaes"),
+    ({"runs_by_method": {"cmaes": 0}}, "baselines.runs_by_method.cmaes"),
+    ({"runs_by_method": {"cmaes_x": 10}}, "baselines.runs_by_method"),
+    ({"methods": ["chamfer"], "runs_by_method": {"cmaes": 10}}, "baselines.runs_by_method.cmaes"),
+])
+def test_bad_per_method_runs_are_refused_naming_the_key(change, key):
+    """baselines.runs_by_method (Table 4's CMA-ES on all 60 runs): a method of baselines.methods, at most noise.runs."""
+    config = _config()
+    config["baselines"].update(change)
+    with pytest.raises(ConfigError, match=re.escape(f"config key '{key}")):
+        validate_schema(config)
+        check_config(config)

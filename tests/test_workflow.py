@@ -620,6 +620,7 @@ def _key_cases() -> dict[str, tuple[dict, str | None]]:
         "baselines.enabled": ({"baselines": {"enabled": False}}, "table4"),
         "baselines.methods": ({"baselines": {"methods": ["silhouette", "chamfer", "sinkhorn"]}}, "table3"),
         "baselines.runs": ({"baselines": {"runs": 1}}, "baseline_runs"),
+        "baselines.runs_by_method": ({"baselines": {"runs_by_method": {"cmaes": 1}}}, "baseline_runs"),
         "baselines.silhouette": ({"baselines": {"silhouette": {"lr": 0.2, "steps": 12}}}, "baseline_tune"),
         "baselines.chamfer": ({"baselines": {"chamfer": {"lr": 0.2, "steps": 12}}}, "baseline_tune"),
         "baselines.sinkhorn": ({"baselines": {"sinkhorn": {"lr": 0.2, "steps": 8}}}, "baseline_tune"),

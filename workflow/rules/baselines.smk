@@ -31,7 +31,7 @@ notebook_stage(
     params=dict(
         method=wildcard("method"),
         levels=LEVELS,
-        runs=BASELINE_RUNS,
+        runs=lambda wildcards: METHOD_RUNS[wildcards.method],
         seed=config["noise"]["seed"],
         shift=config["sky"]["shift"],
     ),

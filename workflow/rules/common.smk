@@ -154,6 +154,8 @@ BASELINES = {
     for name in (config["baselines"]["methods"] if config["baselines"]["enabled"] else [])
 }
 BASELINE_RUNS = int(config["baselines"]["runs"])  # a count: the stages run 0..BASELINE_RUNS-1
+# Per method: its own count where baselines.runs_by_method gives one (Table 3 pairs each with SDM's runs).
+METHOD_RUNS = {name: int(config["baselines"].get("runs_by_method", {}).get(name, BASELINE_RUNS)) for name in BASELINES}
 # The floor of Tables 3 and 4 (config section floor): one job per noise level, runs 0..FLOOR_RUNS-1.
 FLOOR = config.get("floor", {"enabled": False})
 FLOOR_RUNS = int(FLOOR.get("runs", 1))

@@ -90,7 +90,8 @@ def check_config(config: Mapping[str, Any]) -> None:
     - ``split.n_train + split.n_dev == split.n_selected <= sky.n_images``;
     - with synthetic data, ``sky.n_images <= data.synthetic.n_images``;
     - ``figures.example < split.n_train`` (the example is a train configuration);
-    - ``noise.chunk_size <= noise.runs``; ``baselines.runs <= noise.runs``; ``floor.runs <= noise.runs``; the shift is finite (YAML's ``.inf`` is a number);
+    - ``noise.chunk_size <= noise.runs``; ``baselines.runs`` and each of ``baselines.runs_by_method`` (a
+      method of ``baselines.methods``) ``<= noise.runs``; ``floor.runs <= noise.runs``; the shift is finite (YAML's ``.inf`` is a number);
     - ``research.rules.runs <= noise.runs``, no ``paper`` among ``research.rules.names``, finite
       ``research.depth.shifts_c`` (when each part is enabled);
     - the data path for the chosen source is set;
@@ -154,6 +155,13 @@ def check_config(config: Mapping[str, Any]) -> None:
         values = config.get(section) or {}
         if values.get("enabled"):
             _check_paired_runs(values, section, runs)
+    baselines = config.get("baselines") or {}
+    if baselines.get("enabled"):
+        for method, count in (baselines.get("runs_by_method") or {}).items():
+            if method not in (baselines.get("methods") or []):
+                raise ConfigError(f"config key 'baselines.runs_by_method.{method}': {method} is not one of "
+                                  f"baselines.methods {baselines.get('methods')}")
+            _check_paired_runs({"runs": count}, f"baselines.runs_by_method.{method}", runs)
     _check_research(config, runs)
 
 
