@@ -296,7 +296,7 @@ def test_rule_times_set_each_rule_beside_the_paper_rule_with_the_bar():
                          "distance": [1e-3] * 4, "seconds": [0.10, 0.14, 0.30, 0.34]})
     text = rule_times(runs, [{"runs": 60, "seconds": 6.0}, {"runs": 40, "seconds": 4.0}])
     fast, slow = text.strip().splitlines()
-    assert "rule `fast`: 0.120 s against 0.100 s" in fast and "1.20x: within" in fast
-    assert "rule `slow`: 0.320 s against 0.100 s" in slow and "3.20x: beyond" in slow
+    assert fast.startswith("- time per run of rule `fast`: 0.120 s against 0.100 s") and "1.20x: within" in fast
+    assert slow.startswith("- time per run of rule `slow`: 0.320 s against 0.100 s") and "3.20x: beyond" in slow
     assert rule_times(runs.drop(columns="seconds"), [{"runs": 1, "seconds": 1.0}]) == ""
     assert rule_times(runs, []) == ""

@@ -312,7 +312,7 @@ def test_nothing_is_left_to_do_after_the_slurm_run(slurm_run):
 #: The measured seconds in the tables: columns with these headers (CSV, Markdown and LaTeX), and Table 3's
 #: summary line of times per run. Everything else is computed from the seeds and must match to the byte.
 TIMED_COLUMNS = {"seconds", "seconds_per_run", "s / run"}
-TIMED_LINE = "- time per run "
+TIMED_LINE = "- time per run "  # Table 3's summary line, and Table 4's per rule
 
 
 HTML_CELL = re.compile(r"<t[hd][^>]*>(.*?)</t[hd]>", re.DOTALL)

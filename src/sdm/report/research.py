@@ -247,7 +247,7 @@ def rule_times(rule_runs: pd.DataFrame, sdm_timings: Sequence[dict]) -> str:
         own = float(rule_runs.loc[rule_runs["flow"] == flow, "seconds"].mean())
         ratio = own / paper_rule
         verdict = "within" if ratio <= TIME_FACTOR else "beyond"
-        lines.append(f"- time per run, rule `{flow}`: {own:.3f} s against {paper_rule:.3f} s for the paper's rule "
+        lines.append(f"- time per run of rule `{flow}`: {own:.3f} s against {paper_rule:.3f} s for the paper's rule "
                      f"(Table 2's {runs} runs, the same measure: wall time of the runs trained together, one thread), "
                      f"{ratio:.2f}x: {verdict} issue 20's bar of {TIME_FACTOR:g}x.")
     return "\n".join(lines) + "\n"
