@@ -171,7 +171,8 @@ TABLE4_FORMAT = TableFormat(
         "Each rule's run r at level n trains on the noisy targets and shuffling of Table 2's run r (the same seed). "
         "paper's rule: Table 2's runs with the same (level, run); paper: the published Table 2. "
         "bar (issue 12): half the paper's mean at levels 1-4, the paper's mean noise-free.",
-        f"{CMAES_ROW}: Table 3's CMA-ES runs; {FLOOR_ROW}: per run, the theta minimising the exact zoom-0 pixel "
+        f"{CMAES_ROW}: Table 3's CMA-ES runs, all that its stage ran (baselines.runs_by_method; Table 3 itself reads "
+        f"the first baselines.runs of them); {FLOOR_ROW}: per run, the theta minimising the exact zoom-0 pixel "
         "mismatch (CMA-ES's objective) over that run's noisy training set, the centre of the region where it is "
         "minimal (sdm.baselines.floor). The last four columns compare each row with CMA-ES on the runs both have "
         "(issue 20's bar: at most 2x CMA-ES's mean).",
