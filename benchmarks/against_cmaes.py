@@ -20,8 +20,7 @@ import torch
 
 from sdm.baselines import best_settings, noise_runs
 from sdm.experiments import load_split
-
-CMAES_FACTOR = 2.0  # sdm.report.research.CMAES_FACTOR's bar
+from sdm.report.research import CMAES_FACTOR
 
 
 def main(argv=None) -> int:

@@ -51,8 +51,8 @@ from sdm.experiments import load_split, rule_bias, single_thread
 from sdm.report.figures import show_figure
 from sdm.report.io import read_json, write_csv, write_text
 from sdm.report.research import (
-    CMAES_ROW, TABLE4_FORMAT, bias_summary, gathered_runs, reference_rows, rule_times, rules_against_baselines, rules_figure,
-    table4_display,
+    CMAES_ROW, TABLE4_FORMAT, bias_summary, gathered_runs, reference_rows, rule_times, rules_against_baselines,
+    rules_figure, table4_display,
     table4_frame, table4_summary as summary_of_table4, write_research_table,
 )
 from sdm.report.tables import to_markdown

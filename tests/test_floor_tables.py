@@ -117,26 +117,19 @@ def _config() -> dict:
     return yaml.safe_load((ROOT / "config.yaml").read_text())
 
 
-@pytest.mark.parametrize("change, key", [({"runs": 61}, "floor.runs"), ({"runs": 0}, "floor.runs"),
-                                         ({"settings": {"budget": "many"}}, "floor.settings.budget")])
-def test_bad_floor_values_are_refused_naming_the_key(change, key):
-    config = _config()
-    config["floor"].update(change)
-    with pytest.raises(ConfigError, match=re.escape(f"config key '{key}'")):
-        validate_schema(config)
-        check_config(config)
-
-
-@pytest.mark.parametrize("change, key", [
-    ({"runs_by_method": {"cmaes": 61}}, "baselines.runs_by_method.cmaes"),
-    ({"runs_by_method": {"cmaes": 0}}, "baselines.runs_by_method.cmaes"),
-    ({"runs_by_method": {"cmaes_x": 10}}, "baselines.runs_by_method"),
-    ({"methods": ["chamfer"], "runs_by_method": {"cmaes": 10}}, "baselines.runs_by_method.cmaes"),
+@pytest.mark.parametrize("section, change, key", [
+    ("floor", {"runs": 61}, "floor.runs"),
+    ("floor", {"runs": 0}, "floor.runs"),
+    ("floor", {"settings": {"budget": "many"}}, "floor.settings.budget"),
+    # baselines.runs_by_method (Table 4's CMA-ES on all 60 runs): a method of baselines.methods, at most noise.runs
+    ("baselines", {"runs_by_method": {"cmaes": 61}}, "baselines.runs_by_method.cmaes"),
+    ("baselines", {"runs_by_method": {"cmaes": 0}}, "baselines.runs_by_method.cmaes"),
+    ("baselines", {"runs_by_method": {"cmaes_x": 10}}, "baselines.runs_by_method"),
+    ("baselines", {"methods": ["chamfer"], "runs_by_method": {"cmaes": 10}}, "baselines.runs_by_method.cmaes"),
 ])
-def test_bad_per_method_runs_are_refused_naming_the_key(change, key):
-    """baselines.runs_by_method (Table 4's CMA-ES on all 60 runs): a method of baselines.methods, at most noise.runs."""
+def test_bad_floor_and_paired_run_values_are_refused_naming_the_key(section, change, key):
     config = _config()
-    config["baselines"].update(change)
-    with pytest.raises(ConfigError, match=re.escape(f"config key '{key}")):
+    config[section].update(change)
+    with pytest.raises(ConfigError, match=re.escape(f"config key '{key}'")):
         validate_schema(config)
         check_config(config)

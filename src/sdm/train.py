@@ -381,8 +381,8 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
 
     The passes train at level ``zoom`` only, through the whole chain ``s .. zoom`` (the forward of the
     schedule's last level), from each run's last theta, on the paths of :func:`train_runs` (compiled where
-    it applies: for ``group_crossing`` on float64 CPU points; else packed runs in torch); run ``r`` shuffles its passes with a generator seeded
-    :func:`refine_seed` ``(settings[r].seed)``, one permutation per pass. Returns the whole history: the
+    it applies: for ``group_crossing`` on float64 CPU points; else packed runs in torch); run ``r`` shuffles
+    its passes with a generator seeded :func:`refine_seed` ``(settings[r].seed)``, one permutation per pass. Returns the whole history: the
     steps of ``history``, then those of the passes.
     """
     settings = list(settings)

@@ -161,15 +161,15 @@ def check_config(config: Mapping[str, Any]) -> None:
             if method not in (baselines.get("methods") or []):
                 raise ConfigError(f"config key 'baselines.runs_by_method.{method}': {method} is not one of "
                                   f"baselines.methods {baselines.get('methods')}")
-            _check_paired_runs({"runs": count}, f"baselines.runs_by_method.{method}", runs)
+            _check_paired_runs(baselines["runs_by_method"], "baselines.runs_by_method", runs, key=method)
     _check_research(config, runs)
 
 
-def _check_paired_runs(section: Mapping[str, Any], name: str, noise_runs: int) -> None:
-    """``<name>.runs`` pairs Table 2's runs 0..runs-1: a count of at most ``noise.runs``."""
-    paired = _int(section, name, "runs")
+def _check_paired_runs(section: Mapping[str, Any], name: str, noise_runs: int, key: str = "runs") -> None:
+    """``<name>.<key>`` pairs Table 2's runs 0..runs-1: a count of at most ``noise.runs``."""
+    paired = _int(section, name, key)
     if paired > noise_runs:
-        raise ConfigError(f"config key '{name}.runs': the runs are paired with Table 2's, so at most "
+        raise ConfigError(f"config key '{name}.{key}': the runs are paired with Table 2's, so at most "
                           f"noise.runs = {noise_runs}, got {paired}")
 
 
@@ -214,8 +214,9 @@ def _check_research(config: Mapping[str, Any], noise_runs: int) -> None:
         if "paper" in (rules.get("names") or []):
             raise ConfigError("config key 'research.rules.names': 'paper' is Table 2 itself, always beside the "
                               "other rules in Table 4; list only the others")
-        known = _validator(str(SCHEMA_PATH.resolve()))[0]["properties"]["research"]["properties"]["depth"][
-            "properties"]["flow"]["enum"]
+        names = _validator(str(SCHEMA_PATH.resolve()))[0]["properties"]["research"]["properties"]["rules"][
+            "properties"]["names"]
+        known = names["items"]["anyOf"][0]["enum"]  # the plain rule names a schedule may combine
         for index, name in enumerate(rules.get("names") or []):
             parts = name.split(":")[0].split("+") if "+" in name else []
             unknown = [part for part in parts if part not in known]

@@ -492,6 +492,14 @@ static void halve_targets(int64_t n, int64_t h, int64_t w, const uint8_t *restri
     }
 }
 
+/* Whether any of n_runs runs (targets: their rows of n_levels addresses) leaves a level above 0 to the kernel to zoom out (its pyramid then fills `pyramid`). */
+static int zooms_any(int64_t n_runs, int64_t n_levels, const int64_t *targets, const int64_t *levels) {
+    for (int64_t run = 0; run < n_runs; ++run)
+        for (int64_t li = 0; li < n_levels; ++li)
+            if (targets[run * n_levels + li] == 0 && levels[li] > 0) return 1;
+    return 0;
+}
+
 /* ---- group_crossing at zoom 0 (sdm.mapping.crossing.group_crossing_flow, issue 20) ----
  *
  * One configuration's flow summed into (grad_a, grad_b) and its exact pixel mismatch, from its n points'
@@ -518,14 +526,6 @@ static inline double crossing_kernel(double distance, double width, double steps
     double x = 1.0 - distance / width;
     x = x < 0.0 ? 0.0 : x;
     return __builtin_floor(x * steps) / steps;
-}
-
-/* Whether any run's level above 0 is left to the kernel to zoom out (its pyramid then fills `pyramid`). */
-static int zooms_any(int64_t n_runs, int64_t n_levels, const int64_t *targets, const int64_t *levels) {
-    for (int64_t run = 0; run < n_runs; ++run)
-        for (int64_t li = 0; li < n_levels; ++li)
-            if (targets[run * n_levels + li] == 0 && levels[li] > 0) return 1;
-    return 0;
 }
 
 static int64_t crossing_pull(int64_t n, const double *restrict screen, const int32_t *restrict projected,
@@ -759,8 +759,7 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
         failed[run] = -1;
         int64_t step = 0;
         const uint8_t *base = (const uint8_t *)(intptr_t)bases[run];
-        int zoom_run = 0;
-        for (int64_t li = 0; li < n_levels; ++li) zoom_run |= targets[run * n_levels + li] == 0 && levels[li] > 0;
+        const int zoom_run = zooms_any(1, n_levels, targets + run * n_levels, levels);
         const uint8_t *counted = NULL; /* the level-0 target whose active pixels n_target holds */
         const uint8_t *closing = NULL; /* the target whose configurations `closed` holds closed (closed_done) */
         for (int64_t k = 1; zoom_run && k <= steps; ++k)
@@ -803,8 +802,10 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
                             const int64_t next = order[position + 1], first = offsets[next];
                             const int64_t count = offsets[next + 1] - first;
                             plan_range(&plan, 0, points + 3 * first, count * 3 * (int64_t)sizeof(double));
-                            plan_range(&plan, 1, pixels32 + 2 * first, count * 2 * (int64_t)sizeof(int32_t));
-                            plan_range(&plan, 2, rank32 + first, count * (int64_t)sizeof(int32_t));
+                            if (mode != 2) { /* group_crossing runs no chain: the points alone */
+                                plan_range(&plan, 1, pixels32 + 2 * first, count * 2 * (int64_t)sizeof(int32_t));
+                                plan_range(&plan, 2, rank32 + first, count * (int64_t)sizeof(int32_t));
+                            }
                             plan.range = 0;
                         }
                         /* in pieces (elementwise: the same values as in one call), a few lines fetched after each */

@@ -468,10 +468,8 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
                               camera.fx * camera.cols_per_image_pixel], dtype=torch.float64, device=device)
     rates_t = torch.tensor(rates, dtype=torch.float64, device=device)
     levels_t = torch.tensor(levels, dtype=torch.int64, device=device)
-    if any(window not in _WINDOWS for window in windows) or any(
-            window == "crossing" and level != 0 for window, level in zip(windows, levels)):
-        raise ValueError(f"train_program: windows must be {sorted(_WINDOWS)} ('crossing' at level 0), got "
-                         f"{list(zip(windows, levels))}")
+    if any(window not in _WINDOWS for window in windows):  # sdm_train refuses a level it cannot run (-3)
+        raise ValueError(f"train_program: windows must be of {sorted(_WINDOWS)}, got {windows}")
     modes_t = torch.tensor([_WINDOWS[window] for window in windows], dtype=torch.uint8, device=device)
     groups = _crossing_groups(points, offsets) if "crossing" in windows else (torch.zeros(1, dtype=torch.int64),) * 3
     crossing = _crossing_constants(device)
@@ -490,12 +488,13 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     code = _library().sdm_train(
         n_runs, n_configs, offsets.data_ptr(), points.data_ptr(), pixels.data_ptr(), rank.data_ptr(), height, width,
         constants.data_ptr(), steps, len(levels), n_epoch, batch_size, levels_t.data_ptr(), rates_t.data_ptr(),
-        modes_t.data_ptr(), *(group.data_ptr() for group in groups), crossing.data_ptr(), orders.data_ptr(), addresses.data_ptr(), base_addresses.data_ptr(), pyramid.data_ptr(), NO_RANK,
-        theta0.data_ptr(), thetas.data_ptr(), losses.data_ptr(), failed.data_ptr())
+        modes_t.data_ptr(), *(group.data_ptr() for group in groups), crossing.data_ptr(), orders.data_ptr(),
+        addresses.data_ptr(), base_addresses.data_ptr(), pyramid.data_ptr(), NO_RANK, theta0.data_ptr(), thetas.data_ptr(), losses.data_ptr(), failed.data_ptr())
     if code == -2:
         raise ValueError(f"sdm_train: a {height} x {width} screen is beyond its int32 chain (trains_screen)")
     if code == -3:
-        raise ValueError(f"sdm_train: levels {levels} outside 0..{steps}")
+        raise ValueError(f"sdm_train: levels {levels} outside 0..{steps}, or 'crossing' above level 0: "
+                         f"{list(zip(windows, levels))}")
     if code != 0:
         raise MemoryError("sdm_train: no memory for one configuration's working rows")
     return thetas, losses, failed
@@ -505,8 +504,8 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
 _WINDOWS = {"paper": 0, "centred": 1, "crossing": 2}
 
 
-#: _crossing_groups' last layout: (weak references to points and offsets, their versions, the layout). A set's groups depend on its
-#: points only, and the paired runs train the same set again and again (one call per group of runs).
+#: _crossing_groups' last layout: (weak references to points and offsets, their versions, the layout). A set's
+#: groups depend on its points only, and the paired runs train the same set again and again (a call per group).
 _GROUPS_CACHE: list = []
 
 
