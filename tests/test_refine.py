@@ -80,9 +80,26 @@ def test_refinement_keeps_the_true_shift_without_noise(small):
     assert float(moved) == 0
 
 
+def test_the_refinement_moves_c_with_fit_depth_unless_told_not_to(small):
+    """With fit_depth the schedule holds c below depth_zoom (1); the refinement's zoom-0 passes move it
+    (moves_c, the default) at depth_lr_scale times their rate, or leave it where the schedule put it."""
+    settings = [replace(BASE, seed=5, fit_depth=True)]
+    targets = [noisy_targets(small.targets, 2, 3)]
+    history = train_runs(small, targets, settings)
+    per_pass = 64 // 16
+    moving = refine_runs(small, targets, settings, history, Refinement("group_crossing", 2))
+    held = refine_runs(small, targets, settings, history, Refinement("group_crossing", 2, moves_c=False))
+    end = history.theta[-1, 0]
+    assert bool((held.theta[-2 * per_pass:, 0, 2] == end[2]).all())
+    assert float((moving.theta[-1, 0, 2] - end[2]).abs()) > 0
+    # (a, b) move in both; the held run's passes are the moving run's with the c column's rate at zero
+    assert not torch.equal(held.theta[-1, 0, :2], end[:2])
+
+
 @pytest.mark.parametrize("kwargs,match", [({"flow": "no-such"}, "flow"), ({"epochs": 0}, "epochs"),
                                           ({"epochs": 2.0}, "epochs"), ({"epochs": True}, "epochs"),
-                                          ({"rate_from": -1}, "rate_from"), ({"rate_from": 1.5}, "rate_from")])
+                                          ({"rate_from": -1}, "rate_from"), ({"rate_from": 1.5}, "rate_from"),
+                                          ({"moves_c": 1}, "moves_c")])
 def test_bad_refinements_are_refused_naming_the_field(kwargs, match):
     with pytest.raises(SDMInputError, match=match):
         Refinement(**kwargs)

@@ -30,7 +30,7 @@ from sdm import paper
 from sdm.report.research import (
     DEPTH_BAR_M, beyond_the_paper, depth_figure, issue_bar_m, rules_against_baselines, rules_figure, table4_frame,
     table4_summary, rule_times,
-    table5_frame, table5_summary, write_research_table,
+    table5_bias_summary, table5_frame, table5_summary, write_research_table,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -177,7 +177,8 @@ def _depth_runs(errors_by_cell):
     for (c_true, level), (ea, eb, ec) in errors_by_cell.items():
         for run, factor in enumerate((0.5, 1.5)):
             a, b, c = ea * factor, eb * factor, ec * factor
-            rows.append({"c_true": c_true, "level": level, "run": run, "error_a": a, "error_b": b, "error_c": c,
+            rows.append({"c_true": c_true, "level": level, "run": run, "c": c_true - c, "error_a": a, "error_b": b,
+                         "error_c": c,
                          "distance_ab": math.hypot(a, b), "distance": math.sqrt(a * a + b * b + c * c)})
     return pd.DataFrame(rows)
 
@@ -191,12 +192,38 @@ def test_table5_means_and_the_noise_free_bar():
         for axis in "abc":
             assert getattr(row, f"error_{axis}_m") == pytest.approx(cell[f"error_{axis}"].mean())
         assert row.distance_m == pytest.approx(cell["distance"].mean()) and row.runs == 2
+        assert row.bias_c_m == pytest.approx(-cell["error_c"].mean())  # every run's c is too near here
         within = all(getattr(row, f"error_{axis}_m") <= DEPTH_BAR_M[axis] for axis in "abc")
         assert row.meets_bar == (row.level == 0 and within)
     assert table["meets_bar"].tolist() == [False, True, False]  # b misses at c* = -1; level 2 has no bar
     words = table5_summary(table)
     assert "c* = -1 m (2 runs per level)" in words and "misses the bar" in words and "meets the bar" in words
     assert "level 2" in words
+
+
+def test_depth_bias_measures_the_depth_flow_at_theta_star(small_set):
+    """Noise-free, theta* is a fixed point at zooms 1 and 0 (no pull on c); under noise the flow, its edge share
+    and the unmatched shares are what one layer call over the whole set gives (the batches only split the sums)."""
+    from sdm.depth import depth_flow, depth_targets
+    from sdm.experiments import DEPTH_BIAS_COLUMNS, depth_bias, noisy_targets
+    from sdm.mapping import SpatialDomainMapping
+    from sdm.sky import shift_vector
+
+    clean = depth_bias(small_set, 0.5, [0], 7, zooms=[1, 0], shift=SHIFT, batch_size=3)
+    assert list(clean.columns) == DEPTH_BIAS_COLUMNS and clean["flow_c"].tolist() == [0.0, 0.0]
+    noisy = depth_bias(small_set, 0.5, [2], 7, flow="closed_centred_r1+group_crossing:2", zooms=[0], shift=SHIFT,
+                       batch_size=3).iloc[0]
+    truth = (*SHIFT, 0.5)
+    targets = noisy_targets(depth_targets(small_set, truth), 2, run_seed(7, 2, 0))
+    batch = small_set.with_targets(targets).batch(torch.arange(len(small_set)))
+    points = batch.points + shift_vector(truth, batch.points)
+    layer = SpatialDomainMapping(small_set.camera, s=4, zoom=0, flow="group_crossing")
+    result = layer(points, batch.pixels, batch.targets, batch.config, batch.rank).result
+    assert noisy["flow_c"] == pytest.approx(float(depth_flow(points, result.flow).sum()) / len(small_set), abs=1e-12)
+    assert noisy["flow_c"] != 0 and math.isfinite(noisy["offset_c"]) and 0 <= noisy["unmatched_edge"] <= 1
+    words = table5_bias_summary(table5_frame(_depth_runs({(0.5, 2): (1e-3, 1e-3, 1e-2)})),
+                                pd.DataFrame([noisy.to_dict() | {"flow": "group_crossing"}]))
+    assert words.startswith("- c* = 0.5 m, level 2 (1e-3 m): mean c - c* -10.00; group_crossing at zoom 0:")
 
 
 def test_tables_are_written_and_drawn(tmp_path):
@@ -230,7 +257,7 @@ def test_the_schema_lists_the_library_rules():
     research = schema["properties"]["research"]["properties"]
     accepted = sorted(FLOW_RULES | RESEARCH_RULES)
     assert sorted(research["rules"]["properties"]["names"]["items"]["anyOf"][0]["enum"]) == accepted
-    assert sorted(research["depth"]["properties"]["flow"]["enum"]) == accepted
+    assert research["depth"]["properties"]["flow"]["allOf"] == [research["rules"]["properties"]["names"]["items"]]
     for name in accepted:
         TrainSettings(flow=name)
 
@@ -239,8 +266,8 @@ def test_the_public_registry_holds_the_rules_the_configuration_trains_with():
     """sdm.FLOW_RULES: the paper's rule (Table 2) and the ones config.yaml's Tables 4 and 5 train with; every
     other rule is an experiment, in RESEARCH_RULES only."""
     research = _config()["research"]
-    trained = {research["depth"]["flow"]}
-    for name in research["rules"]["names"]:
+    trained = set()
+    for name in [research["depth"]["flow"], *research["rules"]["names"]]:
         flow, refine = parse_schedule(name)
         trained |= {flow, refine.flow} if refine else {flow}
     assert set(FLOW_RULES) == {"paper", *trained}
@@ -272,6 +299,7 @@ def test_the_schema_defaults_are_the_rules_config_yaml_names():
         ({"depth": {"enabled": True, "shifts_c": []}}, "research.depth.shifts_c"),
         ({"depth": {"enabled": True, "levels": [-1]}}, "research.depth.levels[0]"),
         ({"depth": {"enabled": True, "flow": "smooth"}}, "research.depth.flow"),
+        ({"depth": {"enabled": True, "flow": "closed_centred_r1+smooth:4"}}, "research.depth.flow"),
     ],
 )
 def test_bad_research_values_are_refused_naming_the_key(change, key):

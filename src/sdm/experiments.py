@@ -345,6 +345,82 @@ def rule_bias(train_set: ConfigurationSet, flow: str, levels: Sequence[int], see
                                                     "stiffness_b", "offset_b", "predicted_m"])
 
 
+#: Columns of :func:`depth_bias`.
+DEPTH_BIAS_COLUMNS = ["c_true", "level", "zoom", "flow_c", "stiffness_c", "offset_c", "edge_share",
+                      "unmatched_edge", "unmatched_inside"]
+
+
+def depth_bias(train_set: ConfigurationSet, c: float, levels: Sequence[int], seed: int, flow: str = "paper",
+               s: int = 4, zooms: Sequence[int] | None = None, shift: Sequence[float] = SKY_SHIFT,
+               camera: Camera | None = None, step: float = 1e-2, batch_size: int = 64) -> pd.DataFrame:
+    """Table 5's bias of ``c``, measured at theta* = ``(a*, b*, c*)``: the depth flow there under noise, where
+    it comes from, and where SGD on ``c`` alone would settle.
+
+    The targets are :func:`depth_noise_runs`' (the points moved by theta*, then run 0's noise draw of each
+    level, :func:`run_seed` ``(seed, level, 0)``). At each loss level ``zoom`` the points sit at theta* and the
+    layer's flow gives each point its depth flow (:func:`sdm.depth.depth_flow`; SGD moves ``c`` against it:
+    a negative ``flow_c`` moves the estimate farther). ``stiffness_c`` is its central difference over
+    ``c* +- step`` on the same targets, so ``offset_c = -flow_c / stiffness_c`` is where the mean flow on
+    ``c`` vanishes with ``(a, b)`` held at theta*: a measurement of the fixed point, not of SGD's scatter.
+
+    The *edge* points are those with a pixel among the 8 around theirs that holds no point of their
+    configuration (the rim of every disc of ``E'``); ``edge_share`` is their part of ``flow_c``, and
+    ``unmatched_edge`` / ``unmatched_inside`` the shares of the edge / other points entering the level that
+    land in a block the noisy target leaves empty (the points that the rule pulls).
+
+    Args:
+        train_set: the training configurations (their points; their own targets are not used).
+        c: ``c*``, metres. levels: noise levels. seed: the experiment's seed.
+        flow: the rule measured (a name of :data:`sdm.FLOW_RULES`; a schedule's last rule for a schedule).
+        s: coarsest zoom level; zooms: the loss levels measured (default ``s .. 0``).
+        shift: ``(a*, b*)``, metres. camera: default the set's. step: metres of ``c``.
+        batch_size: configurations per layer call (memory only: the sums are the same).
+
+    Returns:
+        One row per (noise level, zoom), columns :data:`DEPTH_BIAS_COLUMNS`; ``flow_c`` per training
+        configuration, ``stiffness_c`` per configuration per metre, ``offset_c`` in metres.
+    """
+    from .depth import depth_flow, depth_targets
+
+    _, refine = parse_schedule(flow)
+    flow = refine.flow if refine is not None else flow
+    camera = camera or train_set.camera
+    truth = (float(shift[0]), float(shift[1]), float(c))
+    clean = depth_targets(train_set, truth, camera)
+    height, width = camera.screen_shape
+    rows = []
+    for level in levels:
+        noisy = train_set.with_targets(noisy_targets(clean, level, run_seed(seed, level, 0)))
+        for zoom in (range(s, -1, -1) if zooms is None else zooms):
+            layer = SpatialDomainMapping(camera, s=s, zoom=zoom, flow=flow)
+            # [flow_c at c*, at c* + step, at c* - step, edge part at c*, (edge, inside) entered and unmatched]
+            sums = np.zeros(8)
+            for _, batch in noisy.batches(batch_size):
+                n_configs = int(batch.config.max()) + 1
+                occupied = torch.zeros(n_configs, height, width, dtype=torch.float32, device=batch.points.device)
+                occupied[batch.config, batch.pixels[:, 0], batch.pixels[:, 1]] = 1.0
+                empty_near = torch.nn.functional.max_pool2d(1.0 - occupied[:, None], 3, 1, 1)[:, 0] > 0
+                edge = empty_near[batch.config, batch.pixels[:, 0], batch.pixels[:, 1]]
+                for index, dc in enumerate((0.0, step, -step)):
+                    points = batch.points + shift_vector((truth[0], truth[1], truth[2] + dc), batch.points)
+                    result = layer(points, batch.pixels, batch.targets, batch.config, batch.rank).result
+                    pull = depth_flow(points, result.flow)
+                    sums[index] += float(pull.sum())
+                    if index == 0:
+                        sums[3] += float(pull[edge].sum())
+                        for part, where in enumerate((edge, ~edge)):
+                            sums[4 + 2 * part] += float(result.entered[where].sum())
+                            sums[5 + 2 * part] += float(result.missed[where].sum())
+            n_configs = len(noisy)
+            stiffness = (sums[1] - sums[2]) / (2 * step) / n_configs
+            flow_c = sums[0] / n_configs
+            rows.append({"c_true": truth[2], "level": int(level), "zoom": int(zoom), "flow_c": flow_c,
+                         "stiffness_c": stiffness, "offset_c": -flow_c / stiffness if stiffness else float("nan"),
+                         "edge_share": sums[3] / sums[0] if sums[0] else float("nan"),
+                         "unmatched_edge": sums[5] / max(sums[4], 1), "unmatched_inside": sums[7] / max(sums[6], 1)})
+    return pd.DataFrame.from_records(rows, columns=DEPTH_BIAS_COLUMNS)
+
+
 def single_thread(threads: int = 1) -> None:
     """Keep a job on its own cores (``torch.set_num_threads``); the workflow runs jobs side by side."""
     torch.set_num_threads(max(1, int(threads)))
@@ -381,7 +457,8 @@ def rule_noise_runs(train_set, rule: str, level: int, runs: Sequence[int], setti
 
 def depth_noise_runs(train_set, c: float, level: int, runs: Sequence[int], settings: TrainSettings,
                      shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
-                     group_size: int = NOISE_GROUP_SIZE, device: torch.device | str | None = None) -> pd.DataFrame:
+                     group_size: int = NOISE_GROUP_SIZE, device: torch.device | str | None = None,
+                     refine: Refinement | None = None) -> pd.DataFrame:
     """Table 5: the robustness experiment for the general shift ``theta* = (a*, b*, c)``, one row per run.
 
     The training set's targets are rebuilt for its points moved by ``(a*, b*, c)``
@@ -404,6 +481,8 @@ def depth_noise_runs(train_set, c: float, level: int, runs: Sequence[int], setti
         camera: default the set's.
         group_size: runs trained together (as :func:`noise_runs`).
         device: where to train; default the set's device.
+        refine: extra passes at zoom 0 after the schedule (:class:`sdm.train.Refinement`; with its default
+            ``moves_c`` they move ``c`` too, which the schedule holds below ``settings.depth_zoom``), or ``None``.
 
     Raises:
         SDMInputError: ``shift`` is not two numbers, ``c`` is not finite, or ``c`` moves a point on or
@@ -434,4 +513,4 @@ def depth_noise_runs(train_set, c: float, level: int, runs: Sequence[int], setti
                 "distance": float(np.sqrt(sum(error ** 2 for error in errors)))}
 
     return _sdm_runs(train_set, depth_targets(train_set, truth, camera), level, runs,
-                     replace(settings, fit_depth=True), record, DEPTH_RUN_COLUMNS, camera, group_size, device)
+                     replace(settings, fit_depth=True), record, DEPTH_RUN_COLUMNS, camera, group_size, device, refine)

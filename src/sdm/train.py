@@ -326,11 +326,15 @@ class Refinement:
         epochs: passes, a positive integer.
         rate_from: the first pass's rate is level ``zoom + rate_from``'s (a non-negative integer; 2 was chosen
             on runs no table holds: docs/method.md, "The schedule that reaches the floor").
+        moves_c: with ``fit_depth``, the passes move ``c`` too (at ``depth_lr_scale`` times their rate), whatever
+            ``depth_zoom`` says: ``group_crossing``'s depth flow at theta* under noise is less biased at zoom 0 than
+            the paper's rule's at zoom 1 (measured by ``sdm.experiments.depth_bias``: Table 5's ``table5_bias``).
     """
 
     flow: str = "group_crossing"
     epochs: int = 4
     rate_from: int = 2
+    moves_c: bool = True
 
     def __post_init__(self) -> None:
         rule_by_name(self.flow)
@@ -338,6 +342,8 @@ class Refinement:
             raise SDMInputError(f"refinement epochs must be a positive integer, got {self.epochs!r}")
         if isinstance(self.rate_from, bool) or not isinstance(self.rate_from, int) or self.rate_from < 0:
             raise SDMInputError(f"refinement rate_from must be a non-negative integer, got {self.rate_from!r}")
+        if not isinstance(self.moves_c, bool):
+            raise SDMInputError(f"refinement moves_c must be True or False, got {self.moves_c!r}")
 
     def rates(self, settings: TrainSettings) -> list[float]:
         """The learning rate of each pass (metres per unit of summed flow)."""
@@ -386,7 +392,8 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     steps of ``history``, then those of the passes.
     """
     settings = list(settings)
-    passes = [replace(one, n_epoch=1, flow=refinement.flow) for one in settings]
+    passes = [replace(one, n_epoch=1, flow=refinement.flow,
+                      depth_zoom=one.zoom if refinement.moves_c else one.depth_zoom) for one in settings]
     common = passes[0]
     camera = camera or train_set.camera
     own_targets = [run_targets is train_set.targets for run_targets in targets]  # before the set moves

@@ -71,13 +71,22 @@ notebook_stage(
 
 notebook_stage(
     "table5",
-    "Table 5: the depth runs' mean errors of a, b, c and distances per c* and noise level.",
+    "Table 5: the depth runs' mean errors of a, b, c and distances per c* and noise level, and c's bias at theta*.",
     jobs=[{}] if RESEARCH_DEPTH["enabled"] else [],
-    input=dict(depth_files=each("depth_runs", "runs_file")),
+    input=dict(sky=SKY_FILE, split=SPLIT_FILE, depth_files=each("depth_runs", "runs_file")),
     output=dict(
         **table_files("table5"),
         table5_summary=result("tables/table5_summary.md"),
+        table5_bias=result("tables/table5_bias.csv"),
         figure=figure("research_depth", "research_depth"),
     ),
-    params=dict(shifts_c=list(DEPTH_SHIFTS.values()), levels=DEPTH_LEVELS, runs=DEPTH_RUNS),
+    params=dict(
+        shifts_c=list(DEPTH_SHIFTS.values()),
+        levels=DEPTH_LEVELS,
+        runs=DEPTH_RUNS,
+        flow=RESEARCH_DEPTH.get("flow"),
+        s=config["train"]["s"],
+        seed=config["noise"]["seed"],
+        shift=config["sky"]["shift"],
+    ),
 )

@@ -201,6 +201,17 @@ def _dotted(path) -> str:
     return "".join(f"[{part}]" if isinstance(part, int) else f".{part}" for part in path).lstrip(".")
 
 
+def _check_schedule(name: str, key: str) -> None:
+    """Both rules of a schedule ``RULE+REFINE:E`` (whose form the schema checks) must be rule names of the schema."""
+    names = _validator(str(SCHEMA_PATH.resolve()))[0]["properties"]["research"]["properties"]["rules"][
+        "properties"]["names"]
+    known = names["items"]["anyOf"][0]["enum"]  # the plain rule names a schedule may combine
+    parts = name.split(":")[0].split("+") if "+" in name else []
+    unknown = [part for part in parts if part not in known]
+    if unknown:
+        raise ConfigError(f"config key '{key}': schedule {name!r} names {unknown[0]!r}, not a rule of {known}")
+
+
 def _check_research(config: Mapping[str, Any], noise_runs: int) -> None:
     """The research section (issue 12): Table 4's runs are paired with Table 2's; Table 5's c* are finite.
 
@@ -216,16 +227,12 @@ def _check_research(config: Mapping[str, Any], noise_runs: int) -> None:
                               "other rules in Table 4; list only the others")
         names = _validator(str(SCHEMA_PATH.resolve()))[0]["properties"]["research"]["properties"]["rules"][
             "properties"]["names"]
-        known = names["items"]["anyOf"][0]["enum"]  # the plain rule names a schedule may combine
         for index, name in enumerate(rules.get("names") or []):
-            parts = name.split(":")[0].split("+") if "+" in name else []
-            unknown = [part for part in parts if part not in known]
-            if unknown:
-                raise ConfigError(f"config key 'research.rules.names[{index}]': schedule {name!r} names "
-                                  f"{unknown[0]!r}, not a rule of {known}")
+            _check_schedule(name, f"research.rules.names[{index}]")
         _check_paired_runs(rules, "research.rules", noise_runs)
     depth = research.get("depth") or {}
     if depth.get("enabled"):
+        _check_schedule(depth.get("flow", ""), "research.depth.flow")
         shifts = depth.get("shifts_c")
         if not (isinstance(shifts, (list, tuple)) and shifts and all(
                 isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in shifts)):

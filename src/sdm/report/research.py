@@ -49,7 +49,7 @@ def reference_rows(baseline_runs: pd.DataFrame | None, floor_runs: pd.DataFrame 
         return pd.DataFrame(columns=list(RULE_RUN_COLUMNS))
     return pd.concat(parts, ignore_index=True)[list(RULE_RUN_COLUMNS)]
 #: Per-run columns Table 5 needs (``sdm.experiments.DEPTH_RUN_COLUMNS``).
-DEPTH_RUN_COLUMNS = ("c_true", "level", "run", "error_a", "error_b", "error_c", "distance_ab", "distance")
+DEPTH_RUN_COLUMNS = ("c_true", "level", "run", "c", "error_a", "error_b", "error_c", "distance_ab", "distance")
 
 
 def _require(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
@@ -351,7 +351,8 @@ def table5_frame(depth_runs: pd.DataFrame) -> pd.DataFrame:
 
     Returns:
         One row per (c_true, level), sorted: ``c_true, level, runs``; the means over the runs of
-        ``error_a_m, error_b_m, error_c_m`` (absolute errors), ``distance_ab_m`` and ``distance_m``
+        ``error_a_m, error_b_m, error_c_m`` (absolute errors), ``bias_c_m`` (the signed mean of ``c - c*``: positive
+        is too far), ``distance_ab_m`` and ``distance_m``
         (to ``(a*, b*)`` and to ``(a*, b*, c*)``), ``distance_std_m``; ``meets_bar`` (noise-free
         rows only, the issue's :data:`DEPTH_BAR_M`; ``False`` at noisy levels, where none is set).
     """
@@ -361,20 +362,21 @@ def table5_frame(depth_runs: pd.DataFrame) -> pd.DataFrame:
         row = {"c_true": float(c_true), "level": int(level), "runs": int(len(group))}
         for column in ("error_a", "error_b", "error_c", "distance_ab", "distance"):
             row[f"{column}_m"] = float(group[column].mean())
+        row["bias_c_m"] = float((group["c"] - group["c_true"]).mean())
         row["distance_std_m"] = float(group["distance"].std(ddof=1)) if len(group) > 1 else math.nan
         row["meets_bar"] = bool(int(level) == 0 and all(row[f"error_{axis}_m"] <= bar for axis, bar in DEPTH_BAR_M.items()))
         rows.append(row)
     return pd.DataFrame.from_records(rows)
 
 
-_TABLE5_DISTANCES = ("error_a", "error_b", "error_c", "distance_ab", "distance", "distance_std")
+_TABLE5_DISTANCES = ("error_a", "error_b", "error_c", "bias_c", "distance_ab", "distance", "distance_std")
 
 TABLE5_FORMAT = TableFormat(
-    columns=("c_true", "level", "runs", "error_a", "error_b", "error_c", "distance_ab", "distance", "distance_std",
-             "meets_bar"),
+    columns=("c_true", "level", "runs", "error_a", "error_b", "error_c", "bias_c", "distance_ab", "distance",
+             "distance_std", "meets_bar"),
     headers={
         "c_true": "c* (m)", "level": "noise level", "runs": "runs", "error_a": "|a - a*|", "error_b": "|b - b*|",
-        "error_c": "|c - c*|", "distance_ab": "distance in (a, b)", "distance": "distance in (a, b, c)",
+        "error_c": "|c - c*|", "bias_c": "mean c - c*", "distance_ab": "distance in (a, b)", "distance": "distance in (a, b, c)",
         "distance_std": "std of distance", "meets_bar": "meets bar (noise-free)",
     },
     formats={"c_true": "g"} | {c: ".3f" for c in _TABLE5_DISTANCES},
@@ -411,6 +413,27 @@ def table5_summary(frame: pd.DataFrame) -> str:
     if not (frame["level"] == 0).any():
         lines.append("- No noise-free level was run: the issue's bar was not checked.")
     return "\n".join(lines) + "\n"
+
+
+def table5_bias_summary(frame: pd.DataFrame, bias: pd.DataFrame) -> str:
+    """Why ``c`` is biased, in plain words (Markdown): Table 5's signed mean ``c - c*`` beside what
+    :func:`sdm.experiments.depth_bias` measured at theta* (one row per ``flow``, ``c_true``, ``level``, ``zoom``).
+
+    Per c* and noisy level: the measured bias, then each measured rule's predicted fixed point of ``c`` and the
+    share of its depth flow that comes from the points at the edges of the discs, with how often those land on
+    empty blocks against the other points.
+    """
+    lines = []
+    measured = {(float(row.c_true), int(row.level)): row.bias_c_m for row in frame.itertuples()}
+    for (c_true, level), rows in bias[bias["level"] > 0].groupby(["c_true", "level"], sort=True):
+        parts = [f"{row.flow} at zoom {int(row.zoom)}: predicted {1e3 * row.offset_c:+.2f}, "
+                 f"{100 * row.edge_share:.0f}% of its pull from disc edges (their points on empty blocks "
+                 f"{100 * row.unmatched_edge:.1f}%, the others {100 * row.unmatched_inside:.1f}%)"
+                 for row in rows.itertuples()]
+        runs = measured.get((float(c_true), int(level)))
+        head = f"mean c - c* {1e3 * runs:+.2f}" if runs is not None else "no runs"
+        lines.append(f"- c* = {c_true:g} m, level {int(level)} (1e-3 m): {head}; " + "; ".join(parts) + ".")
+    return "\n".join(lines) + "\n" if lines else ""
 
 
 def beyond_the_paper(table4: str = "", table4_summary: str = "", table5: str = "", table5_summary: str = "") -> str:
