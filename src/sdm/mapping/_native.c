@@ -26,7 +26,6 @@
 #include <math.h>
 #include <stdint.h>
 #include <stdlib.h>
-#include <string.h>
 
 static inline int64_t clamp_unit(int64_t value) { return value < -1 ? -1 : (value > 1 ? 1 : value); }
 
@@ -523,22 +522,6 @@ static int zooms_any(int64_t n_runs, int64_t n_levels, const int64_t *targets, c
  */
 #define CROSSING_MARGIN 2
 
-/* The nonzero bytes of bytes[0..n), eight at a time: a byte's bit 7 of ((b & 0x7f) + 0x7f) | b is set exactly when
- * b != 0 (no carry leaves the byte), and the multiply sums the eight bits into the top byte. The first read of a
- * run's targets (16.7 MB for 512 configurations): a byte loop widening into int64 took 2-3x as long. */
-static int64_t count_nonzero(const uint8_t *restrict bytes, int64_t n) {
-    const uint64_t low7 = 0x7f7f7f7f7f7f7f7full, ones = 0x0101010101010101ull;
-    int64_t count = 0, k = 0;
-    for (; k + 8 <= n; k += 8) {
-        uint64_t word;
-        memcpy(&word, bytes + k, sizeof word);
-        const uint64_t nonzero = ((((word & low7) + low7) | word) >> 7) & ones;
-        count += (int64_t)((nonzero * ones) >> 56);
-    }
-    for (; k < n; ++k) count += bytes[k] != 0;
-    return count;
-}
-
 static inline double crossing_kernel(double distance, double width, double steps) {
     double x = 1.0 - distance / width;
     x = x < 0.0 ? 0.0 : x;
@@ -843,7 +826,11 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
                         }
                         prefetch_some(&plan, INT64_MAX);
                         if (mode == 2) {
-                            if (n_target[c] < 0) n_target[c] = count_nonzero(own, grid_h * grid_w);
+                            if (n_target[c] < 0) {
+                                int64_t active = 0;
+                                for (int64_t k = 0; k < grid_h * grid_w; ++k) active += own[k] != 0;
+                                n_target[c] = active;
+                            }
                             const int64_t mismatch = crossing_pull(
                                 n, screen, projected, points + 3 * lo, config_group[c], config_group[c + 1], group_start,
                                 members, own, height, width, k_row, k_col, crossing, cover, stamp, padded_cells,
