@@ -52,8 +52,8 @@ from sdm.report.research import (
     TABLE5_FORMAT, depth_figure, gathered_runs, table5_bias_summary, table5_display, table5_frame,
     table5_summary as summary_of_table5, write_research_table,
 )
-from sdm.train import TrainSettings, parse_schedule
 from sdm.report.tables import to_markdown
+from sdm.train import TrainSettings, parse_schedule
 
 single_thread(threads)
 expected = {(float(value), level, run) for value in shifts_c for level in levels for run in range(runs)}

@@ -388,6 +388,13 @@ def depth_bias(train_set: ConfigurationSet, c: float, levels: Sequence[int], see
     truth = (float(shift[0]), float(shift[1]), float(c))
     clean = depth_targets(train_set, truth, camera)
     height, width = camera.screen_shape
+    edges = []  # each batch's (P,) edge points: they depend on the points only, not on the level or the zoom
+    for _, batch in train_set.batches(batch_size):
+        occupied = torch.zeros(int(batch.config.max()) + 1, height, width, dtype=torch.float32,
+                               device=batch.points.device)
+        occupied[batch.config, batch.pixels[:, 0], batch.pixels[:, 1]] = 1.0
+        empty_near = torch.nn.functional.max_pool2d(1.0 - occupied[:, None], 3, 1, 1)[:, 0] > 0
+        edges.append(empty_near[batch.config, batch.pixels[:, 0], batch.pixels[:, 1]])
     rows = []
     for level in levels:
         noisy = train_set.with_targets(noisy_targets(clean, level, run_seed(seed, level, 0)))
@@ -395,12 +402,7 @@ def depth_bias(train_set: ConfigurationSet, c: float, levels: Sequence[int], see
             layer = SpatialDomainMapping(camera, s=s, zoom=zoom, flow=flow)
             # [flow_c at c*, at c* + step, at c* - step, edge part at c*, (edge, inside) entered and unmatched]
             sums = np.zeros(8)
-            for _, batch in noisy.batches(batch_size):
-                n_configs = int(batch.config.max()) + 1
-                occupied = torch.zeros(n_configs, height, width, dtype=torch.float32, device=batch.points.device)
-                occupied[batch.config, batch.pixels[:, 0], batch.pixels[:, 1]] = 1.0
-                empty_near = torch.nn.functional.max_pool2d(1.0 - occupied[:, None], 3, 1, 1)[:, 0] > 0
-                edge = empty_near[batch.config, batch.pixels[:, 0], batch.pixels[:, 1]]
+            for (_, batch), edge in zip(noisy.batches(batch_size), edges, strict=True):
                 for index, dc in enumerate((0.0, step, -step)):
                     points = batch.points + shift_vector((truth[0], truth[1], truth[2] + dc), batch.points)
                     result = layer(points, batch.pixels, batch.targets, batch.config, batch.rank).result

@@ -225,8 +225,6 @@ def _check_research(config: Mapping[str, Any], noise_runs: int) -> None:
         if "paper" in (rules.get("names") or []):
             raise ConfigError("config key 'research.rules.names': 'paper' is Table 2 itself, always beside the "
                               "other rules in Table 4; list only the others")
-        names = _validator(str(SCHEMA_PATH.resolve()))[0]["properties"]["research"]["properties"]["rules"][
-            "properties"]["names"]
         for index, name in enumerate(rules.get("names") or []):
             _check_schedule(name, f"research.rules.names[{index}]")
         _check_paired_runs(rules, "research.rules", noise_runs)
