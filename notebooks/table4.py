@@ -20,8 +20,7 @@
 
 # %% tags=["parameters"]
 rule_files = []  # input: the rule_runs files
-sky = "results/sky/sky.bin"  # input: the rules' bias is measured on the training set
-split = "results/split/split.json"  # input
+table4_bias = "results/tables/table4_bias.csv"  # input: where each rule's flow vanishes, per level (rule_bias)
 table2_distances = "results/noise/distances.csv"  # input: Table 2's runs (the paper's rule)
 baseline_run_files = []  # optional input: Table 3's per-run files (the rules beside the baselines, CMA-ES's rows)
 sdm_timings = []  # input: Table 2's noise jobs' timing records (the paper's rule's time per run)
@@ -29,10 +28,6 @@ floor_files = []  # optional input: the floor_runs files (the floor's rows)
 names = ["closed"]  # the rules expected
 levels = [0, 1, 2, 3, 4]  # the levels expected
 runs = 2  # the runs 0..runs-1 each (rule, level) must hold
-s = 4  # zoom levels (train.s)
-seed = 0  # noise seed (noise.seed): the bias is measured on run 0's draw of each level
-shift = [0.517, 0.303]
-table4_bias = "results/tables/table4_bias.csv"  # output: where each rule's flow vanishes, per level
 table4_csv = "results/tables/table4.csv"  # output
 table4_md = "results/tables/table4.md"  # output: written beside table4_csv, same stem
 table4_tex = "results/tables/table4.tex"  # output: written beside table4_csv, same stem
@@ -47,9 +42,9 @@ from pathlib import Path
 import pandas as pd
 from IPython.display import Markdown, display
 
-from sdm.experiments import load_split, rule_bias, single_thread
+from sdm.experiments import single_thread
 from sdm.report.figures import show_figure
-from sdm.report.io import read_json, write_csv, write_text
+from sdm.report.io import read_json, write_text
 from sdm.report.research import (
     CMAES_ROW, TABLE4_FORMAT, bias_summary, gathered_runs, reference_rows, rule_times, rules_against_baselines,
     rules_figure, table4_display,
@@ -82,13 +77,9 @@ if baseline_runs is not None:  # Table 3 ran: the rules beside its baselines, on
     answer += rules_against_baselines(rule_runs, baseline_runs)
 
 # %% [markdown]
-# ## Why each rule lands where it does (measured, `sdm.experiments.rule_bias`)
+# ## Why each rule lands where it does (measured by the stage `rule_bias`, `sdm.experiments.rule_bias`)
 
 # %%
-train_set, _, camera = load_split(sky, read_json(split))
-bias = pd.concat([rule_bias(train_set, flow, levels, seed, s=s, shift=shift, camera=camera).assign(flow=flow)
-                  for flow in ["paper", *names]], ignore_index=True)
-write_csv(table4_bias, bias[["flow", *bias.columns.drop("flow")]])
-answer += "\n" + bias_summary(bias, table4)
+answer += "\n" + bias_summary(pd.read_csv(table4_bias), table4)
 write_text(table4_summary, answer)
 display(Markdown(answer))

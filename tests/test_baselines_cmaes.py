@@ -136,6 +136,27 @@ def test_compiled_count_wipes_its_stamps_before_they_wrap(small):
     assert 0 < int(stamp[-1]) <= len(small) * len(thetas)  # wiped, then counted up from 0
 
 
+def test_compiled_count_reuses_configurations_that_shift_alike_and_stays_exact(small):
+    """The compiled count remembers its last candidates (MismatchMemo): a configuration whose groups all shift as
+    in one of them takes that sum. Candidates a millimetre apart (some groups of a configuration cross a pixel
+    border, most do not), repeated ones, and a call larger than the memo, on noisy targets: every count is the
+    straightforward one, and a second objective (other targets) never takes the first one's sums."""
+    noisy = small.with_targets(noisy_targets(small.targets, 2, seed=8))
+    with counting("compiled"):
+        objective = PixelMismatch(noisy)
+        other = PixelMismatch(small, layout=objective.layout)
+    assert objective._memo.slots == cmaes.MismatchMemo.SLOTS
+    near = random_thetas(18, seed=40, spread=1e-3)
+    calls = [near[:6], near[3:9], [near[4], near[4], *near[9:13]], near[12:18]]
+    for thetas in calls:
+        assert objective.many(thetas) == [straightforward_count(noisy, theta) for theta in thetas]
+    assert other.many(near[:6]) == [straightforward_count(small, theta) for theta in near[:6]]
+    wide = near[:13]  # more candidates than slots: the memo grows, emptied, and counts stay exact
+    assert objective.many(wide) == [straightforward_count(noisy, theta) for theta in wide]
+    assert objective._memo.slots == 13
+    assert objective.many(near[:6]) == [straightforward_count(noisy, theta) for theta in near[:6]]
+
+
 def test_compiled_and_torch_counts_agree_on_a_search(small):
     """The whole search on either path: the same candidates, counts and result (Table 3's cmaes rows)."""
     pytest.importorskip("cma")

@@ -33,7 +33,8 @@ from config_check import ConfigError, check_config, load_config, validate_schema
 SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
 APOLLO_SAMPLE = ROOT / "data" / "apollocar3d-sample"
 STAGES = ["synthetic", "data", "sample", "sky", "split", "tune", "best", "noise", "tables", "baseline_tune",
-          "baseline_runs", "floor_runs", "table3", "rule_runs", "depth_runs", "table4", "table5", "figures", "report"]
+          "baseline_runs", "floor_runs", "table3", "rule_runs", "rule_bias", "depth_runs", "table4", "table5", "figures",
+          "report"]
 
 pytestmark = pytest.mark.workflow
 
@@ -275,7 +276,7 @@ def _research_jobs(config: dict) -> dict[str, int]:
     rules, depth = config["research"]["rules"], config["research"]["depth"]
     jobs = {}
     if rules["enabled"]:
-        jobs |= {"rule_runs": len(rules["names"]), "table4": 1}
+        jobs |= {"rule_runs": len(rules["names"]), "rule_bias": 1, "table4": 1}
     if depth["enabled"]:
         jobs |= {"depth_runs": len(depth["shifts_c"]) * len(depth["levels"]), "table5": 1}
     return jobs
@@ -299,7 +300,8 @@ def test_dry_run_with_the_depth_table_switched_on_by_an_overlay(tmp_path):
     overlay.write_text("research:\n  depth:\n    enabled: true\n")
     jobs = planned(snakemake("-n", "--quiet", "rules", "--configfile", str(overlay), cwd=workdir(tmp_path / "run", config)))
     config["research"]["depth"]["enabled"] = True
-    assert {key: jobs.get(key) for key in ("rule_runs", "depth_runs", "table4", "table5")} == _research_jobs(config)
+    assert {key: jobs.get(key) for key in ("rule_runs", "rule_bias", "depth_runs", "table4", "table5")} == (
+        _research_jobs(config))
 
 
 @pytest.mark.parametrize("flag", ["--workflow-profile", "--profile"])

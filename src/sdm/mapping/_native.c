@@ -938,18 +938,37 @@ int64_t sdm_noise_fill(int64_t n, const int64_t *active, int64_t n_lead, const i
  * table:        (N * cells_per_config,) int8 per padded pixel its weight + 1 (0 on target, 2 on
  *               screen off target, 1 in the margin)
  * limits:       (3,) the largest |gain| (row, col) and the range up to which shifts are trusted
- * offsets:      (K * G,) int64 scratch; stamp: (cells_per_config + 1,) uint32 scratch, its last entry
- *               the last stamp used (all zero at first, then only ever written here)
+ * memo:         the last counts of this table, L = n_slots >= K slots (sdm.baselines.cmaes.MismatchMemo):
+ *               slot_offsets (L * G,) int64 a candidate's group shifts per slot, slot_sums (L * N,) int64
+ *               its per-configuration sums (FP - TP), state (L + 1,) int64 each slot's validity, then the
+ *               next slot to fill (all zero at first). This call's candidates take the K slots from the next
+ *               one on (their shifts are computed there); a configuration whose groups all shift as in a
+ *               valid slot's candidate (or an earlier candidate of this call) takes that sum: the count
+ *               depends on the group shifts alone, so it is the same integer. Near CMA-ES's convergence
+ *               most configurations of a candidate shift as in its neighbours' (in one floor search at
+ *               noise level 2, 6 slots spared 82% of the passes over points; the floor's searches ran
+ *               2.4x faster).
+ * stamp:        (cells_per_config + 1,) uint32 scratch, its last entry the last stamp used (all zero at
+ *               first, then only ever written here)
  * counts:       (K,) out, false positives + false negatives, or -1
  */
+/* Whether the groups lo..hi-1 shift alike in two candidates' shifts. */
+static inline int same_shifts(const int64_t *restrict one, const int64_t *restrict other, int64_t lo, int64_t hi) {
+    for (int64_t g = lo; g < hi; ++g)
+        if (one[g] != other[g]) return 0;
+    return 1;
+}
+
 void sdm_pixel_mismatch(int64_t n_candidates, const double *theta, int64_t n_groups, int64_t n_configs,
                         const double *gain, const double *frac_bounds, const double *shift_low,
                         const double *shift_high, const int64_t *group_start, const int64_t *config_group,
                         const int32_t *cells, const int8_t *table, int64_t cells_per_config, int64_t padded_width,
-                        const double *limits, int64_t n_target, int64_t *offsets, uint32_t *stamp,
-                        int64_t *counts) {
+                        const double *limits, int64_t n_target, int64_t n_slots, int64_t *slot_offsets,
+                        int64_t *slot_sums, int64_t *state, uint32_t *stamp, int64_t *counts) {
     const double *frac_high = frac_bounds + 2 * n_groups;
     const double max_gain_row = limits[0], max_gain_col = limits[1], exact_range = limits[2];
+    int64_t *valid = state, next = state[n_slots];
+    for (int64_t k = 0; k < n_candidates; ++k) valid[(next + k) % n_slots] = 0; /* rewritten below */
     for (int64_t k = 0; k < n_candidates; ++k) {
         const double a = theta[2 * k], b = theta[2 * k + 1];
         counts[k] = -1;
@@ -957,7 +976,7 @@ void sdm_pixel_mismatch(int64_t n_candidates, const double *theta, int64_t n_gro
         if (!(a - a == 0.0 && b - b == 0.0) || __builtin_fabs(b) * max_gain_row > exact_range ||
             __builtin_fabs(a) * max_gain_col > exact_range)
             continue;
-        int64_t *offset = offsets + k * n_groups;
+        int64_t *offset = slot_offsets + ((next + k) % n_slots) * n_groups;
         int trusted = 1;
         for (int64_t g = 0; g < n_groups && trusted; ++g) {
             const double shift_row = gain[2 * g] * b, shift_col = gain[2 * g + 1] * a;
@@ -984,23 +1003,38 @@ void sdm_pixel_mismatch(int64_t n_candidates, const double *theta, int64_t n_gro
     /* Configuration by configuration, every candidate: its pixels stay in cache across the candidates. */
     for (int64_t c = 0; c < n_configs; ++c) {
         const int8_t *weights = table + c * cells_per_config;
+        const int64_t g_lo = config_group[c], g_hi = config_group[c + 1];
         for (int64_t k = 0; k < n_candidates; ++k) {
             if (counts[k] < 0) continue;
-            const uint32_t mark = ++last;
-            const int64_t *offset = offsets + k * n_groups;
+            const int64_t slot = (next + k) % n_slots;
+            const int64_t *offset = slot_offsets + slot * n_groups;
+            int64_t known = -1; /* a slot whose candidate shifts this configuration's groups alike */
+            for (int64_t j = 0; j < k && known < 0; ++j) /* this call's earlier candidates */
+                if (counts[j] >= 0 && same_shifts(offset, slot_offsets + ((next + j) % n_slots) * n_groups, g_lo, g_hi))
+                    known = (next + j) % n_slots;
+            for (int64_t other = 0; other < n_slots && known < 0; ++other) /* the earlier calls' */
+                if (valid[other] && same_shifts(offset, slot_offsets + other * n_groups, g_lo, g_hi)) known = other;
             int64_t sum = 0;
-            for (int64_t g = config_group[c]; g < config_group[c + 1]; ++g) {
-                const int64_t shift = offset[g];
-                for (int64_t p = group_start[g]; p < group_start[g + 1]; ++p) {
-                    const int64_t id = (int64_t)cells[p] + shift;
-                    if (stamp[id] != mark) { /* a pixel covered twice counts once (rare: well predicted) */
-                        stamp[id] = mark;
-                        sum += (int64_t)weights[id] - 1;
+            if (known >= 0) {
+                sum = slot_sums[known * n_configs + c];
+            } else {
+                const uint32_t mark = ++last;
+                for (int64_t g = g_lo; g < g_hi; ++g) {
+                    const int64_t shift = offset[g];
+                    for (int64_t p = group_start[g]; p < group_start[g + 1]; ++p) {
+                        const int64_t id = (int64_t)cells[p] + shift;
+                        if (stamp[id] != mark) { /* a pixel covered twice counts once (rare: well predicted) */
+                            stamp[id] = mark;
+                            sum += (int64_t)weights[id] - 1;
+                        }
                     }
                 }
             }
+            slot_sums[slot * n_configs + c] = sum;
             counts[k] += sum;
         }
     }
     stamp[cells_per_config] = last;
+    for (int64_t k = 0; k < n_candidates; ++k) valid[(next + k) % n_slots] = counts[k] >= 0;
+    state[n_slots] = (next + n_candidates) % n_slots;
 }

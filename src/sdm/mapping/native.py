@@ -103,7 +103,8 @@ SIGNATURES: dict[str, tuple[object, list]] = {
                          *[_PTR] * 11, _I64, _PTR, _PTR, _PTR, _PTR]),
     "sdm_noise_fill": (_I64, [_I64, _PTR, _I64, _PTR, _PTR, _I64, _I64, _PTR, _PTR, _I64]),
     # the CMA-ES baseline's count (pixel_mismatch below)
-    "sdm_pixel_mismatch": (None, [_I64, _PTR, _I64, _I64, *[_PTR] * 8, _I64, _I64, _PTR, _I64, *[_PTR] * 3]),
+    "sdm_pixel_mismatch": (None, [_I64, _PTR, _I64, _I64, *[_PTR] * 8, _I64, _I64, _PTR, _I64, _I64,
+                                  *[_PTR] * 5]),
 }
 
 
@@ -567,7 +568,7 @@ def _pyramid_scratch(n_bytes: int, device: torch.device) -> torch.Tensor:
 
 
 @_eager_under_compile
-def pixel_mismatch(thetas: torch.Tensor, layout, table: torch.Tensor, n_target: int) -> torch.Tensor:
+def pixel_mismatch(thetas: torch.Tensor, layout, table: torch.Tensor, n_target: int, memo) -> torch.Tensor:
     """The CMA-ES baseline's exact zoom-0 pixel mismatch for ``K`` candidates in one pass over the points.
 
     Args:
@@ -575,6 +576,8 @@ def pixel_mismatch(thetas: torch.Tensor, layout, table: torch.Tensor, n_target: 
         layout: a usable :class:`sdm.baselines.cmaes.ShiftLayout` on the CPU (its grouping and scratch).
         table: ``(N * Hp * Wp,)`` int8 weight + 1 per padded pixel (:meth:`ShiftLayout.table` with ``compact``).
         n_target: active target pixels of the run.
+        memo: the :class:`sdm.baselines.cmaes.MismatchMemo` of ``table`` (its last candidates' per-configuration
+            sums, reused where a configuration's groups shift alike: the same integers), at least ``K`` slots.
 
     Returns:
         ``(K,)`` int64 counts (false positives + false negatives), ``-1`` for a candidate whose group
@@ -583,16 +586,17 @@ def pixel_mismatch(thetas: torch.Tensor, layout, table: torch.Tensor, n_target: 
     thetas = thetas.to(torch.float64).contiguous()
     n_candidates = thetas.shape[0]
     n_groups = layout.gain.shape[0]
-    offsets = layout.native_offsets(n_candidates)
+    if memo.slots < n_candidates:
+        raise ValueError(f"pixel_mismatch: memo holds {memo.slots} slots, fewer than the {n_candidates} candidates")
     counts = torch.empty(n_candidates, dtype=torch.int64, device=thetas.device)
     _library().sdm_pixel_mismatch(
         n_candidates, thetas.data_ptr(), n_groups, layout.config_group.shape[0] - 1, layout.gain.data_ptr(),
         layout.frac_bounds.data_ptr(), layout.shift_low.data_ptr(), layout.shift_high.data_ptr(),
         layout.group_start.data_ptr(), layout.config_group.data_ptr(), layout.cells.data_ptr(), table.data_ptr(),
         layout.padded_shape[0] * layout.padded_shape[1], layout.padded_shape[1], layout.limits.data_ptr(),
-        int(n_target), offsets.data_ptr(), layout.stamp.data_ptr(), counts.data_ptr())
+        int(n_target), memo.slots, memo.offsets.data_ptr(), memo.sums.data_ptr(), memo.state.data_ptr(),
+        layout.stamp.data_ptr(), counts.data_ptr())
     return counts
-
 
 
 def noise_fill(active: torch.Tensor, moves: torch.Tensor, height: int, width: int, out: torch.Tensor,
