@@ -33,8 +33,8 @@ from config_check import ConfigError, check_config, load_config, validate_schema
 SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
 APOLLO_SAMPLE = ROOT / "data" / "apollocar3d-sample"
 STAGES = ["synthetic", "data", "sample", "sky", "split", "tune", "best", "noise", "tables", "baseline_tune",
-          "baseline_runs", "floor_runs", "table3", "rule_runs", "rule_bias", "depth_runs", "table4", "table5", "figures",
-          "report"]
+          "baseline_runs", "floor_runs", "table3", "rule_runs", "rule_bias", "depth_runs", "table4", "table5",
+          "figures", "report"]
 
 pytestmark = pytest.mark.workflow
 
