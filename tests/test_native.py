@@ -175,6 +175,33 @@ def test_the_compiled_run_on_real_sized_data(compiled_calls):
     assert not torch.equal(finals["paper"], finals["group_crossing"])
 
 
+def test_the_compiled_closing_on_a_screen_of_odd_sides(compiled_calls):
+    """closed_centred_r1's compiled closing on a screen whose sides are no powers of two: 200 x 72 (100 x 36, 50 x 18
+    and 25 x 9 at the levels above), its borders and odd widths closed as the reference's, so the run equals
+    tests/train_reference.py's bit for bit."""
+    from dataclasses import replace as replaced
+
+    from scenes import road_centres
+    from sdm.batch import ConfigurationSet
+    from sdm.experiments import noisy_targets
+    from sdm.sky import build_configuration
+    from train_reference import reference_train
+
+    camera = replaced(CAM, screen_height=72, screen_width=200)
+    generator = torch.Generator().manual_seed(77)
+    data = ConfigurationSet.from_configurations(
+        [build_configuration(road_centres(generator, 12), camera=camera, image_id=f"odd{i}") for i in range(40)],
+        camera=camera)
+    assert data.targets.shape[1:] == (72, 200)
+    settings = [TrainSettings(lr=3e-4, n_epoch=1, s=3, flow="closed_centred_r1", seed=seed) for seed in (1, 2)]
+    targets = [noisy_targets(data.targets, 2, 5), noisy_targets(data.targets, 3, 6)]
+    compiled = train_runs(data, targets, settings)
+    assert len(compiled_calls) == 1
+    for run in range(2):
+        theta, _ = reference_train(data.with_targets(targets[run]), settings[run])
+        assert torch.equal(compiled.theta[:, run], theta), run
+
+
 def test_other_training_settings_take_the_torch_path(compiled_calls):
     data = configuration_set(32, seed=12)
     for settings in (TrainSettings(flow="closed", s=2), TrainSettings(fit_depth=True, s=2)):

@@ -500,6 +500,25 @@ static int zooms_any(int64_t n_runs, int64_t n_levels, const int64_t *targets, c
     return 0;
 }
 
+/* The active pixels of a 0/1 byte grid of n cells: eight bytes to a word, summed in 16-bit lanes (each lane
+ * holds at most 2 * 255 after 255 words), so the loop streams the grid instead of widening every byte to
+ * 64 bits; the rest byte by byte. */
+static int64_t count_active(int64_t n, const uint8_t *grid) {
+    const uint64_t low_bytes = 0x00FF00FF00FF00FFull;
+    int64_t total = 0, at = 0;
+    while (at + 8 <= n) {
+        uint64_t lanes = 0;
+        for (int64_t words = 0; words < 255 && at + 8 <= n; ++words, at += 8) {
+            uint64_t word;
+            __builtin_memcpy(&word, grid + at, 8);
+            lanes += (word & low_bytes) + ((word >> 8) & low_bytes);
+        }
+        total += (int64_t)((lanes * 0x0001000100010001ull) >> 48);
+    }
+    for (; at < n; ++at) total += grid[at] != 0;
+    return total;
+}
+
 /* ---- group_crossing at zoom 0 (sdm.mapping.crossing.group_crossing_flow, issue 20) ----
  *
  * One configuration's flow summed into (grad_a, grad_b) and its exact pixel mismatch, from its n points'
@@ -827,9 +846,7 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
                         prefetch_some(&plan, INT64_MAX);
                         if (mode == 2) {
                             if (n_target[c] < 0) {
-                                int64_t active = 0;
-                                for (int64_t k = 0; k < grid_h * grid_w; ++k) active += own[k] != 0;
-                                n_target[c] = active;
+                                n_target[c] = count_active(grid_h * grid_w, own);
                             }
                             const int64_t mismatch = crossing_pull(
                                 n, screen, projected, points + 3 * lo, config_group[c], config_group[c + 1], group_start,
