@@ -547,12 +547,13 @@ static inline double crossing_kernel(double distance, double width, double steps
     return __builtin_floor(x * steps) / steps;
 }
 
-static int64_t crossing_pull(int64_t n, const double *restrict screen, const int32_t *restrict projected,
-                             const double *restrict q, int64_t g_lo, int64_t g_hi, const int64_t *restrict group_start,
-                             const int32_t *restrict members, const uint8_t *restrict target, int64_t height,
-                             int64_t width, double k_row, double k_col, const double *crossing, int32_t *restrict cover,
-                             uint32_t *restrict stamp, int64_t padded_cells, int64_t n_target, double *grad_a,
-                             double *grad_b) {
+/* crossing_pull's integer part: each group's lowered changes lower[4 * g + k] (the moves' mismatch changes
+ * where they lower it, else 0) and the configuration's mismatch, from its points' pixels alone. */
+static int64_t crossing_changes(int64_t n, const int32_t *restrict projected, int64_t g_lo, int64_t g_hi,
+                                const int64_t *restrict group_start, const int32_t *restrict members,
+                                const uint8_t *restrict target, int64_t height, int64_t width, int32_t *restrict cover,
+                                uint32_t *restrict stamp, int64_t padded_cells, int64_t n_target,
+                                int32_t *restrict lower) {
     const int64_t margin = CROSSING_MARGIN, padded_width = width + 2 * (margin + 1);
     int64_t distinct = 0, hit = 0;
     for (int64_t i = 0; i < n; ++i) {
@@ -566,7 +567,6 @@ static int64_t crossing_pull(int64_t n, const double *restrict screen, const int
         }
     }
     static const int moves[4][2] = {{1, 0}, {-1, 0}, {0, 1}, {0, -1}};
-    double pull_a = 0.0, pull_b = 0.0;
     for (int64_t g = g_lo; g < g_hi; ++g) {
         if (stamp[padded_cells] >= UINT32_MAX - 1) { /* wipe before a stamp repeats */
             for (int64_t i = 0; i <= padded_cells; ++i) stamp[i] = 0;
@@ -594,8 +594,39 @@ static int64_t crossing_pull(int64_t n, const double *restrict screen, const int
                     change[k] += target[to_row * width + to_col] ? -1 : 1;
             }
         }
-        double lower[4];
-        for (int k = 0; k < 4; ++k) lower[k] = change[k] < 0 ? (double)-change[k] : 0.0;
+        for (int k = 0; k < 4; ++k) lower[4 * g + k] = change[k] < 0 ? (int32_t)-change[k] : 0;
+    }
+    for (int64_t i = 0; i < n; ++i) { /* leave cover all zero */
+        const int64_t row = projected[2 * i], col = projected[2 * i + 1];
+        if (row >= 0 && row < height && col >= 0 && col < width) cover[row * width + col] = 0;
+    }
+    return n_target + distinct - 2 * hit;
+}
+
+/* One configuration's crossing flow into (grad_a, grad_b) and its mismatch (returned). Its integer part
+ * depends on the points' pixels alone, so where they are the ones of the configuration's last call in this
+ * run (known: its mismatch >= 0, its pixels in known_pixels, 2n int32, its groups' lowered changes in
+ * `lower`, 4 int32 per group), that part is taken as it was: the same integers; a refinement pass moves theta
+ * by a fraction of a pixel, and in measured runs 89-96% of the configurations of a pass kept the pixels of
+ * the pass before. The kernels are each group's own, from the sub-pixel offsets, always. */
+static int64_t crossing_pull(int64_t n, const double *restrict screen, const int32_t *restrict projected,
+                             const double *restrict q, int64_t g_lo, int64_t g_hi, const int64_t *restrict group_start,
+                             const int32_t *restrict members, const uint8_t *restrict target, int64_t height,
+                             int64_t width, double k_row, double k_col, const double *crossing, int32_t *restrict cover,
+                             uint32_t *restrict stamp, int64_t padded_cells, int64_t n_target,
+                             int32_t *restrict known_pixels, int32_t *restrict lower, int64_t *known_mismatch,
+                             double *grad_a, double *grad_b) {
+    int same = *known_mismatch >= 0;
+    for (int64_t j = 0; j < 2 * n && same; ++j) same = known_pixels[j] == projected[j];
+    if (!same) {
+        *known_mismatch = crossing_changes(n, projected, g_lo, g_hi, group_start, members, target, height, width,
+                                           cover, stamp, padded_cells, n_target, lower);
+        for (int64_t j = 0; j < 2 * n; ++j) known_pixels[j] = projected[j];
+    }
+    double pull_a = 0.0, pull_b = 0.0;
+    for (int64_t g = g_lo; g < g_hi; ++g) {
+        double lowered[4];
+        for (int k = 0; k < 4; ++k) lowered[k] = (double)lower[4 * g + k];
         const int64_t first = members[group_start[g]];
         const double z = q[3 * first + 2] + 0.0;
         const double gain_row = k_row / z, gain_col = k_col / z;
@@ -605,18 +636,14 @@ static int64_t crossing_pull(int64_t n, const double *restrict screen, const int
         const double behind_row = crossing_kernel(sub_row / gain_row, crossing[0], crossing[2]);
         const double ahead_col = crossing_kernel((1.0 - sub_col) / gain_col, crossing[0], crossing[2]);
         const double behind_col = crossing_kernel(sub_col / gain_col, crossing[0], crossing[2]);
-        const double pull_y = lower[1] * behind_row - lower[0] * ahead_row;
-        const double pull_x = lower[3] * behind_col - lower[2] * ahead_col;
+        const double pull_y = lowered[1] * behind_row - lowered[0] * ahead_row;
+        const double pull_x = lowered[3] * behind_col - lowered[2] * ahead_col;
         pull_a += crossing[1] * pull_x;
         pull_b += crossing[1] * pull_y;
     }
-    for (int64_t i = 0; i < n; ++i) { /* leave cover all zero */
-        const int64_t row = projected[2 * i], col = projected[2 * i + 1];
-        if (row >= 0 && row < height && col >= 0 && col < width) cover[row * width + col] = 0;
-    }
     *grad_a += pull_a;
     *grad_b += pull_b;
-    return n_target + distinct - 2 * hit;
+    return *known_mismatch;
 }
 
 /* closed_centred_r1's target: the 3x3 closing of one configuration's h x w 0/1 target (sdm.mapping.rules.closing(3),
@@ -752,6 +779,11 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     int32_t *cover = crosses ? calloc((size_t)cells, sizeof(int32_t)) : NULL;
     uint32_t *stamp = crosses ? calloc((size_t)(padded_cells + 1), sizeof(uint32_t)) : NULL;
     int64_t *n_target = crosses ? malloc(sizeof(int64_t) * (size_t)n_configs) : NULL;
+    /* group_crossing's last pixels, lowered changes and mismatch of each configuration in this run (crossing_pull) */
+    const int64_t n_groups = crosses ? config_group[n_configs] : 0;
+    int32_t *known_pixels = crosses ? malloc(sizeof(int32_t) * (size_t)(2 * offsets[n_configs] + 1)) : NULL;
+    int32_t *known_lower = crosses ? malloc(sizeof(int32_t) * (size_t)(4 * n_groups + 1)) : NULL;
+    int64_t *known_mismatch = crosses ? malloc(sizeof(int64_t) * (size_t)n_configs) : NULL;
     int closes = 0;
     for (int64_t li = 0; li < n_levels; ++li) closes |= modes[li] == 1;
     uint8_t *closed_done = closes ? malloc((size_t)n_configs) : NULL, *close_tmp = closes ? malloc((size_t)cells) : NULL;
@@ -762,7 +794,7 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     uint8_t *closed = pyramid + (zooms_any(n_runs, n_levels, targets, levels) ? level_start[steps + 1] : 0);
     int64_t code = 0;
     if (no_memory || !screen || !rows || !cell_min || !pulled || !alive || !pixels32 || !rank32 ||
-        (crosses && (!cover || !stamp || !n_target)) || (closes && (!closed_done || !close_tmp))) {
+        (crosses && (!cover || !stamp || !n_target || !known_pixels || !known_lower || !known_mismatch)) || (closes && (!closed_done || !close_tmp))) {
         code = -1;
         goto done;
     }
@@ -792,7 +824,7 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
             const double rate = rates[li], block_size = (double)((int64_t)1 << level);
             const int mode = modes[li];
             if (mode == 2 && counted != target) {
-                for (int64_t c = 0; c < n_configs; ++c) n_target[c] = -1;
+                for (int64_t c = 0; c < n_configs; ++c) n_target[c] = known_mismatch[c] = -1;
                 counted = target;
             }
             if (mode == 1 && closing != target) {
@@ -851,7 +883,7 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
                             const int64_t mismatch = crossing_pull(
                                 n, screen, projected, points + 3 * lo, config_group[c], config_group[c + 1], group_start,
                                 members, own, height, width, k_row, k_col, crossing, cover, stamp, padded_cells,
-                                n_target[c], &grad_a, &grad_b);
+                                n_target[c], known_pixels + 2 * lo, known_lower, known_mismatch + c, &grad_a, &grad_b);
                             sum_add(&loss, (double)mismatch);
                             continue;
                         }
@@ -892,7 +924,8 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     }
 done:
     free(dense), free(screen), free(rows), free(cell_min), free(pulled), free(alive), free(pixels32), free(rank32);
-    free(cover), free(stamp), free(n_target), free(closed_done), free(close_tmp);
+    free(cover), free(stamp), free(n_target), free(known_pixels), free(known_lower), free(known_mismatch);
+    free(closed_done), free(close_tmp);
     return code;
 }
 
