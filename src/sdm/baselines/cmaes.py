@@ -336,7 +336,7 @@ class MismatchMemo:
                                 device=device)
         self.state = torch.zeros(self.slots + 1, dtype=torch.int64, device=device)
 
-    def fit(self, n_candidates: int) -> "MismatchMemo":
+    def holding(self, n_candidates: int) -> "MismatchMemo":
         """This memo, grown (and emptied) to at least ``n_candidates`` slots when it holds fewer."""
         if n_candidates > self.slots:
             self._allocate(n_candidates)
@@ -399,7 +399,7 @@ class PixelMismatch:
         like = dict(dtype=torch.float64, device=self.table.device)
         candidates = torch.tensor([[float(theta[0]), float(theta[1])] for theta in thetas], **like).view(-1, 2)
         counts = native.pixel_mismatch(candidates, self.layout, self.table, self.n_target,
-                                       self._memo.fit(len(thetas))).tolist()
+                                       self._memo.holding(len(thetas))).tolist()
         for index, count in enumerate(counts):
             if count < 0:  # a group's shift too close to a pixel border for the shared shift
                 self.fallbacks += 1

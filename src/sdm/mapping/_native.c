@@ -794,7 +794,8 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     uint8_t *closed = pyramid + (zooms_any(n_runs, n_levels, targets, levels) ? level_start[steps + 1] : 0);
     int64_t code = 0;
     if (no_memory || !screen || !rows || !cell_min || !pulled || !alive || !pixels32 || !rank32 ||
-        (crosses && (!cover || !stamp || !n_target || !known_pixels || !known_lower || !known_mismatch)) || (closes && (!closed_done || !close_tmp))) {
+        (crosses && (!cover || !stamp || !n_target || !known_pixels || !known_lower || !known_mismatch)) ||
+        (closes && (!closed_done || !close_tmp))) {
         code = -1;
         goto done;
     }
