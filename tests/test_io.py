@@ -32,11 +32,12 @@ def mode(path: Path) -> int:
 
 
 def runner_writer():
-    """The writer as workflow/scripts/run_notebook.py loads it (by path, without importing sdm)."""
-    spec = importlib.util.spec_from_file_location("runner", ROOT / "workflow" / "scripts" / "run_notebook.py")
-    runner = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(runner)
-    return runner._load_writer()
+    """The writer as workflow/scripts/run_notebook.py loads it (code_deps.library_io: by path, without importing
+    sdm)."""
+    spec = importlib.util.spec_from_file_location("code_deps_for_test", ROOT / "workflow" / "scripts" / "code_deps.py")
+    deps = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(deps)
+    return deps.library_io()
 
 
 def write_everything(folder: Path) -> dict[str, Path]:

@@ -11,6 +11,7 @@ Snakemake's own ``--forcerun``.
 from __future__ import annotations
 
 import ast
+import hashlib
 import json
 import modulefinder
 import os
@@ -272,7 +273,8 @@ def test_a_notebook_prose_edit_reruns_its_stage(touched_project, stage):
     assert stage in jobs
 
 
-@pytest.mark.parametrize("script", ["workflow/scripts/run_notebook.py", "workflow/scripts/stage.py"])
+@pytest.mark.parametrize("script", ["workflow/scripts/run_notebook.py", "workflow/scripts/stage.py",
+                                    "workflow/scripts/code_deps.py"])
 def test_a_runner_code_edit_reruns_every_stage(touched_project, script):
     project, _ = touched_project
     with _edited(project / script, "\n_rerun_probe = 1\n"):
@@ -293,6 +295,57 @@ def test_code_deps_agrees_with_modulefinder():
     for notebook in sorted(set(code_deps.stage_notebooks().values())):
         ours = set(code_deps.reached(notebook))
         assert ours == _modulefinder_files(ROOT, f"notebooks/{notebook}.py"), notebook
+
+
+def _fresh_code_deps(name: str):
+    """workflow/scripts/code_deps.py loaded anew (its own caches empty), as a new Snakemake process has it."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(name, ROOT / "workflow" / "scripts" / "code_deps.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_parse_cache_gives_what_a_parse_gives_and_a_damaged_one_is_parsed_anew(tmp_path, monkeypatch):
+    """The fingerprints read back from the parse cache equal those of a parse (no file is parsed then); a cache
+    that is garbage, cut short, of another parser or with entries of the wrong shape is ignored and written
+    whole again; a cache folder that cannot be made changes nothing but the time."""
+    monkeypatch.setenv("SDM_CACHE_DIR", str(tmp_path / "cache"))
+    first = _fresh_code_deps("code_deps_cold")
+    notebooks = sorted(first.stage_notebooks())
+    expected = {notebook: first.fingerprint(notebook) for notebook in notebooks}
+    assert expected == {notebook: code_deps.fingerprint(notebook) for notebook in notebooks}
+    cache = tmp_path / "cache" / f"code_deps-py{sys.version_info[0]}.{sys.version_info[1]}.json"
+    whole = cache.read_bytes()
+    parsed = {f for n in notebooks for f in first.stage_files(n) if f.endswith(".py")}  # notebooks for imports
+    assert sorted(json.loads(whole)["entries"]) == sorted({hashlib.sha256((ROOT / f).read_bytes()).hexdigest()
+                                                           for f in parsed})  # one per content
+
+    warm = _fresh_code_deps("code_deps_warm")
+    monkeypatch.setattr(warm, "_parse", lambda *args: pytest.fail(f"parsed {args[0]} with a whole cache"))
+    assert {notebook: warm.fingerprint(notebook) for notebook in notebooks} == expected
+
+    entries = json.loads(whole)["entries"]
+    key = sorted(entries)[0]
+    damaged = {
+        "garbage": b"\x00\xffnot json",
+        "cut short": whole[: len(whole) // 2],
+        "another parser": json.dumps({"parser": "0" * 64, "entries": entries}).encode(),
+        "a wrong entry": json.dumps({"parser": json.loads(whole)["parser"],
+                                     "entries": entries | {key: [[["sdm", "x", 0, 1]], entries[key][1]]}}).encode(),
+        "not a mapping": b"[1, 2]",
+    }
+    for case, content in damaged.items():
+        cache.write_bytes(content)
+        again = _fresh_code_deps(f"code_deps_{case.replace(' ', '_')}")
+        assert {notebook: again.fingerprint(notebook) for notebook in notebooks} == expected, case
+        assert json.loads(cache.read_bytes())["entries"] == entries, case  # written whole again
+
+    (tmp_path / "a file").write_text("")
+    monkeypatch.setenv("SDM_CACHE_DIR", str(tmp_path / "a file" / "cache"))  # no folder can be made there
+    unwritable = _fresh_code_deps("code_deps_unwritable")
+    assert {notebook: unwritable.fingerprint(notebook) for notebook in notebooks} == expected
 
 
 def test_every_non_python_library_file_is_a_declared_resource():

@@ -16,9 +16,12 @@ JSON, CSV, the rendered notebooks) goes through :func:`write_atomic`:
 4. if anything fails on the way (including ``KeyboardInterrupt``), the
    temporary file is removed and the destination is left as it was.
 
+It also says where :mod:`sdm` keeps what it can rebuild (:func:`cache_dir`: the
+compiled kernel, the workflow's parsed code).
+
 This module uses only the standard library and imports nothing from
-:mod:`sdm`, so ``workflow/scripts/run_notebook.py`` can load it by path without
-importing torch.
+:mod:`sdm`, so ``workflow/scripts/run_notebook.py`` and
+``workflow/scripts/code_deps.py`` can load it by path without importing torch.
 """
 from __future__ import annotations
 
@@ -30,6 +33,15 @@ from typing import Any, Callable
 
 #: Mode requested for new files; the process umask is subtracted by the kernel, as for ``open()``.
 NEW_FILE_MODE = 0o666
+
+
+def cache_dir() -> Path:
+    """Where :mod:`sdm` keeps what it can rebuild: ``$SDM_CACHE_DIR``, else ``$XDG_CACHE_HOME/sdm``, else
+    ``~/.cache/sdm`` (``RuntimeError`` where no home folder can be found). Deleting it is always safe."""
+    if os.environ.get("SDM_CACHE_DIR"):
+        return Path(os.environ["SDM_CACHE_DIR"])
+    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
+    return Path(base) / "sdm"
 
 
 def current_umask() -> int:

@@ -15,6 +15,13 @@ What counts as a change:
   runner prints its own only as its usage);
 * a file a module reads beside itself (:data:`RESOURCES`, the native kernel's C source): any edit.
 
+Parsing the library takes about a second, paid by every Snakemake start (a dry run, each cluster
+job). So what a parse gives (the imports, the digest) is kept in ``code_deps-<python>.json`` in the
+cache folder (:func:`sdm.io.cache_dir`), per file content: an edited file is parsed anew, the others
+are read back (:class:`ParseCache`). It is only ever a shortcut to the same result: an unreadable or
+damaged file, entries of another Python or of another version of this file are ignored, and a
+folder that cannot be written to is left alone.
+
 Which modules a notebook reaches follows Python's import semantics: ``import sdm.a.b`` runs
 ``sdm/__init__.py``, ``sdm/a/__init__.py`` and ``sdm/a/b.py``; ``from . import x`` and
 ``from .m import y`` resolve against the importing module's package; imports inside functions
@@ -28,6 +35,8 @@ from __future__ import annotations
 import ast
 import functools
 import hashlib
+import importlib.util
+import json
 import re
 import sys
 from pathlib import Path
@@ -36,9 +45,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 #: The library's package, under ROOT/src.
 PACKAGE = "sdm"
-#: What every stage runs besides its notebook: the rule's script, the runner it calls, and the atomic
-#: writer the runner loads from its file (``run_notebook._load_writer``, not an import statement).
-RUNNER = ("workflow/scripts/stage.py", "workflow/scripts/run_notebook.py", "src/sdm/io.py")
+#: What every stage runs besides its notebook: the rule's script, the runner it calls, this file (the
+#: runner loads the atomic writer through it) and the writer itself (loaded from its file by
+#: :func:`library_io`, not by an import statement).
+RUNNER = ("workflow/scripts/stage.py", "workflow/scripts/run_notebook.py", "workflow/scripts/code_deps.py",
+          "src/sdm/io.py")
 #: Files a module reads beside itself (not Python, hashed as they are): the module -> its files.
 #: tests/test_workflow_code.py checks that every non-Python file under src/sdm is listed here.
 RESOURCES = {"src/sdm/mapping/native.py": ("src/sdm/mapping/_native.c",)}
@@ -66,24 +77,107 @@ def module_file(name: str) -> Path | None:
 
 _DEFINITIONS = (ast.Module, ast.ClassDef, ast.FunctionDef, ast.AsyncFunctionDef)
 
+#: One import statement as :func:`_parsed` gives it (plain data, so that it can be cached):
+#: ``(module, names, level, line)``, with ``module`` None for ``import a.b, c`` (then ``names`` are the
+#: modules) and the module after the dots of ``from ..m import x`` (None for ``from . import x``).
+Import = tuple[str | None, tuple[str, ...], int, int]
 
-@functools.lru_cache(maxsize=None)
-def _parsed(path: Path) -> tuple[tuple[ast.stmt, ...], str]:
+
+@functools.lru_cache(maxsize=1)
+def library_io():
+    """The library's ``sdm/io.py`` (the atomic writer, the cache folder), loaded from its file: importing the
+    ``sdm`` package imports torch (about 2 s per process), and ``sdm/io.py`` uses only the standard library."""
+    spec = importlib.util.spec_from_file_location("sdm_io_for_workflow", ROOT / "src" / PACKAGE / "io.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def _parse(path: Path, source: bytes) -> tuple[tuple[Import, ...], str]:
     """The import statements of a Python file (at any depth) and the SHA-256 of its syntax tree without
     docstrings (``ast.dump``: neither comments nor line numbers are in it). One parse, one walk."""
     try:
-        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
-    except (OSError, SyntaxError, UnicodeDecodeError) as error:
+        tree = ast.parse(source.decode("utf-8"), filename=str(path))
+    except (SyntaxError, UnicodeDecodeError) as error:
         raise CodeDepsError(f"{path}: cannot be read for the stage's code fingerprint ({error})") from None
     imports = []
     for node in ast.walk(tree):  # a node's children are queued before it is seen: its body can be changed
-        if isinstance(node, (ast.Import, ast.ImportFrom)):
-            imports.append(node)
+        if isinstance(node, ast.Import):
+            imports.append((None, tuple(alias.name for alias in node.names), 0, node.lineno))
+        elif isinstance(node, ast.ImportFrom):
+            imports.append((node.module, tuple(alias.name for alias in node.names), node.level, node.lineno))
         elif isinstance(node, _DEFINITIONS) and node.body:
             first = node.body[0]
             if isinstance(first, ast.Expr) and isinstance(first.value, ast.Constant) and isinstance(first.value.value, str):
                 node.body = node.body[1:] or [ast.Pass()]
     return tuple(imports), hashlib.sha256(ast.dump(tree).encode()).hexdigest()
+
+
+class ParseCache:
+    """What :func:`_parse` gave for each file content, kept in ``<cache folder>/code_deps-py<X.Y>.json``.
+
+    The file holds ``{"parser": SHA-256 of this file, "entries": {SHA-256 of a source: [imports, digest]}}``;
+    entries are trusted only under the same parser (this file's bytes) and Python (``ast.dump`` changes
+    between versions), and only in their exact shape. It keeps the last :data:`LIMIT` contents used, and is
+    rewritten atomically when a run parsed something new (parallel runs: the last one's file stays whole).
+    """
+
+    LIMIT = 4096
+
+    def __init__(self):
+        self.entries, self.added = {}, False
+        try:
+            self.path = library_io().cache_dir() / f"code_deps-py{sys.version_info[0]}.{sys.version_info[1]}.json"
+            self.parser = hashlib.sha256(Path(__file__).read_bytes()).hexdigest()
+            content = json.loads(self.path.read_text(encoding="utf-8"))
+            if content.get("parser") == self.parser:
+                self.entries = {key: value for key, value in content["entries"].items() if self._valid(value)}
+        except (OSError, RuntimeError, ValueError, AttributeError, KeyError, TypeError):
+            pass  # none yet, unreadable or damaged: parsed anew, and written whole if it can be
+
+    @staticmethod
+    def _valid(value) -> bool:
+        return (isinstance(value, list) and len(value) == 2 and isinstance(value[1], str) and len(value[1]) == 64
+                and isinstance(value[0], list) and all(
+                    isinstance(item, list) and len(item) == 4 and isinstance(item[0], (str, type(None)))
+                    and isinstance(item[1], list) and all(isinstance(name, str) for name in item[1])
+                    and type(item[2]) is int and type(item[3]) is int for item in value[0]))
+
+    def parsed(self, path: Path, source: bytes) -> tuple[tuple[Import, ...], str]:
+        key = hashlib.sha256(source).hexdigest()
+        if key in self.entries:
+            imports, digest = self.entries.pop(key)
+            self.entries[key] = [imports, digest]  # the most recently used last
+            return tuple((module, tuple(names), level, line) for module, names, level, line in imports), digest
+        imports, digest = _parse(path, source)
+        self.entries[key] = [[[module, list(names), level, line] for module, names, level, line in imports], digest]
+        self.added = True
+        return imports, digest
+
+    def save(self) -> None:
+        if not self.added:
+            return
+        kept = dict(list(self.entries.items())[-self.LIMIT:])
+        try:
+            library_io().write_text(self.path, json.dumps({"parser": self.parser, "entries": kept}) + "\n")
+        except (OSError, AttributeError):
+            pass  # a read-only or missing cache folder: the next run parses again, nothing else changes
+        self.added = False
+
+
+@functools.lru_cache(maxsize=1)
+def _parse_cache() -> ParseCache:
+    return ParseCache()
+
+
+@functools.lru_cache(maxsize=None)
+def _parsed(path: Path) -> tuple[tuple[Import, ...], str]:
+    """:func:`_parse` of the file at ``path``, through the :class:`ParseCache`."""
+    try:
+        source = path.read_bytes()
+    except OSError as error:
+        raise CodeDepsError(f"{path}: cannot be read for the stage's code fingerprint ({error})") from None
+    return _parse_cache().parsed(path, source)
 
 
 def _with_parents(name: str) -> list[str]:
@@ -103,21 +197,21 @@ def imported(path: Path, name: str | None = None) -> frozenset[str]:
     if name is not None:
         package = name if path.name == "__init__.py" else name.rpartition(".")[0]
     found = set()
-    for node in _parsed(path)[0]:
-        if isinstance(node, ast.Import):
-            for alias in node.names:
-                found.update(_with_parents(alias.name))
+    for module, names, level, line in _parsed(path)[0]:
+        if module is None and not level:  # import a.b, c
+            for name in names:
+                found.update(_with_parents(name))
             continue
-        if node.level:
+        if level:
             parts = package.split(".") if package else []
-            if node.level > len(parts):
-                raise CodeDepsError(f"{path}:{node.lineno}: a relative import outside the package")
-            base = ".".join(parts[: len(parts) - (node.level - 1)])
-            base = f"{base}.{node.module}" if node.module else base
+            if level > len(parts):
+                raise CodeDepsError(f"{path}:{line}: a relative import outside the package")
+            base = ".".join(parts[: len(parts) - (level - 1)])
+            base = f"{base}.{module}" if module else base
         else:
-            base = node.module
+            base = module
         found.update(_with_parents(base))
-        found.update(f"{base}.{alias.name}" for alias in node.names if module_file(f"{base}.{alias.name}"))
+        found.update(f"{base}.{name}" for name in names if module_file(f"{base}.{name}"))
     return frozenset(module for module in found if module_file(module) is not None)
 
 
@@ -161,6 +255,7 @@ def stage_files(notebook: str) -> list[str]:
 def fingerprint(notebook: str) -> str:
     """SHA-256 over ``path digest`` of :func:`stage_files` (paths relative: the project can move)."""
     lines = "".join(f"{path} {file_digest(path)}\n" for path in stage_files(notebook))
+    _parse_cache().save()
     return hashlib.sha256(lines.encode()).hexdigest()
 
 

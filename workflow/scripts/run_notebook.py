@@ -33,26 +33,14 @@ import sys
 import tempfile
 from pathlib import Path
 
+from code_deps import library_io  # sdm/io.py, the atomic writer, loaded without importing sdm (torch)
+
 #: ANSI escape sequences (colours, cursor moves) as IPython puts them in tracebacks and messages.
 ANSI = re.compile(r"\x1b\[[0-?]*[ -/]*[@-~]|\x1b[@-Z\\-_]")
 
 
 def strip_ansi(text: str) -> str:
     return ANSI.sub("", text)
-
-
-def _load_writer():
-    """The library's one atomic writer, :mod:`sdm.io`, loaded from its file.
-
-    Loaded by path rather than ``import sdm.io`` because importing the ``sdm``
-    package imports torch (about 2 s per job); ``sdm/io.py`` uses only the
-    standard library.
-    """
-    source = Path(__file__).resolve().parents[2] / "src" / "sdm" / "io.py"
-    spec = importlib.util.spec_from_file_location("sdm_io_for_runner", source)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 #: How often a kernel that dies or stays silent while starting is started again. Jupyter picks the
@@ -103,7 +91,7 @@ def execute_into(executed: str | Path, run):
                 raise  # write_atomic removes the temporary file
             outcome["error"] = error
 
-    _load_writer().write_atomic(executed, write)
+    library_io().write_atomic(executed, write)
     if "error" in outcome:
         raise outcome["error"]
     return outcome["result"]
@@ -165,7 +153,7 @@ def report_failure(head: str, details: list[str], where: str, noise: str, log: P
 
 def _write_log(log: Path, text: str) -> None:
     log.parent.mkdir(parents=True, exist_ok=True)
-    _load_writer().write_text(log, text + "\n" if text else "")
+    library_io().write_text(log, text + "\n" if text else "")
 
 
 def main(source: str, executed: str, html: str, parameters: str | dict, stderr_log: str | None = None) -> int:
@@ -196,7 +184,7 @@ def main(source: str, executed: str, html: str, parameters: str | dict, stderr_l
                 log_output=False,
             ))
             body, _ = HTMLExporter().from_notebook_node(result)
-            _load_writer().write_text(html, body)
+            library_io().write_text(html, body)
         except Exception as error:  # noqa: BLE001 - every failure is reported the same way, cause first
             noise = output()
             failure = error

@@ -73,7 +73,7 @@ from pathlib import Path
 
 import torch
 
-from ..io import write_atomic, write_text
+from ..io import cache_dir, write_atomic, write_text
 from ..representation import NO_RANK
 
 SOURCE = Path(__file__).with_name("_native.c")
@@ -125,14 +125,6 @@ def disabled():
         yield
     finally:
         _switched_off = before
-
-
-def cache_dir() -> Path:
-    """Where the compiled kernel is kept: ``$SDM_CACHE_DIR``, else ``$XDG_CACHE_HOME/sdm``, else ``~/.cache/sdm``."""
-    if os.environ.get("SDM_CACHE_DIR"):
-        return Path(os.environ["SDM_CACHE_DIR"])
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "sdm"
 
 
 class _Unavailable(Exception):
