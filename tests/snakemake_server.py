@@ -87,5 +87,12 @@ def run(request: dict) -> None:
     snakemake.cli.main()  # exits (SystemExit) with Snakemake's status
 
 
+def warm_up() -> None:
+    """What every run's ``main()`` does first and the same in each: building the argument parser imports the
+    plugins and fills their registries (about 0.25 s of CPU a run), done once here before any fork."""
+    snakemake.cli.get_argument_parser()
+
+
 if __name__ == "__main__":
+    warm_up()
     run(serve())
