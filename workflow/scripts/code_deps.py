@@ -199,8 +199,8 @@ def imported(path: Path, name: str | None = None) -> frozenset[str]:
     found = set()
     for module, names, level, line in _parsed(path)[0]:
         if module is None and not level:  # import a.b, c
-            for name in names:
-                found.update(_with_parents(name))
+            for imported_module in names:
+                found.update(_with_parents(imported_module))
             continue
         if level:
             parts = package.split(".") if package else []
@@ -211,7 +211,7 @@ def imported(path: Path, name: str | None = None) -> frozenset[str]:
         else:
             base = module
         found.update(_with_parents(base))
-        found.update(f"{base}.{name}" for name in names if module_file(f"{base}.{name}"))
+        found.update(f"{base}.{member}" for member in names if module_file(f"{base}.{member}"))
     return frozenset(module for module in found if module_file(module) is not None)
 
 

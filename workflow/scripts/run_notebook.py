@@ -25,7 +25,6 @@ Exit status 1.
 from __future__ import annotations
 
 import contextlib
-import importlib.util
 import json
 import os
 import re
