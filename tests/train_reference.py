@@ -15,8 +15,12 @@ from sdm.train import TrainSettings
 
 
 def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera=None, method: str = "fast",
-                    theta0=(0.0, 0.0)) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(theta (steps + 1, n_params), loss (steps,))`` float64 CPU of one run (the set's own targets)."""
+                    theta0=(0.0, 0.0), param_index=None) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(theta (steps + 1, n_params), loss (steps,))`` float64 CPU of one run (the set's own targets).
+
+    ``param_index`` ``(P, G)`` (parameters attached to points): ``theta0`` is ``(K, 2)``, each point moved by the sum
+    of its rows in column order, and theta comes back ``(steps + 1, K, 2)``, every step.
+    """
     camera = camera or train_set.camera
     device = train_set.device
     layers = {level: SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method, flow=settings.flow,
@@ -27,13 +31,14 @@ def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera
     if settings.fit_depth and start.shape == (2,):
         start = torch.nn.functional.pad(start, (0, 1))
     theta = start.clone().requires_grad_(True)
+    rows = None if param_index is None else torch.as_tensor(param_index).reshape(train_set.points.shape[0], -1)
     generator = torch.Generator(device="cpu").manual_seed(settings.seed)
     pyramid = train_set.pyramid(settings.s)
     levels = range(settings.s, settings.zoom - 1, -1)
     batch_size = settings.batch_size
     batches_per_epoch = n_configs // batch_size
     total = len(levels) * settings.n_epoch * batches_per_epoch
-    thetas = torch.empty(total + 1, start.numel(), dtype=torch.float64, device=device)
+    thetas = torch.empty(total + 1, *start.shape, dtype=torch.float64, device=device)
     thetas[0] = theta.detach()
     losses = torch.zeros(total, dtype=torch.float64, device=device)
     step, rate = 0, settings.lr
@@ -42,12 +47,20 @@ def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera
         rate_scale = settings.rate_scale(level, start) if settings.fit_depth else None
         for _ in range(settings.n_epoch):
             order = torch.randperm(n_configs, generator=generator, device="cpu").to(device)
-            epoch = _EpochLayout(train_set, order, batch_size)
+            epoch = _EpochLayout(train_set, order, batch_size, rows)
             for index in range(batches_per_epoch):
                 batch, configs = epoch.batch(index)
                 if batch.points.shape[0]:
+                    if rows is None:
+                        moves = shift_vector(theta, batch.points)
+                    else:  # each point by the sum of its rows, one row at a time
+                        point_rows = epoch.rows_of(index)
+                        shift = theta[point_rows[:, 0]]
+                        for column in range(1, point_rows.shape[1]):
+                            shift = shift + theta[point_rows[:, column]]
+                        moves = shift_vector(shift, batch.points)
                     out = layer(
-                        batch.points + shift_vector(theta, batch.points), batch.pixels,
+                        batch.points + moves, batch.pixels,
                         pyramid[level].index_select(0, configs), batch.config, batch.rank, target_is_zoomed=True,
                         validate=False,
                     )
@@ -65,13 +78,14 @@ def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera
 class _EpochLayout:
     """One epoch's shuffled configurations, their points laid out batch after batch."""
 
-    def __init__(self, data: ConfigurationSet, order: torch.Tensor, batch_size: int) -> None:
+    def __init__(self, data: ConfigurationSet, order: torch.Tensor, batch_size: int, param_rows=None) -> None:
         self.batch_size = batch_size
         self.configs = order[: (len(order) // batch_size) * batch_size]
         rows, _ = data.rows(self.configs)
         self.points = data.points.index_select(0, rows)
         self.pixels = data.pixels.index_select(0, rows)
         self.rank = data.rank.index_select(0, rows)
+        self.param_rows = None if param_rows is None else param_rows.index_select(0, rows)
         counts = data.counts.index_select(0, self.configs)
         self.local = torch.repeat_interleave(torch.arange(len(self.configs), device=order.device) % batch_size, counts)
         self.bounds = [0] + counts.view(-1, batch_size).sum(1).cumsum(0).tolist()
@@ -81,3 +95,6 @@ class _EpochLayout:
         configs = self.configs[index * self.batch_size : (index + 1) * self.batch_size]
         rows = slice(lo, hi)
         return PointBatch(self.points[rows], self.pixels[rows], self.local[rows], self.rank[rows], None), configs
+
+    def rows_of(self, index: int) -> torch.Tensor:
+        return self.param_rows[self.bounds[index] : self.bounds[index + 1]]

@@ -187,12 +187,17 @@ class RunsHistory:
 
     Attributes:
         theta: ``(steps + 1, R, 2)`` float64 ``(a, b)`` in metres of each run, before the first step and after
-            each; ``(steps + 1, R, 3)`` ``(a, b, c)`` when the runs fitted depth.
+            each; ``(steps + 1, R, 3)`` ``(a, b, c)`` when the runs fitted depth. With parameters attached to
+            points (``param_index``), ``(epochs + 1, R, K, 2)``: every row's ``(a, b)`` before the first step and
+            after each epoch (a row moves only in the steps that draw its configurations, and ``K`` rows per
+            step would make the history ``K`` times the run).
         loss: ``(steps, R)`` float64 loss ``J`` of each run's mini-batch at each step (metres; 0 where the
             run's batch held no point).
         level: ``(steps,)`` int64 zoom level of each step.
         lr: ``(steps,)`` float64 learning rate of each step (the same for every run).
         settings: the settings of each run.
+        theta_steps: ``(len(theta),)`` int64, the number of steps taken when each entry of ``theta`` was
+            recorded (``0, 1, 2, ...`` for the shared shift).
     """
 
     theta: torch.Tensor
@@ -200,6 +205,11 @@ class RunsHistory:
     level: torch.Tensor
     lr: torch.Tensor
     settings: list[TrainSettings]
+    theta_steps: torch.Tensor | None = None
+
+    def __post_init__(self) -> None:
+        if self.theta_steps is None:
+            self.theta_steps = torch.arange(self.theta.shape[0], dtype=torch.int64)
 
     @property
     def final_theta(self) -> list[tuple[float, ...]]:
@@ -217,6 +227,7 @@ def train_runs(
     theta0: Sequence[Sequence[float]] | torch.Tensor | None = None,
     method: str = "fast",
     progress: bool = False,
+    param_index: torch.Tensor | None = None,
 ) -> RunsHistory:
     """``R`` independent training runs on the same points as one program: the one training engine.
 
@@ -242,6 +253,15 @@ def train_runs(
       (:mod:`sdm.depth`); that flow is a float sum, which packed runs may round
       differently: within 1e-12 m of the reference (``test_depth.py``), to the bit for ``R = 1``.
 
+    **Parameters attached to points** (``param_index``; the paper's fundamental problem): theta is ``K``
+    rows ``(a, b)`` per run, and point ``i`` is moved by the sum of its rows ``param_index[i]`` (one column:
+    one row per point, e.g. one per configuration or one per car; two: a camera row shared by many points
+    plus a residual row). A row's flow is the sum of its points' flows, and one SGD step moves every row by
+    its own flow. ``param_index=None`` is the paper's case, ``K = 1`` row shared by every point (the
+    shift ``(a, b)``): the same engine, whose histories are unchanged. Both paths take it (the compiled one
+    moves each point by its rows' sum in the kernel); flows are exact sums, so a row's history is the same
+    whether its configuration trains alone or among others (``tests/test_rows.py``).
+
     Args:
         train_set: packed configurations; their own targets are not used (pass ``train_set.targets``
             to train on them: its zoomed-out pyramid is then the set's cached one).
@@ -251,16 +271,22 @@ def train_runs(
         camera: camera and screen; default the set's own.
         device: where to train; default the set's device. The shuffling is drawn on the CPU.
         theta0: ``None`` (every run starts at zero) or ``R`` starts ``(a, b)`` (``(a, b, c)``, or
-            ``(a, b)`` meaning ``c = 0``, with ``fit_depth``), metres.
+            ``(a, b)`` meaning ``c = 0``, with ``fit_depth``), metres; with ``param_index``, ``R`` starts
+            ``(K, 2)``.
         method: SDM implementation, ``"fast"`` or ``"dense"`` (the grid reference: one run only).
         progress: show a progress bar.
+        param_index: ``None`` (one shift for every point) or ``(P,)`` / ``(P, G)`` integer tensor over the
+            set's ``P`` points: the rows of theta that move each point (see above; any device: it is moved to
+            the set's). Every row ``0 .. K-1`` must move some point (``K = max + 1``).
 
     Returns:
         :class:`RunsHistory` (on the CPU).
 
     Raises:
         SDMInputError: naming the argument, for mismatched runs, targets or starts, a set smaller than one
-            batch, an unusable ``device``, or a theta that became non-finite (naming the run and the step).
+            batch, an unusable ``device``, a theta that became non-finite (naming the run and the step), or a
+            ``param_index`` that is not an integer tensor of ``P`` rows, holds a negative entry, leaves a row
+            with no point, or comes with ``fit_depth`` or ``method="dense"``.
     """
     settings = list(settings)
     n_runs = len(settings)
@@ -287,7 +313,12 @@ def train_runs(
         if tuple(run_targets.shape) != tuple(train_set.targets.shape) or run_targets.dtype != torch.bool:
             raise SDMInputError(f"targets[{run}] must be bool of shape {tuple(train_set.targets.shape)}, "
                                 f"got {run_targets.dtype} {tuple(run_targets.shape)}")
-    starts = _starts(theta0, n_runs, common.fit_depth, device)
+    rows = None if param_index is None else check_param_index(param_index, train_set)
+    if rows is not None and (common.fit_depth or method == "dense"):
+        raise SDMInputError("param_index: parameters attached to points train the shift (a, b) with method 'fast'; "
+                            f"got fit_depth={common.fit_depth}, method={method!r}")
+    starts = _starts(theta0, n_runs, common.fit_depth, device,
+                     n_rows=None if rows is None else int(rows.max()) + 1)
 
     levels = list(range(common.s, common.zoom - 1, -1))
     rates, rate = [], common.lr
@@ -302,10 +333,45 @@ def train_runs(
     step_levels = torch.tensor(levels, dtype=torch.int64, device="cpu").repeat_interleave(steps_per_level)
     step_rates = torch.tensor(rates, dtype=torch.float64, device="cpu").repeat_interleave(steps_per_level)
 
+    record_every = 1 if rows is None else n_configs // batch_size  # rows: after every epoch
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
         thetas, losses = _train_program(train_set, targets, own_targets, settings, camera, method, levels, rates,
-                                        orders, starts, bar)
-    return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings)
+                                        orders, starts, bar, rows, record_every)
+    return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings,
+                       torch.arange(0, total + 1, record_every, dtype=torch.int64))
+
+
+def check_param_index(param_index, train_set: ConfigurationSet) -> torch.Tensor:
+    """``param_index`` checked against ``train_set``: ``(P, G)`` int64 on the set's device.
+
+    Args:
+        param_index: ``(P,)`` or ``(P, G)`` integer tensor (``G >= 1``), the rows of theta that move each of the
+            set's ``P`` points (summed over ``G``).
+        train_set: the packed set whose points it indexes.
+
+    Raises:
+        SDMInputError: naming ``param_index`` unless it is an integer tensor of ``P`` rows and at least one
+            column with no negative entry, and naming the first row ``0 .. max`` that moves no point (a row
+            with no point would get no pull and no meaning).
+    """
+    n_points = train_set.points.shape[0]
+    if not isinstance(param_index, torch.Tensor) or param_index.dtype.is_floating_point or param_index.is_complex() \
+            or param_index.dtype == torch.bool:
+        raise SDMInputError(f"param_index must be an integer tensor, got "
+                            f"{getattr(param_index, 'dtype', type(param_index).__name__)}")
+    if param_index.dim() not in (1, 2) or param_index.shape[0] != n_points or param_index.numel() == 0 \
+            or (param_index.dim() == 2 and param_index.shape[1] == 0):
+        raise SDMInputError(f"param_index must have shape (P,) or (P, G) with P = {n_points} points of the set, "
+                            f"got {tuple(param_index.shape)}")
+    rows = param_index.reshape(n_points, -1).to(device=train_set.device, dtype=torch.int64)
+    if bool((rows < 0).any()):
+        raise SDMInputError(f"param_index must be non-negative, got {int(rows.min())}")
+    used = torch.bincount(rows.reshape(-1), minlength=int(rows.max()) + 1)
+    if bool((used == 0).any()):
+        empty = int((used == 0).nonzero()[0])
+        raise SDMInputError(f"param_index leaves row {empty} with no point (rows 0..{used.numel() - 1} must "
+                            f"each move a point)")
+    return rows.contiguous()
 
 
 @dataclass(frozen=True)
@@ -382,14 +448,15 @@ def refine_seed(seed: int) -> int:
 
 def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], settings: Sequence[TrainSettings],
                 history: RunsHistory, refinement: Refinement, camera: Camera | None = None,
-                device: torch.device | str | None = None) -> RunsHistory:
+                device: torch.device | str | None = None, param_index: torch.Tensor | None = None) -> RunsHistory:
     """``history`` (of :func:`train_runs` with these arguments) continued by ``refinement``'s passes.
 
     The passes train at level ``zoom`` only, through the whole chain ``s .. zoom`` (the forward of the
     schedule's last level), from each run's last theta, on the paths of :func:`train_runs` (compiled where
     it applies: for ``group_crossing`` on float64 CPU points; else packed runs in torch); run ``r`` shuffles
     its passes with a generator seeded :func:`refine_seed` ``(settings[r].seed)``, one permutation per pass. Returns the whole history: the
-    steps of ``history``, then those of the passes.
+    steps of ``history``, then those of the passes. ``param_index``: that of :func:`train_runs` (the passes move
+    the same rows).
     """
     settings = list(settings)
     passes = [replace(one, n_epoch=1, flow=refinement.flow,
@@ -402,15 +469,20 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     orders = _shufflings([refine_seed(one.seed) for one in settings], len(train_set), refinement.epochs)
     rates = refinement.rates(common)
     starts = history.theta[-1].to(train_set.device)
+    rows = None if param_index is None else check_param_index(param_index, train_set)
+    per_pass = len(train_set) // common.batch_size
+    record_every = 1 if rows is None else per_pass
     with tqdm(total=0, disable=True) as bar:
         thetas, losses = _train_program(train_set, targets, own_targets, passes, camera, "fast",
-                                        [common.zoom] * refinement.epochs, rates, orders, starts, bar)
-    per_pass = len(train_set) // common.batch_size
+                                        [common.zoom] * refinement.epochs, rates, orders, starts, bar, rows,
+                                        record_every)
+    done = int(history.theta_steps[-1])
+    steps = torch.arange(record_every, refinement.epochs * per_pass + 1, record_every, dtype=torch.int64) + done
     return RunsHistory(torch.cat((history.theta, thetas[1:].cpu())), torch.cat((history.loss, losses.cpu())),
                        torch.cat((history.level, torch.full((refinement.epochs * per_pass,), common.zoom,
                                                             dtype=torch.int64))),
                        torch.cat((history.lr, torch.tensor(rates, dtype=torch.float64).repeat_interleave(per_pass))),
-                       settings)
+                       settings, torch.cat((history.theta_steps, steps)))
 
 
 def _shufflings(seeds: Sequence[int], n_configs: int, n_epochs: int) -> torch.Tensor:
@@ -450,11 +522,22 @@ def _usable_device(device: torch.device | str) -> torch.device:
     return device
 
 
-def _starts(theta0, n_runs: int, fit_depth: bool, device: torch.device) -> torch.Tensor:
-    """``(R, 2)`` (``(R, 3)`` with ``fit_depth``) float64 starts on ``device``; zeros for ``None``."""
+def _starts(theta0, n_runs: int, fit_depth: bool, device: torch.device, n_rows: int | None = None) -> torch.Tensor:
+    """``(R, 2)`` (``(R, 3)`` with ``fit_depth``, ``(R, K, 2)`` with ``n_rows = K``) float64 starts on
+    ``device``; zeros for ``None``."""
     n_params = 3 if fit_depth else 2
     if theta0 is None:
-        return torch.zeros(n_runs, n_params, dtype=torch.float64, device=device)
+        shape = (n_runs, n_params) if n_rows is None else (n_runs, n_rows, 2)
+        return torch.zeros(shape, dtype=torch.float64, device=device)
+    if n_rows is not None:
+        if len(theta0) != n_runs:
+            raise SDMInputError(f"theta0 must hold one start per run ({n_runs}), got {len(theta0)}")
+        starts = [torch.as_tensor(one, dtype=torch.float64, device="cpu") for one in theta0]
+        for run, start in enumerate(starts):
+            if start.shape != (n_rows, 2) or not bool(torch.isfinite(start).all()):
+                raise SDMInputError(f"theta0[{run}] must be ({n_rows}, 2) finite numbers (one (a, b) per row of "
+                                    f"param_index), got shape {tuple(start.shape)}")
+        return torch.stack(starts).to(device)
     if len(theta0) != n_runs:
         raise SDMInputError(f"theta0 must hold one start per run ({n_runs}), got {len(theta0)}")
     starts = []
@@ -469,35 +552,60 @@ def _starts(theta0, n_runs: int, fit_depth: bool, device: torch.device) -> torch
     return torch.stack(starts)
 
 
-def _train_program(train_set, targets, own_targets, settings, camera, method, levels, rates, orders, starts, bar):
+def _train_program(train_set, targets, own_targets, settings, camera, method, levels, rates, orders, starts, bar,
+                   rows=None, record_every=1):
     """The steps of :func:`train_runs` at ``levels`` (``settings[0].n_epoch`` epochs each, rates ``rates``,
     shufflings ``orders``) from ``starts``, on the compiled path where it applies, else the torch path:
-    ``(thetas (steps + 1, R, n), losses (steps, R))`` on the set's device."""
+    ``(thetas (steps / record_every + 1, R, ...), losses (steps, R))`` on the set's device. ``rows``: ``None``
+    or the checked ``(P, G)`` param_index (:func:`check_param_index`)."""
     common = settings[0]
     device = train_set.device
     windows = [kernel_form(common.flow, level) for level in levels]
+    if rows is not None and "crossing" in windows:
+        _check_rigid_rows(train_set, rows)
     if not (method == "fast" and not common.fit_depth and None not in windows and device.type == "cpu"
             and train_set.points.dtype == torch.float64 and native.enabled()
             and native.trains_screen(camera.screen_shape)):
         pyramids = _run_pyramids(train_set, targets, own_targets, common.s)  # run r's levels 0..s
-        return _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar)
+        return _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar,
+                            rows, record_every)
     bases = [run_targets.to(device) for run_targets in targets]
     run_levels = [_kernel_targets(train_set, base, own, common.s, levels)
                   for base, own in zip(bases, own_targets)]
     thetas, losses, failed = native.train_program(
         train_set.points, train_set.pixels, train_set.rank, train_set.offsets, camera, common.s, levels,
-        common.n_epoch, common.batch_size, rates, windows, orders, run_levels, starts, bases)
+        common.n_epoch, common.batch_size, rates, windows, orders, run_levels, starts, bases, rows, record_every)
     if bool((failed >= 0).any()):
         step = int(failed[failed >= 0].min())
         run = int((failed == step).nonzero()[0])
         rate = rates[step // (common.n_epoch * (len(train_set) // common.batch_size))]
         raise SDMInputError(f"theta of run {run} became non-finite at step {step + 1} (lr {rate!r} too large?)")
-    bar.update(thetas.shape[0] - 1)
+    bar.update(losses.shape[0])
     return thetas, losses
 
 
-def _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar):
-    """The torch path of :func:`train_runs`: ``(thetas (steps + 1, R, n), losses (steps, R))`` on the set's device."""
+def _check_rigid_rows(train_set: ConfigurationSet, rows: torch.Tensor) -> None:
+    """:class:`SDMInputError` naming ``param_index`` where a rigid group of ``group_crossing`` (the points of one
+    configuration at one depth, :func:`sdm.mapping.crossing.rigid_groups`) holds points of different rows: the
+    rule moves each group as one, which then would not be one shift."""
+    from .mapping.crossing import rigid_groups
+
+    if rows.shape[0] == 0:
+        return
+    config = torch.repeat_interleave(torch.arange(len(train_set), device=train_set.device), train_set.counts)
+    group, first = rigid_groups(train_set.points[:, :2], train_set.points[:, 2], config)
+    differs = (rows != rows.index_select(0, first.index_select(0, group))).any(1)
+    if bool(differs.any()):
+        point = int(differs.nonzero()[0])
+        raise SDMInputError(f"param_index: group_crossing moves the points of one configuration at one depth as "
+                            f"one, but point {point} of configuration {int(config[point])} has rows "
+                            f"{rows[point].tolist()} and another point at its depth has others")
+
+
+def _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar, rows=None,
+                 record_every=1):
+    """The torch path of :func:`train_runs`: ``(thetas (steps / record_every + 1, R, ...), losses (steps, R))`` on
+    the set's device."""
     common, n_runs = settings[0], len(settings)
     device, batch_size = train_set.device, common.batch_size
     # Run r's target of configuration c is row r * N + c of each level.
@@ -508,7 +616,7 @@ def _train_torch(train_set, pyramids, settings, camera, method, levels, rates, o
                                           fit_depth=common.fit_depth) for level in levels}
     theta = starts.clone().requires_grad_(True)
     total = len(levels) * common.n_epoch * (len(train_set) // batch_size)
-    thetas = torch.empty(total + 1, *theta.shape, dtype=torch.float64, device=device)
+    thetas = torch.empty(total // record_every + 1, *theta.shape, dtype=torch.float64, device=device)
     thetas[0] = theta.detach()
     losses = torch.zeros(total, n_runs, dtype=torch.float64, device=device)
     step = 0
@@ -517,13 +625,21 @@ def _train_torch(train_set, pyramids, settings, camera, method, levels, rates, o
         rate_scale = common.rate_scale(level, theta) if common.fit_depth else None
         for epoch_index in range(common.n_epoch):
             epoch = _RunsEpochLayout(train_set, orders[index_level * common.n_epoch + epoch_index].to(device),
-                                     batch_size)
+                                     batch_size, rows)
             for index in range(epoch.steps):
                 batch, target_rows, run_of_point, run_bounds = epoch.batch(index)
                 if batch.points.shape[0]:  # a step where every run drew empty configurations pulls nothing
+                    if rows is not None:  # each point moved by the sum of its rows of its run's theta
+                        point_rows = epoch.rows_of(index)
+                        shift = theta[run_of_point, point_rows[:, 0]]
+                        for column in range(1, point_rows.shape[1]):  # in column order, as the kernel sums
+                            shift = shift + theta[run_of_point, point_rows[:, column]]
+                        moves = shift_vector(shift, batch.points)
                     # One run: theta broadcast, so that autograd sums the flow as the single-run loop did.
-                    moves = (shift_vector(theta[0], batch.points) if n_runs == 1
-                             else shift_vector(theta, batch.points).index_select(0, run_of_point))  # (P, 3)
+                    elif n_runs == 1:
+                        moves = shift_vector(theta[0], batch.points)
+                    else:
+                        moves = shift_vector(theta, batch.points).index_select(0, run_of_point)  # (P, 3)
                     if n_runs > 1:
                         rule.bounds = run_bounds
                     out = layers[level](
@@ -535,13 +651,14 @@ def _train_torch(train_set, pyramids, settings, camera, method, levels, rates, o
                         theta -= rate * theta.grad if not common.fit_depth else rate * rate_scale * theta.grad
                     theta.grad = None
                     losses[step] = out.loss.detach() if n_runs == 1 else rule.losses
-                    finite = torch.isfinite(theta).all(1)
+                    finite = torch.isfinite(theta).reshape(n_runs, -1).all(1)
                     if not bool(finite.all()):
                         run = int((~finite).nonzero()[0])
                         raise SDMInputError(f"theta of run {run} became non-finite at step {step + 1} "
                                             f"(lr {rate!r} too large?)")
-                thetas[step + 1] = theta.detach()
                 step += 1
+                if step % record_every == 0:
+                    thetas[step // record_every] = theta.detach()
                 bar.update()
     return thetas, losses
 
@@ -584,7 +701,8 @@ class _RunsEpochLayout:
     configuration ``j`` of run ``r`` is batch configuration ``r * batch_size + j``.
     """
 
-    def __init__(self, data: ConfigurationSet, orders: torch.Tensor, batch_size: int) -> None:
+    def __init__(self, data: ConfigurationSet, orders: torch.Tensor, batch_size: int,
+                 param_rows: torch.Tensor | None = None) -> None:
         n_runs, n_configs = orders.shape
         self.batch_size, self.n_runs = batch_size, n_runs
         self.steps = steps = n_configs // batch_size
@@ -596,6 +714,7 @@ class _RunsEpochLayout:
         self.points = data.points.index_select(0, rows)
         self.pixels = data.pixels.index_select(0, rows)
         self.rank = data.rank.index_select(0, rows)
+        self.param_rows = None if param_rows is None else param_rows.index_select(0, rows)  # (P_epoch, G)
         per_run = data.counts.index_select(0, self.configs).view(steps, n_runs, batch_size).sum(2)  # (steps, R)
         self.local = position % (n_runs * batch_size)
         self.run = torch.div(self.local, batch_size, rounding_mode="floor")
@@ -611,3 +730,7 @@ class _RunsEpochLayout:
         rows = slice(lo, hi)
         batch = PointBatch(self.points[rows], self.pixels[rows], self.local[rows], self.rank[rows], None)
         return batch, target_rows, self.run[rows], self.run_bounds[index]
+
+    def rows_of(self, index: int) -> torch.Tensor:
+        """``(P_step, G)`` int64: the param_index rows of step ``index``'s points."""
+        return self.param_rows[self.bounds[index] : self.bounds[index + 1]]

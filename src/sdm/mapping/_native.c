@@ -356,14 +356,17 @@ static inline int32_t floor_clamped(double x) {
     return (int32_t)((f > -PROJECTED_LIMIT && f < 9223372036854775808.0) ? clamped : -PROJECTED_LIMIT);
 }
 
-/* The projection of one configuration's n points moved by (a, b, 0), as sdm.camera.Camera.project evaluates
- * it, to screen (row, col) = ((fy * y / z + cy) * rows_per_pixel - H, (fx * x / z + cx) * cols_per_pixel - 0)
- * and its floor. Elementwise IEEE operations in the torch path's order: a vectorised lane rounds as the
- * scalar operation does (no reassociation without -ffast-math, no fused multiply-add with -ffp-contract=off). */
-static inline void project(int64_t n, const double *restrict q, double a, double b, double fx, double fy, double cx,
-                           double cy, double rows_per_pixel, double cols_per_pixel, double screen_height,
-                           double *restrict screen, int32_t *restrict projected) {
+/* The projection of one configuration's n points, point i moved by (a_i, b_i, 0) = shift[stride * i ..], as
+ * sdm.camera.Camera.project evaluates it, to screen (row, col) = ((fy * y / z + cy) * rows_per_pixel - H,
+ * (fx * x / z + cx) * cols_per_pixel - 0) and its floor. stride 0: one shift (a, b) for every point (the
+ * paper's case); 2: a shift per point (parameters attached to points). Elementwise IEEE operations in the
+ * torch path's order: a vectorised lane rounds as the scalar operation does (no reassociation without
+ * -ffast-math, no fused multiply-add with -ffp-contract=off). */
+static inline void project(int64_t n, const double *restrict q, const double *restrict shift, int64_t stride,
+                           double fx, double fy, double cx, double cy, double rows_per_pixel, double cols_per_pixel,
+                           double screen_height, double *restrict screen, int32_t *restrict projected) {
     for (int64_t i = 0; i < n; ++i) {
+        const double a = shift[stride * i], b = shift[stride * i + 1];
         const double x = q[3 * i] + a, y = q[3 * i + 1] + b, z = q[3 * i + 2] + 0.0;
         const double row = ((fy * y) / z + cy) * rows_per_pixel - screen_height;
         const double col = ((fx * x) / z + cx) * cols_per_pixel - 0.0;
@@ -453,10 +456,11 @@ static inline int64_t train_chain(int64_t n, const int32_t *restrict projected, 
  * order on each lane as the scalar loop (vaddpd, vmulpd, vdivpd, vsubpd round as their scalar forms;
  * vroundpd's floor is exact), the clamp by compare and blend as floor_clamped's selects. */
 __attribute__((target("avx2"), noinline)) static void project_avx2(
-    int64_t n, const double *restrict q, double a, double b, double fx, double fy, double cx, double cy,
-    double rows_per_pixel, double cols_per_pixel, double screen_height, double *restrict screen,
-    int32_t *restrict projected) {
-    const __m256d shift = _mm256_set_pd(a, b, a, b), focal = _mm256_set_pd(fx, fy, fx, fy);
+    int64_t n, const double *restrict q, const double *restrict shifts, int64_t stride, double fx, double fy,
+    double cx, double cy, double rows_per_pixel, double cols_per_pixel, double screen_height,
+    double *restrict screen, int32_t *restrict projected) {
+    const double a = shifts[0], b = shifts[1];
+    const __m256d shared = _mm256_set_pd(a, b, a, b), focal = _mm256_set_pd(fx, fy, fx, fy);
     const __m256d centre = _mm256_set_pd(cx, cy, cx, cy);
     const __m256d per_pixel = _mm256_set_pd(cols_per_pixel, rows_per_pixel, cols_per_pixel, rows_per_pixel);
     const __m256d origin = _mm256_set_pd(0.0, screen_height, 0.0, screen_height);
@@ -466,6 +470,8 @@ __attribute__((target("avx2"), noinline)) static void project_avx2(
     for (; i + 2 <= n; i += 2) {
         const double *p = q + 3 * i;
         const double z0 = p[2] + 0.0, z1 = p[5] + 0.0;
+        const double *own = shifts + stride * i; /* (a_i, b_i, a_i+1, b_i+1) with stride 2 */
+        const __m256d shift = stride ? _mm256_set_pd(own[2], own[3], own[0], own[1]) : shared;
         const __m256d moved = _mm256_add_pd(_mm256_set_pd(p[3], p[4], p[0], p[1]), shift); /* (y, x, y, x) */
         const __m256d uv = _mm256_add_pd(_mm256_div_pd(_mm256_mul_pd(focal, moved), _mm256_set_pd(z1, z1, z0, z0)),
                                          centre);
@@ -476,8 +482,8 @@ __attribute__((target("avx2"), noinline)) static void project_avx2(
         const __m256d ok = _mm256_and_pd(_mm256_cmp_pd(f, low, _CMP_GT_OQ), _mm256_cmp_pd(f, int64_end, _CMP_LT_OQ));
         _mm_storeu_si128((__m128i *)(projected + 2 * i), _mm256_cvttpd_epi32(_mm256_blendv_pd(low, clamped, ok)));
     }
-    project(n - i, q + 3 * i, a, b, fx, fy, cx, cy, rows_per_pixel, cols_per_pixel, screen_height, screen + 2 * i,
-            projected + 2 * i);
+    project(n - i, q + 3 * i, shifts + stride * i, stride, fx, fy, cx, cy, rows_per_pixel, cols_per_pixel,
+            screen_height, screen + 2 * i, projected + 2 * i);
 }
 #endif
 /* One level up a pyramid of 0/1 targets: n targets of h x w (h, w even) to h/2 x w/2, each block the OR of its
@@ -603,7 +609,9 @@ static int64_t crossing_changes(int64_t n, const int32_t *restrict projected, in
     return n_target + distinct - 2 * hit;
 }
 
-/* One configuration's crossing flow into (grad_a, grad_b) and its mismatch (returned). Its integer part
+/* One configuration's crossing flow into grad and its mismatch (returned): group g's pull goes to the rows
+ * of its first point (rows: the configuration's points' n_cols rows each; NULL: every point moves by row 0,
+ * the paper's case), grad holding (grad_a, grad_b) per row. Its integer part
  * depends on the points' pixels alone, so where they are the ones of the configuration's last call in this
  * run (known: its mismatch >= 0, its pixels in known_pixels, 2n int32, its groups' lowered changes in
  * `lower`, 4 int32 per group), that part is taken as it was: the same integers; a refinement pass moves theta
@@ -615,7 +623,7 @@ static int64_t crossing_pull(int64_t n, const double *restrict screen, const int
                              int64_t width, double k_row, double k_col, const double *crossing, int32_t *restrict cover,
                              uint32_t *restrict stamp, int64_t padded_cells, int64_t n_target,
                              int32_t *restrict known_pixels, int32_t *restrict lower, int64_t *known_mismatch,
-                             double *grad_a, double *grad_b) {
+                             const int64_t *rows, int64_t n_cols, double *grad) {
     int same = *known_mismatch >= 0;
     for (int64_t j = 0; j < 2 * n && same; ++j) same = known_pixels[j] == projected[j];
     if (!same) {
@@ -623,7 +631,6 @@ static int64_t crossing_pull(int64_t n, const double *restrict screen, const int
                                            cover, stamp, padded_cells, n_target, lower);
         for (int64_t j = 0; j < 2 * n; ++j) known_pixels[j] = projected[j];
     }
-    double pull_a = 0.0, pull_b = 0.0;
     for (int64_t g = g_lo; g < g_hi; ++g) {
         double lowered[4];
         for (int k = 0; k < 4; ++k) lowered[k] = (double)lower[4 * g + k];
@@ -638,11 +645,13 @@ static int64_t crossing_pull(int64_t n, const double *restrict screen, const int
         const double behind_col = crossing_kernel(sub_col / gain_col, crossing[0], crossing[2]);
         const double pull_y = lowered[1] * behind_row - lowered[0] * ahead_row;
         const double pull_x = lowered[3] * behind_col - lowered[2] * ahead_col;
-        pull_a += crossing[1] * pull_x;
-        pull_b += crossing[1] * pull_y;
+        /* every term an exact binary fraction: the sums are the same in any order and grouping */
+        for (int64_t col = 0; col < (rows ? n_cols : 1); ++col) {
+            const int64_t row = rows ? rows[first * n_cols + col] : 0;
+            grad[2 * row] += crossing[1] * pull_x;
+            grad[2 * row + 1] += crossing[1] * pull_y;
+        }
     }
-    *grad_a += pull_a;
-    *grad_b += pull_b;
     return *known_mismatch;
 }
 
@@ -704,16 +713,20 @@ static void close3(int64_t h, int64_t w, const uint8_t *restrict src, uint8_t *r
  *          is 0, then N * H * W more where any level is mode 1 (the closed targets), reused
  *          by the runs and (kept by the caller) the calls: in torch (zoom.target_pyramid) a noise run's
  *          pyramid cost a tenth of its training, most of it in the first touch of fresh pages
- * theta0:  (R, 2) starts (a, b), metres
- * Outputs: thetas (total + 1, R, 2) theta before the first step and after each; losses (total, R);
- *          failed (R,) the step (0-based) at which run r's theta became non-finite (the run stops
- *          there; later entries unwritten), -1 where it did not.
+ * Parameters attached to points: theta is K rows (a, b); point i is moved by the sum of its n_cols rows
+ *          param_index[i * n_cols ..] (in column order, as torch sums them). param_index NULL: K = 1 and every
+ *          point moves by row 0 (the paper's shared shift). A row's flow is the sum of its points' flows.
+ * theta0:  (R, K, 2) starts (a, b), metres
+ * Outputs: thetas (total / record_every + 1, R, K, 2) theta before the first step and after every
+ *          record_every-th step; losses (total, R); failed (R,) the step (0-based) at which run r's theta
+ *          became non-finite (the run stops there; later entries unwritten), -1 where it did not.
  *
- * A step of run r: point = q + (a, b, 0); the projection as sdm.camera.Camera.project evaluates it
+ * A step of run r: point = q + (a, b, 0), (a, b) its rows' sum; the projection as sdm.camera.Camera.project evaluates it
  * (same operations, same order: project); the chain per configuration (train_chain: chain_level's
  * integer arithmetic in int32); the flow by
- * window_pull; grad = the summed flow (integers: exact in any order); theta = theta - rate * grad
- * (two roundings, as torch's theta -= rate * theta.grad). A batch without points pulls nothing. At a
+ * window_pull; grad = the summed flow per row (integers: exact in any order); theta = theta - rate * grad
+ * (two roundings, as torch's theta -= rate * theta.grad) on the rows the batch's points move (the others'
+ * grad is 0: theta - rate * 0 is theta, as torch's step leaves them). A batch without points pulls nothing. At a
  * mode-2 level the flow and loss are crossing_pull's (the loss: the mismatched pixels, summed exactly).
  * The loss is the sum over the pulled points of l1_row * (z / k_row) + l1_col * (z / k_col), the
  * products as sdm.mapping.flow.pull_loss forms them, the sum compensated in point order (torch's
@@ -728,11 +741,12 @@ static void close3(int64_t h, int64_t w, const uint8_t *restrict src, uint8_t *r
         int64_t n_epoch, int64_t batch_size, const int64_t *levels, const double *rates, const uint8_t *modes,      \
         const int64_t *config_group, const int64_t *group_start, const int32_t *members, const double *crossing,   \
         const int64_t *orders, const int64_t *targets, const int64_t *bases, uint8_t *pyramid, int64_t no_rank,     \
-        const double *theta0, double *thetas, double *losses, int64_t *failed
+        int64_t n_rows, int64_t n_cols, const int64_t *param_index, int64_t record_every, const double *theta0,     \
+        double *thetas, double *losses, int64_t *failed
 #define TRAIN_ARGUMENTS                                                                                          \
     n_runs, n_configs, offsets, points, pixels, rank, height, width, camera, steps, n_levels, n_epoch, batch_size, \
         levels, rates, modes, config_group, group_start, members, crossing, orders, targets, bases, pyramid,       \
-        no_rank, theta0, thetas, losses, failed
+        no_rank, n_rows, n_cols, param_index, record_every, theta0, thetas, losses, failed
 
 /* Points projected per piece between prefetches (even: AVX2's pairs cover every piece but the last). */
 #define PROJECT_PIECE 32
@@ -784,6 +798,13 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     int32_t *known_pixels = crosses ? malloc(sizeof(int32_t) * (size_t)(2 * offsets[n_configs] + 1)) : NULL;
     int32_t *known_lower = crosses ? malloc(sizeof(int32_t) * (size_t)(4 * n_groups + 1)) : NULL;
     int64_t *known_mismatch = crosses ? malloc(sizeof(int64_t) * (size_t)n_configs) : NULL;
+    /* the rows: each run's theta, a batch's summed flow per row, the rows it moved, each point's shift */
+    const int64_t row_cols = param_index ? n_cols : 1;
+    double *theta = malloc(sizeof(double) * (size_t)(2 * n_rows));
+    double *grad = calloc((size_t)(2 * n_rows), sizeof(double));
+    int64_t *moved_rows = malloc(sizeof(int64_t) * (size_t)(n_rows + 1));
+    uint8_t *row_moved = calloc((size_t)n_rows + 1, 1);
+    double *shift = param_index ? malloc(sizeof(double) * (size_t)largest * 2) : NULL;
     int closes = 0;
     for (int64_t li = 0; li < n_levels; ++li) closes |= modes[li] == 1;
     uint8_t *closed_done = closes ? malloc((size_t)n_configs) : NULL, *close_tmp = closes ? malloc((size_t)cells) : NULL;
@@ -793,7 +814,8 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
         level_start[k] = level_start[k - 1] + n_configs * (height >> (k - 1)) * (width >> (k - 1));
     uint8_t *closed = pyramid + (zooms_any(n_runs, n_levels, targets, levels) ? level_start[steps + 1] : 0);
     int64_t code = 0;
-    if (no_memory || !screen || !rows || !cell_min || !pulled || !alive || !pixels32 || !rank32 ||
+    if (no_memory || !screen || !rows || !cell_min || !pulled || !alive || !pixels32 || !rank32 || !theta || !grad ||
+        !moved_rows || !row_moved || (param_index && !shift) ||
         (crosses && (!cover || !stamp || !n_target || !known_pixels || !known_lower || !known_mismatch)) ||
         (closes && (!closed_done || !close_tmp))) {
         code = -1;
@@ -804,10 +826,9 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     for (int64_t i = 0; i < 2 * (cells + 1); ++i) cell_min[i] = NO_RANK32;
     int32_t *table[2] = {cell_min, cell_min + cells + 1};
 
+    const int64_t run_size = 2 * n_rows; /* doubles of one run's theta */
     for (int64_t run = 0; run < n_runs; ++run) {
-        double a = theta0[2 * run], b = theta0[2 * run + 1];
-        thetas[2 * run] = a;
-        thetas[2 * run + 1] = b;
+        for (int64_t k = 0; k < run_size; ++k) thetas[run * run_size + k] = theta[k] = theta0[run * run_size + k];
         failed[run] = -1;
         int64_t step = 0;
         const uint8_t *base = (const uint8_t *)(intptr_t)bases[run];
@@ -835,12 +856,35 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
             for (int64_t epoch = 0; epoch < n_epoch && failed[run] < 0; ++epoch) {
                 const int64_t *order = orders + ((li * n_epoch + epoch) * n_runs + run) * n_configs;
                 for (int64_t batch = 0; batch < batches; ++batch) {
-                    double grad_a = 0.0, grad_b = 0.0;
                     exact_sum loss = {0.0, 0.0};
+                    int64_t n_moved = 0;
+                    if (!param_index) { /* the shared shift: row 0 moves every point */
+                        moved_rows[n_moved++] = 0;
+                        row_moved[0] = 1;
+                    }
                     for (int64_t j = 0; j < batch_size; ++j) {
                         const int64_t c = order[batch * batch_size + j];
                         const int64_t lo = offsets[c], n = offsets[c + 1] - lo;
                         const uint8_t *own = target + c * grid_h * grid_w;
+                        const int64_t *own_rows = param_index ? param_index + lo * n_cols : NULL;
+                        if (param_index) /* each point's shift: its rows summed in column order */
+                            for (int64_t i = 0; i < n; ++i) {
+                                const int64_t *its = own_rows + i * n_cols;
+                                double a = theta[2 * its[0]], b = theta[2 * its[0] + 1];
+                                for (int64_t col = 1; col < n_cols; ++col) {
+                                    a = a + theta[2 * its[col]];
+                                    b = b + theta[2 * its[col] + 1];
+                                }
+                                shift[2 * i] = a;
+                                shift[2 * i + 1] = b;
+                                for (int64_t col = 0; col < n_cols; ++col)
+                                    if (!row_moved[its[col]]) {
+                                        row_moved[its[col]] = 1;
+                                        moved_rows[n_moved++] = its[col];
+                                    }
+                            }
+                        const double *shifts = param_index ? shift : theta;
+                        const int64_t stride = param_index ? 2 : 0;
                         if (mode == 1) {
                             uint8_t *closed_own = closed + c * grid_h * grid_w;
                             if (!closed_done[c]) close3(grid_h, grid_w, own, closed_own, close_tmp);
@@ -868,12 +912,14 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
                             const int64_t m = n - at < PROJECT_PIECE ? n - at : PROJECT_PIECE;
 #ifdef TRAIN_AVX2
                             if (wide)
-                                project_avx2(m, points + 3 * (lo + at), a, b, fx, fy, cx, cy, rows_per_pixel,
-                                             cols_per_pixel, screen_height, screen + 2 * at, projected + 2 * at);
+                                project_avx2(m, points + 3 * (lo + at), shifts + stride * at, stride, fx, fy, cx, cy,
+                                             rows_per_pixel, cols_per_pixel, screen_height, screen + 2 * at,
+                                             projected + 2 * at);
                             else
 #endif
-                                project(m, points + 3 * (lo + at), a, b, fx, fy, cx, cy, rows_per_pixel,
-                                        cols_per_pixel, screen_height, screen + 2 * at, projected + 2 * at);
+                                project(m, points + 3 * (lo + at), shifts + stride * at, stride, fx, fy, cx, cy,
+                                        rows_per_pixel, cols_per_pixel, screen_height, screen + 2 * at,
+                                        projected + 2 * at);
                             prefetch_some(&plan, per_piece);
                         }
                         prefetch_some(&plan, INT64_MAX);
@@ -884,7 +930,8 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
                             const int64_t mismatch = crossing_pull(
                                 n, screen, projected, points + 3 * lo, config_group[c], config_group[c + 1], group_start,
                                 members, own, height, width, k_row, k_col, crossing, cover, stamp, padded_cells,
-                                n_target[c], known_pixels + 2 * lo, known_lower, known_mismatch + c, &grad_a, &grad_b);
+                                n_target[c], known_pixels + 2 * lo, known_lower, known_mismatch + c, own_rows, n_cols,
+                                grad);
                             sum_add(&loss, (double)mismatch);
                             continue;
                         }
@@ -901,20 +948,32 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
                             double pull[2], l1[2];
                             window_pull(screen[2 * i], screen[2 * i + 1], centre_row, centre_col, skip, own, grid_h,
                                         grid_w, block_size, pull, l1);
-                            grad_a += pull[1]; /* (row, col) -> (x, y) */
-                            grad_b += pull[0];
+                            for (int64_t col = 0; col < row_cols; ++col) { /* (row, col) -> (x, y) */
+                                const int64_t row = own_rows ? own_rows[i * n_cols + col] : 0;
+                                grad[2 * row] += pull[1];
+                                grad[2 * row + 1] += pull[0];
+                            }
                             const double z = points[3 * (lo + i) + 2] + 0.0;
                             sum_add(&loss, l1[0] * (z / k_row));
                             sum_add(&loss, l1[1] * (z / k_col));
                         }
                     }
-                    const double move_a = rate * grad_a, move_b = rate * grad_b;
-                    a = a - move_a;
-                    b = b - move_b;
+                    int finite = 1;
+                    for (int64_t m = 0; m < n_moved; ++m) { /* theta = theta - rate * grad on the moved rows */
+                        const int64_t row = moved_rows[m];
+                        const double move_a = rate * grad[2 * row], move_b = rate * grad[2 * row + 1];
+                        theta[2 * row] = theta[2 * row] - move_a;
+                        theta[2 * row + 1] = theta[2 * row + 1] - move_b;
+                        finite &= isfinite(theta[2 * row]) && isfinite(theta[2 * row + 1]);
+                        grad[2 * row] = grad[2 * row + 1] = 0.0;
+                        row_moved[row] = 0;
+                    }
                     losses[step * n_runs + run] = loss.sum + loss.compensation;
-                    thetas[((step + 1) * n_runs + run) * 2] = a;
-                    thetas[((step + 1) * n_runs + run) * 2 + 1] = b;
-                    if (!isfinite(a) || !isfinite(b)) {
+                    if ((step + 1) % record_every == 0 || !finite) {
+                        double *record = thetas + (((step + record_every) / record_every) * n_runs + run) * run_size;
+                        for (int64_t k = 0; k < run_size; ++k) record[k] = theta[k];
+                    }
+                    if (!finite) {
                         failed[run] = step;
                         break;
                     }
@@ -926,7 +985,7 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
 done:
     free(dense), free(screen), free(rows), free(cell_min), free(pulled), free(alive), free(pixels32), free(rank32);
     free(cover), free(stamp), free(n_target), free(known_pixels), free(known_lower), free(known_mismatch);
-    free(closed_done), free(close_tmp);
+    free(closed_done), free(close_tmp), free(theta), free(grad), free(moved_rows), free(row_moved), free(shift);
     return code;
 }
 

@@ -100,7 +100,7 @@ SIGNATURES: dict[str, tuple[object, list]] = {
     "sdm_paper_flow": (_I64, [_I64, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _I64,
                               _PTR, _PTR, _PTR, _PTR]),
     "sdm_train": (_I64, [_I64, _I64, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _PTR, _I64, _I64, _I64, _I64,
-                         *[_PTR] * 11, _I64, _PTR, _PTR, _PTR, _PTR]),
+                         *[_PTR] * 11, _I64, _I64, _I64, _PTR, _I64, _PTR, _PTR, _PTR, _PTR]),
     "sdm_noise_fill": (_I64, [_I64, _PTR, _I64, _PTR, _PTR, _I64, _I64, _PTR, _PTR, _I64]),
     # the CMA-ES baseline's count (pixel_mismatch below)
     "sdm_pixel_mismatch": (None, [_I64, _PTR, _I64, _I64, *[_PTR] * 8, _I64, _I64, _PTR, _I64, _I64,
@@ -417,7 +417,8 @@ def trains_screen(screen_shape) -> bool:
 def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor, offsets: torch.Tensor,
                   camera, steps: int, levels: list[int], n_epoch: int, batch_size: int, rates: list[float],
                   windows: list[str], orders: torch.Tensor, targets: list[list[torch.Tensor | None]],
-                  theta0: torch.Tensor, bases: list[torch.Tensor] | None = None):
+                  theta0: torch.Tensor, bases: list[torch.Tensor] | None = None,
+                  param_index: torch.Tensor | None = None, record_every: int = 1):
     """``R`` whole SGD runs in one call (``sdm_train``): the compiled path of :func:`sdm.train.train_runs`.
 
     Args:
@@ -437,15 +438,23 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
             ``None``: the kernel zooms ``bases[r]`` out to that level itself (as
             :func:`sdm.zoom.target_pyramid`; into one buffer the runs reuse, which spares each noise run the
             allocation and passes of a fresh pyramid).
-        theta0: ``(R, 2)`` float64 starts ``(a, b)``, metres.
+        theta0: ``(R, 2)`` float64 starts ``(a, b)``, metres; ``(R, K, 2)`` with ``param_index``.
         bases: ``R`` ``(N, H, W)`` bool level-0 targets, one per run (needed where ``targets`` holds ``None``).
+        param_index: ``None`` (every point moved by the one shared shift) or ``(P, G)`` int64, checked by the
+            caller (:func:`sdm.train.train_runs`): point ``i`` is moved by the sum of rows
+            ``param_index[i, 0..G-1]`` of its run's ``(K, 2)`` theta, and each of those rows takes its flow.
+            With ``group_crossing``, every rigid group's points must share their rows.
+        record_every: theta is recorded before the first step and after every ``record_every``-th step (the
+            total number of steps must be a multiple of it).
 
     All tensors on the CPU (non-contiguous ones are copied); the results too.
 
     Returns:
-        ``(thetas, losses, failed)``: ``(steps_total + 1, R, 2)`` float64 theta before the first step and after
-        each, ``(steps_total, R)`` float64 loss of each step (metres), ``(R,)`` int64 the 0-based step at which
-        the run's theta became non-finite (its later entries are not written), ``-1`` where it did not.
+        ``(thetas, losses, failed)``: ``(steps_total / record_every + 1, R, 2)`` float64 theta before the first
+        step and after every ``record_every``-th (``(..., R, K, 2)`` with ``param_index``), ``(steps_total, R)``
+        float64 loss of each step (metres), ``(R,)`` int64 the 0-based step at which the run's theta became
+        non-finite (the record after it holds the non-finite theta, later ones are not written), ``-1`` where it
+        did not.
     """
     points, pixels, rank, offsets, orders, theta0 = (
         t.contiguous() for t in (points, pixels, rank, offsets, orders, theta0))
@@ -456,6 +465,12 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
         raise ValueError("train_program: a level left to the kernel (None) needs the run's level-0 target in bases")
     device = points.device
     total = len(levels) * n_epoch * (n_configs // batch_size)
+    if total % record_every:
+        raise ValueError(f"train_program: {total} steps are not a multiple of record_every {record_every}")
+    if param_index is not None:
+        param_index = param_index.reshape(points.shape[0], -1).contiguous()
+    row_shape = tuple(theta0.shape[1:])  # (2,), or (K, 2) with param_index
+    n_rows = theta0.shape[1] if param_index is not None else 1
     constants = torch.tensor([camera.fx, camera.fy, camera.cx, camera.cy, camera.rows_per_image_pixel,
                               camera.cols_per_image_pixel, camera.fy * camera.rows_per_image_pixel,
                               camera.fx * camera.cols_per_image_pixel], dtype=torch.float64, device=device)
@@ -475,14 +490,17 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
                                + n_configs * height * width * ("centred" in windows), device)
     base_addresses = torch.tensor([base.data_ptr() for base in bases] if bases is not None else [0] * n_runs,
                                   dtype=torch.int64, device=device)
-    thetas = torch.empty(total + 1, n_runs, 2, dtype=torch.float64, device=device)
+    thetas = torch.empty(total // record_every + 1, n_runs, *row_shape, dtype=torch.float64, device=device)
     losses = torch.zeros(total, n_runs, dtype=torch.float64, device=device)
     failed = torch.empty(n_runs, dtype=torch.int64, device=device)
     code = _library().sdm_train(
         n_runs, n_configs, offsets.data_ptr(), points.data_ptr(), pixels.data_ptr(), rank.data_ptr(), height, width,
         constants.data_ptr(), steps, len(levels), n_epoch, batch_size, levels_t.data_ptr(), rates_t.data_ptr(),
         modes_t.data_ptr(), *(group.data_ptr() for group in groups), crossing.data_ptr(), orders.data_ptr(),
-        addresses.data_ptr(), base_addresses.data_ptr(), pyramid.data_ptr(), NO_RANK, theta0.data_ptr(), thetas.data_ptr(), losses.data_ptr(), failed.data_ptr())
+        addresses.data_ptr(), base_addresses.data_ptr(), pyramid.data_ptr(), NO_RANK, n_rows,
+        param_index.shape[1] if param_index is not None else 1,
+        param_index.data_ptr() if param_index is not None else None, record_every, theta0.data_ptr(),
+        thetas.data_ptr(), losses.data_ptr(), failed.data_ptr())
     if code == -2:
         raise ValueError(f"sdm_train: a {height} x {width} screen is beyond its int32 chain (trains_screen)")
     if code == -3:

@@ -1,0 +1,178 @@
+"""Parameters attached to points: ``train_runs(param_index=)`` against the reference loop, compiled and not.
+
+The paper's case is one row shared by every point; the fundamental problem attaches rows to points (one per
+configuration, one per car, a camera row plus a residual per car). The engine must give every row the history of
+``tests/train_reference.py`` (the plain loop, one layer call per mini-batch, theta gathered per point), to the bit,
+on the compiled path and on the torch path.
+"""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from sdm.errors import SDMInputError
+from sdm.mapping import native
+from sdm.mapping.crossing import rigid_groups
+from sdm.sky import SKY_SHIFT, shifted_target
+from sdm.train import Refinement, RunsHistory, TrainSettings, refine_runs, train_runs
+
+from scenes import configuration_set
+from train_reference import reference_train
+
+
+def point_config(data) -> torch.Tensor:
+    """``(P,)`` int64 the configuration of each point."""
+    return torch.repeat_interleave(torch.arange(len(data)), data.counts)
+
+
+def per_car(data) -> torch.Tensor:
+    """``(P,)`` one row per disc depth of each configuration (a car of the scenes: one depth per car)."""
+    group, _ = rigid_groups(data.points[:, :2], data.points[:, 2], point_config(data))
+    return group
+
+
+def rows_of(data, sharing: str) -> torch.Tensor:
+    if sharing == "shared":
+        return torch.zeros(data.points.shape[0], dtype=torch.int64)
+    if sharing == "configuration":
+        return point_config(data)
+    if sharing == "car":
+        return per_car(data)
+    # "camera + car": row 0 the camera, moved by every point; rows 1.. a residual per car
+    return torch.stack((torch.zeros(data.points.shape[0], dtype=torch.int64), per_car(data) + 1), 1)
+
+
+def true_rows(n_rows: int, seed: int) -> torch.Tensor:
+    """``(K, 2)`` theta* per row: the paper's shift plus a few centimetres per row."""
+    generator = torch.Generator().manual_seed(seed)
+    return torch.tensor(SKY_SHIFT, dtype=torch.float64) + 0.05 * torch.randn(n_rows, 2, generator=generator,
+                                                                              dtype=torch.float64)
+
+
+def row_targets(data, param_index: torch.Tensor, theta: torch.Tensor) -> torch.Tensor:
+    """``(N, H, W)`` bool: each configuration's points moved by their rows' sums, rendered as the paper's targets."""
+    rows = param_index.reshape(data.points.shape[0], -1)
+    shift = theta[rows].sum(1)
+    offsets = data.offsets.tolist()
+    return torch.stack([shifted_target(data.points[lo:hi], shift[lo:hi]) for lo, hi in zip(offsets, offsets[1:])])
+
+
+SHARINGS = ["shared", "configuration", "car", "camera + car"]
+
+
+@pytest.mark.parametrize("sharing", SHARINGS)
+@pytest.mark.parametrize("flow", ["paper", "closed_centred_r1"])
+@pytest.mark.parametrize("compiled", [True, False])
+def test_rows_follow_the_reference_loop_bit_for_bit(sharing, flow, compiled):
+    if compiled and not native.enabled():
+        pytest.skip("no C compiler: the compiled kernel is not built")
+    data = configuration_set(48, seed=31)
+    index = rows_of(data, sharing)
+    n_rows = int(index.max()) + 1
+    truth = true_rows(n_rows, seed=5)
+    data = data.with_targets(row_targets(data, index, truth))
+    settings = [TrainSettings(lr=3e-4, n_epoch=2, s=3, flow=flow, seed=seed) for seed in (1, 2)]
+    starts = [torch.zeros(n_rows, 2, dtype=torch.float64), 0.01 * torch.ones(n_rows, 2, dtype=torch.float64)]
+    if compiled:
+        runs = train_runs(data, [data.targets] * 2, settings, theta0=starts, param_index=index)
+    else:
+        with native.disabled():
+            runs = train_runs(data, [data.targets] * 2, settings, theta0=starts, param_index=index)
+    per_epoch = len(data) // 16
+    assert runs.theta.shape == (4 * 2 + 1, 2, n_rows, 2)
+    assert runs.theta_steps.tolist() == list(range(0, 8 * per_epoch + 1, per_epoch))
+    for run in range(2):
+        theta, loss = reference_train(data, settings[run], theta0=starts[run], param_index=index)
+        assert torch.equal(runs.theta[:, run], theta[runs.theta_steps]), run
+        assert float((runs.loss[:, run] - loss).abs().max()) <= 1e-12 * float(loss.abs().max())
+    assert not torch.equal(runs.theta[0], runs.theta[-1])  # it trained
+
+
+def test_one_row_for_every_point_is_the_shared_shift():
+    """param_index all zeros (K = 1) trains the paper's shift: the same numbers as no param_index."""
+    data = configuration_set(48, seed=32)
+    settings = [TrainSettings(lr=3e-4, n_epoch=1, seed=4, flow="closed_centred_r1")]
+    shared = train_runs(data, [data.targets], settings)
+    rows = train_runs(data, [data.targets], settings, param_index=torch.zeros(data.points.shape[0], dtype=torch.int32))
+    assert torch.equal(rows.theta[:, :, 0], shared.theta[rows.theta_steps])
+    assert torch.equal(rows.loss, shared.loss)
+
+
+@pytest.mark.parametrize("sharing", ["configuration", "car", "camera + car"])
+def test_the_refinement_moves_rows_as_the_torch_path(sharing):
+    """group_crossing's compiled refinement on rows equals the torch path's, and keeps every row's theta* fixed."""
+    data = configuration_set(32, seed=33)
+    index = rows_of(data, sharing)
+    n_rows = int(index.max()) + 1
+    truth = true_rows(n_rows, seed=6)
+    if sharing == "camera + car":
+        truth[0] = 0.0  # the camera row's share is in the residuals
+    data = data.with_targets(row_targets(data, index, truth))
+    settings = [TrainSettings(lr=3e-4, n_epoch=1, s=2, flow="closed_centred_r1", seed=3)]
+    starts = [truth + 1e-3]
+    runs = {}
+    for compiled in (True, False):
+        with native.disabled() if not compiled else _nothing():
+            history = train_runs(data, [data.targets], settings, theta0=starts, param_index=index)
+            runs[compiled] = refine_runs(data, [data.targets], settings, history, Refinement("group_crossing", 2),
+                                         param_index=index)
+    assert torch.equal(runs[True].theta, runs[False].theta)
+    assert runs[True].theta_steps.tolist() == [0, 2, 4, 6, 8, 10]
+    at_truth = RunsHistory(truth[None, None], torch.zeros(0, 1, dtype=torch.float64), torch.zeros(0, dtype=torch.int64),
+                           torch.zeros(0, dtype=torch.float64), settings)
+    fixed = refine_runs(data, [data.targets], settings, at_truth, Refinement("group_crossing", 1), param_index=index)
+    assert torch.equal(fixed.theta[-1, 0], truth)  # without noise, theta* pulls nothing
+
+
+class _nothing:
+    def __enter__(self):
+        return None
+
+    def __exit__(self, *exc):
+        return False
+
+
+def test_a_row_learns_from_its_own_points_only():
+    """Per configuration: a configuration whose target is its points at its own theta* pulls its row towards it."""
+    data = configuration_set(64, seed=34)
+    index = point_config(data)
+    truth = true_rows(len(data), seed=7)
+    data = data.with_targets(row_targets(data, index, truth))
+    settings = [TrainSettings(lr=3e-3, n_epoch=8, s=4, seed=0)]
+    runs = train_runs(data, [data.targets], settings, param_index=index)
+    start = truth.norm(dim=1)
+    end = (runs.theta[-1, 0] - truth).norm(dim=1)
+    assert float(end.median()) < 0.1 * float(start.median())
+
+
+@pytest.mark.parametrize("bad,message", [
+    (lambda p: torch.zeros(p - 1, dtype=torch.int64), "shape"),
+    (lambda p: -torch.ones(p, dtype=torch.int64), "non-negative"),
+    (lambda p: torch.zeros(p, dtype=torch.float64), "integer"),
+    (lambda p: torch.full((p,), 2, dtype=torch.int64), "row 0 with no point"),
+    (lambda p: torch.zeros(p, 0, dtype=torch.int64), "shape"),
+    (lambda p: [0] * p, "integer tensor"),
+])
+def test_bad_param_index_is_named(bad, message):
+    data = configuration_set(16, seed=35)
+    with pytest.raises(SDMInputError, match="param_index") as error:
+        train_runs(data, [data.targets], [TrainSettings()], param_index=bad(data.points.shape[0]))
+    assert message in str(error.value)
+
+
+def test_theta0_must_match_the_rows():
+    data = configuration_set(16, seed=36)
+    index = point_config(data)
+    with pytest.raises(SDMInputError, match=r"theta0\[0\] must be \(16, 2\)"):
+        train_runs(data, [data.targets], [TrainSettings()], theta0=[torch.zeros(15, 2)], param_index=index)
+    with pytest.raises(SDMInputError, match="fit_depth"):
+        train_runs(data, [data.targets], [TrainSettings(fit_depth=True)], param_index=index)
+
+
+def test_group_crossing_refuses_a_group_split_between_rows():
+    data = configuration_set(16, seed=37)
+    index = torch.arange(data.points.shape[0]) % 2  # neighbours of one disc in different rows
+    settings = [TrainSettings(s=2, flow="closed_centred_r1")]
+    history = train_runs(data, [data.targets], settings, param_index=index)
+    with pytest.raises(SDMInputError, match="param_index: group_crossing"):
+        refine_runs(data, [data.targets], settings, history, Refinement("group_crossing", 1), param_index=index)
