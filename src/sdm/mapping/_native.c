@@ -805,6 +805,24 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     int64_t *moved_rows = malloc(sizeof(int64_t) * (size_t)(n_rows + 1));
     uint8_t *row_moved = calloc((size_t)n_rows + 1, 1);
     double *shift = param_index ? malloc(sizeof(double) * (size_t)largest * 2) : NULL;
+    /* each configuration's distinct rows, row_list[config_rows[c] .. config_rows[c + 1]], listed once per call
+     * (one pass over the points, a stamp per row): a step marks its configurations' rows, not every point's */
+    int64_t *config_rows = param_index ? malloc(sizeof(int64_t) * (size_t)(n_configs + 1)) : NULL;
+    int64_t *row_list = param_index ? malloc(sizeof(int64_t) * (size_t)(offsets[n_configs] * n_cols + 1)) : NULL;
+    int64_t *row_stamp = param_index ? malloc(sizeof(int64_t) * (size_t)(n_rows + 1)) : NULL;
+    if (config_rows && row_list && row_stamp) {
+        for (int64_t k = 0; k < n_rows; ++k) row_stamp[k] = -1;
+        config_rows[0] = 0;
+        for (int64_t c = 0; c < n_configs; ++c) {
+            int64_t listed = config_rows[c];
+            for (int64_t j = offsets[c] * n_cols; j < offsets[c + 1] * n_cols; ++j)
+                if (row_stamp[param_index[j]] != c) {
+                    row_stamp[param_index[j]] = c;
+                    row_list[listed++] = param_index[j];
+                }
+            config_rows[c + 1] = listed;
+        }
+    }
     int closes = 0;
     for (int64_t li = 0; li < n_levels; ++li) closes |= modes[li] == 1;
     uint8_t *closed_done = closes ? malloc((size_t)n_configs) : NULL, *close_tmp = closes ? malloc((size_t)cells) : NULL;
@@ -815,7 +833,7 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
     uint8_t *closed = pyramid + (zooms_any(n_runs, n_levels, targets, levels) ? level_start[steps + 1] : 0);
     int64_t code = 0;
     if (no_memory || !screen || !rows || !cell_min || !pulled || !alive || !pixels32 || !rank32 || !theta || !grad ||
-        !moved_rows || !row_moved || (param_index && !shift) ||
+        !moved_rows || !row_moved || (param_index && (!shift || !config_rows || !row_list || !row_stamp)) ||
         (crosses && (!cover || !stamp || !n_target || !known_pixels || !known_lower || !known_mismatch)) ||
         (closes && (!closed_done || !close_tmp))) {
         code = -1;
@@ -867,22 +885,29 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
                         const int64_t lo = offsets[c], n = offsets[c + 1] - lo;
                         const uint8_t *own = target + c * grid_h * grid_w;
                         const int64_t *own_rows = param_index ? param_index + lo * n_cols : NULL;
-                        if (param_index) /* each point's shift: its rows summed in column order */
-                            for (int64_t i = 0; i < n; ++i) {
-                                const int64_t *its = own_rows + i * n_cols;
-                                double a = theta[2 * its[0]], b = theta[2 * its[0] + 1];
-                                for (int64_t col = 1; col < n_cols; ++col) {
-                                    a = a + theta[2 * its[col]];
-                                    b = b + theta[2 * its[col] + 1];
+                        if (param_index) { /* each point's shift: its rows summed in column order */
+                            for (int64_t k = config_rows[c]; k < config_rows[c + 1]; ++k)
+                                if (!row_moved[row_list[k]]) {
+                                    row_moved[row_list[k]] = 1;
+                                    moved_rows[n_moved++] = row_list[k];
                                 }
-                                shift[2 * i] = a;
-                                shift[2 * i + 1] = b;
-                                for (int64_t col = 0; col < n_cols; ++col)
-                                    if (!row_moved[its[col]]) {
-                                        row_moved[its[col]] = 1;
-                                        moved_rows[n_moved++] = its[col];
+                            if (n_cols == 1)
+                                for (int64_t i = 0; i < n; ++i) {
+                                    shift[2 * i] = theta[2 * own_rows[i]];
+                                    shift[2 * i + 1] = theta[2 * own_rows[i] + 1];
+                                }
+                            else
+                                for (int64_t i = 0; i < n; ++i) {
+                                    const int64_t *its = own_rows + i * n_cols;
+                                    double a = theta[2 * its[0]], b = theta[2 * its[0] + 1];
+                                    for (int64_t col = 1; col < n_cols; ++col) {
+                                        a = a + theta[2 * its[col]];
+                                        b = b + theta[2 * its[col] + 1];
                                     }
-                            }
+                                    shift[2 * i] = a;
+                                    shift[2 * i + 1] = b;
+                                }
+                        }
                         const double *shifts = param_index ? shift : theta;
                         const int64_t stride = param_index ? 2 : 0;
                         if (mode == 1) {
@@ -986,6 +1011,7 @@ done:
     free(dense), free(screen), free(rows), free(cell_min), free(pulled), free(alive), free(pixels32), free(rank32);
     free(cover), free(stamp), free(n_target), free(known_pixels), free(known_lower), free(known_mismatch);
     free(closed_done), free(close_tmp), free(theta), free(grad), free(moved_rows), free(row_moved), free(shift);
+    free(config_rows), free(row_list), free(row_stamp);
     return code;
 }
 

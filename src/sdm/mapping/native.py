@@ -499,7 +499,8 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
         modes_t.data_ptr(), *(group.data_ptr() for group in groups), crossing.data_ptr(), orders.data_ptr(),
         addresses.data_ptr(), base_addresses.data_ptr(), pyramid.data_ptr(), NO_RANK, n_rows,
         param_index.shape[1] if param_index is not None else 1,
-        param_index.data_ptr() if param_index is not None else None, record_every, theta0.data_ptr(),
+        param_index.data_ptr() if param_index is not None else None,
+        record_every, theta0.data_ptr(),
         thetas.data_ptr(), losses.data_ptr(), failed.data_ptr())
     if code == -2:
         raise ValueError(f"sdm_train: a {height} x {width} screen is beyond its int32 chain (trains_screen)")
