@@ -260,7 +260,7 @@ def train_runs(
     its own flow. ``param_index=None`` is the paper's case, ``K = 1`` row shared by every point (the
     shift ``(a, b)``): the same engine, whose histories are unchanged. Both paths take it (the compiled one
     moves each point by its rows' sum in the kernel); flows are exact sums, so a row's history is the same
-    whether its configuration trains alone or among others (``tests/test_rows.py``).
+    whether its configuration trains alone or among others (``tests/test_param_index.py``).
 
     Args:
         train_set: packed configurations; their own targets are not used (pass ``train_set.targets``
