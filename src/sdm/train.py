@@ -259,8 +259,8 @@ def train_runs(
     plus a residual row). A row's flow is the sum of its points' flows, and one SGD step moves every row by
     its own flow. ``param_index=None`` is the paper's case, ``K = 1`` row shared by every point (the
     shift ``(a, b)``): the same engine, whose histories are unchanged. Both paths take it (the compiled one
-    moves each point by its rows' sum in the kernel); flows are exact sums, so a row's history is the same
-    whether its configuration trains alone or among others (``tests/test_param_index.py``).
+    moves each point by its rows' sum in the kernel); flows are exact sums, so both give every row the history
+    of the plain single-run loop of ``tests/train_reference.py`` to the bit (``tests/test_param_index.py``).
 
     Args:
         train_set: packed configurations; their own targets are not used (pass ``train_set.targets``
