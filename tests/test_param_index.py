@@ -14,7 +14,7 @@ from sdm.errors import SDMInputError
 from sdm.mapping import native
 from sdm.mapping.crossing import rigid_groups
 from sdm.sky import SKY_SHIFT, shifted_target
-from sdm.train import Refinement, RunsHistory, TrainSettings, refine_runs, train_runs
+from sdm.train import Refinement, RunsHistory, TrainSettings, rates_per_point, refine_runs, train_runs
 
 from scenes import configuration_set
 from train_reference import reference_train
@@ -86,6 +86,14 @@ def test_rows_follow_the_reference_loop_bit_for_bit(sharing, flow, compiled):
         assert torch.equal(runs.theta[:, run], theta[runs.theta_steps]), run
         assert float((runs.loss[:, run] - loss).abs().max()) <= 1e-12 * float(loss.abs().max())
     assert not torch.equal(runs.theta[0], runs.theta[-1])  # it trained
+    if sharing != "shared":  # each row at its own rate
+        row_rate = rates_per_point(index)
+        with native.disabled() if not compiled else _nothing():
+            scaled = train_runs(data, [data.targets], settings[:1], param_index=index, row_rate=row_rate)
+        theta, _ = reference_train(data, settings[0], theta0=torch.zeros(n_rows, 2, dtype=torch.float64),
+                                   param_index=index, row_rate=row_rate)
+        assert torch.equal(scaled.theta[:, 0], theta[scaled.theta_steps])
+        assert not torch.equal(scaled.theta[-1, 0], runs.theta[-1, 0])
 
 
 def test_one_row_for_every_point_is_the_shared_shift():
@@ -158,6 +166,16 @@ def test_bad_param_index_is_named(bad, message):
     with pytest.raises(SDMInputError, match="param_index") as error:
         train_runs(data, [data.targets], [TrainSettings()], param_index=bad(data.points.shape[0]))
     assert message in str(error.value)
+
+
+def test_row_rate_is_checked():
+    data = configuration_set(16, seed=38)
+    index = point_config(data)
+    for bad in (torch.ones(15, dtype=torch.float64), -torch.ones(16, dtype=torch.float64), torch.ones(16, dtype=torch.int64)):
+        with pytest.raises(SDMInputError, match="row_rate must be 16 positive"):
+            train_runs(data, [data.targets], [TrainSettings()], param_index=index, row_rate=bad)
+    with pytest.raises(SDMInputError, match="row_rate needs param_index"):
+        train_runs(data, [data.targets], [TrainSettings()], row_rate=torch.ones(1, dtype=torch.float64))
 
 
 def test_theta0_must_match_the_rows():

@@ -15,7 +15,7 @@ from sdm.train import TrainSettings
 
 
 def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera=None, method: str = "fast",
-                    theta0=(0.0, 0.0), param_index=None) -> tuple[torch.Tensor, torch.Tensor]:
+                    theta0=(0.0, 0.0), param_index=None, row_rate=None) -> tuple[torch.Tensor, torch.Tensor]:
     """``(theta (steps + 1, n_params), loss (steps,))`` float64 CPU of one run (the set's own targets).
 
     ``param_index`` ``(P, G)`` (parameters attached to points): ``theta0`` is ``(K, 2)``, each point moved by the sum
@@ -66,7 +66,10 @@ def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera
                     )
                     out.loss.backward()
                     with torch.no_grad():
-                        theta -= rate * theta.grad if not settings.fit_depth else rate * rate_scale * theta.grad
+                        if row_rate is not None:
+                            theta -= (rate * row_rate)[:, None] * theta.grad
+                        else:
+                            theta -= rate * theta.grad if not settings.fit_depth else rate * rate_scale * theta.grad
                     theta.grad = None
                     losses[step] = out.loss.detach()
                 thetas[step + 1] = theta.detach()

@@ -228,6 +228,7 @@ def train_runs(
     method: str = "fast",
     progress: bool = False,
     param_index: torch.Tensor | None = None,
+    row_rate: torch.Tensor | None = None,
 ) -> RunsHistory:
     """``R`` independent training runs on the same points as one program: the one training engine.
 
@@ -278,6 +279,9 @@ def train_runs(
         param_index: ``None`` (one shift for every point) or ``(P,)`` / ``(P, G)`` integer tensor over the
             set's ``P`` points: the rows of theta that move each point (see above; any device: it is moved to
             the set's). Every row ``0 .. K-1`` must move some point (``K = max + 1``).
+        row_rate: ``None`` or ``(K,)`` positive factors, row ``k``'s step ``rate * row_rate[k] * flow_k`` (with
+            ``param_index``): a row of few points gets a flow of few terms, and one rate for rows of 20 and of
+            2,000 points moves the first too little or the second too far (:func:`rates_per_point`).
 
     Returns:
         :class:`RunsHistory` (on the CPU).
@@ -319,6 +323,7 @@ def train_runs(
                             f"got fit_depth={common.fit_depth}, method={method!r}")
     starts = _starts(theta0, n_runs, common.fit_depth, device,
                      n_rows=None if rows is None else int(rows.max()) + 1)
+    row_rate = _row_rate(row_rate, rows, device)
 
     levels = list(range(common.s, common.zoom - 1, -1))
     rates, rate = [], common.lr
@@ -336,9 +341,31 @@ def train_runs(
     record_every = 1 if rows is None else n_configs // batch_size  # rows: after every epoch
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
         thetas, losses = _train_program(train_set, targets, own_targets, settings, camera, method, levels, rates,
-                                        orders, starts, bar, rows, record_every)
+                                        orders, starts, bar, rows, record_every, row_rate)
     return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings,
                        torch.arange(0, total + 1, record_every, dtype=torch.int64))
+
+
+def rates_per_point(param_index: torch.Tensor) -> torch.Tensor:
+    """``(K,)`` float64 row rates (``train_runs(row_rate=)``) that make a row's rate per point the same for every row:
+    the mean number of points per row over each row's own (points counted once per column that names the row)."""
+    rows = param_index.reshape(param_index.shape[0], -1).to(torch.int64)
+    counts = torch.bincount(rows.reshape(-1)).to(torch.float64)
+    return counts.mean() / counts
+
+
+def _row_rate(row_rate, rows, device) -> torch.Tensor | None:
+    """``row_rate`` checked against the checked ``rows``: ``(K,)`` float64 on ``device``, or ``None``."""
+    if row_rate is None:
+        return None
+    if rows is None:
+        raise SDMInputError("row_rate needs param_index (it scales the rows' rates)")
+    n_rows = int(rows.max()) + 1
+    rate = torch.as_tensor(row_rate)
+    if rate.shape != (n_rows,) or not rate.is_floating_point() or not bool((torch.isfinite(rate) & (rate > 0)).all()):
+        raise SDMInputError(f"row_rate must be {n_rows} positive finite numbers (one per row of param_index), got "
+                            f"{rate.dtype} {tuple(rate.shape)}")
+    return rate.to(dtype=torch.float64, device=device)
 
 
 def check_param_index(param_index, train_set: ConfigurationSet) -> torch.Tensor:
@@ -448,7 +475,8 @@ def refine_seed(seed: int) -> int:
 
 def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], settings: Sequence[TrainSettings],
                 history: RunsHistory, refinement: Refinement, camera: Camera | None = None,
-                device: torch.device | str | None = None, param_index: torch.Tensor | None = None) -> RunsHistory:
+                device: torch.device | str | None = None, param_index: torch.Tensor | None = None,
+                row_rate: torch.Tensor | None = None) -> RunsHistory:
     """``history`` (of :func:`train_runs` with these arguments) continued by ``refinement``'s passes.
 
     The passes train at level ``zoom`` only, through the whole chain ``s .. zoom`` (the forward of the
@@ -456,7 +484,7 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     it applies: for ``group_crossing`` on float64 CPU points; else packed runs in torch); run ``r`` shuffles
     its passes with a generator seeded :func:`refine_seed` ``(settings[r].seed)``, one permutation per pass. Returns the whole history: the
     steps of ``history``, then those of the passes. ``param_index``: that of :func:`train_runs` (the passes move
-    the same rows).
+    the same rows, with ``row_rate``).
     """
     settings = list(settings)
     passes = [replace(one, n_epoch=1, flow=refinement.flow,
@@ -470,12 +498,13 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     rates = refinement.rates(common)
     starts = history.theta[-1].to(train_set.device)
     rows = None if param_index is None else check_param_index(param_index, train_set)
+    row_rate = _row_rate(row_rate, rows, train_set.device)
     per_pass = len(train_set) // common.batch_size
     record_every = 1 if rows is None else per_pass
     with tqdm(total=0, disable=True) as bar:
         thetas, losses = _train_program(train_set, targets, own_targets, passes, camera, "fast",
                                         [common.zoom] * refinement.epochs, rates, orders, starts, bar, rows,
-                                        record_every)
+                                        record_every, row_rate)
     done = int(history.theta_steps[-1])
     steps = torch.arange(record_every, refinement.epochs * per_pass + 1, record_every, dtype=torch.int64) + done
     return RunsHistory(torch.cat((history.theta, thetas[1:].cpu())), torch.cat((history.loss, losses.cpu())),
@@ -553,11 +582,11 @@ def _starts(theta0, n_runs: int, fit_depth: bool, device: torch.device, n_rows: 
 
 
 def _train_program(train_set, targets, own_targets, settings, camera, method, levels, rates, orders, starts, bar,
-                   rows=None, record_every=1):
+                   rows=None, record_every=1, row_rate=None):
     """The steps of :func:`train_runs` at ``levels`` (``settings[0].n_epoch`` epochs each, rates ``rates``,
     shufflings ``orders``) from ``starts``, on the compiled path where it applies, else the torch path:
     ``(thetas (steps / record_every + 1, R, ...), losses (steps, R))`` on the set's device. ``rows``: ``None``
-    or the checked ``(P, G)`` param_index (:func:`check_param_index`)."""
+    or the checked ``(P, G)`` param_index (:func:`check_param_index`), ``row_rate`` ``None`` or its rows' rates."""
     common = settings[0]
     device = train_set.device
     windows = [kernel_form(common.flow, level) for level in levels]
@@ -568,13 +597,14 @@ def _train_program(train_set, targets, own_targets, settings, camera, method, le
             and native.trains_screen(camera.screen_shape)):
         pyramids = _run_pyramids(train_set, targets, own_targets, common.s)  # run r's levels 0..s
         return _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar,
-                            rows, record_every)
+                            rows, record_every, row_rate)
     bases = [run_targets.to(device) for run_targets in targets]
     run_levels = [_kernel_targets(train_set, base, own, common.s, levels)
                   for base, own in zip(bases, own_targets)]
     thetas, losses, failed = native.train_program(
         train_set.points, train_set.pixels, train_set.rank, train_set.offsets, camera, common.s, levels,
-        common.n_epoch, common.batch_size, rates, windows, orders, run_levels, starts, bases, rows, record_every)
+        common.n_epoch, common.batch_size, rates, windows, orders, run_levels, starts, bases, rows, record_every,
+        row_rate)
     if bool((failed >= 0).any()):
         step = int(failed[failed >= 0].min())
         run = int((failed == step).nonzero()[0])
@@ -603,7 +633,7 @@ def _check_rigid_rows(train_set: ConfigurationSet, rows: torch.Tensor) -> None:
 
 
 def _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar, rows=None,
-                 record_every=1):
+                 record_every=1, row_rate=None):
     """The torch path of :func:`train_runs`: ``(thetas (steps / record_every + 1, R, ...), losses (steps, R))`` on
     the set's device."""
     common, n_runs = settings[0], len(settings)
@@ -648,7 +678,12 @@ def _train_torch(train_set, pyramids, settings, camera, method, levels, rates, o
                     )
                     out.loss.backward()
                     with torch.no_grad():  # plain SGD, per run: theta_r <- theta_r - lr * grad_r
-                        theta -= rate * theta.grad if not common.fit_depth else rate * rate_scale * theta.grad
+                        if row_rate is not None:  # each row at its own rate (as the kernel rounds it)
+                            theta -= (rate * row_rate)[:, None] * theta.grad
+                        elif common.fit_depth:
+                            theta -= rate * rate_scale * theta.grad
+                        else:
+                            theta -= rate * theta.grad
                     theta.grad = None
                     losses[step] = out.loss.detach() if n_runs == 1 else rule.losses
                     finite = torch.isfinite(theta).reshape(n_runs, -1).all(1)

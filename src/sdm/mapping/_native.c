@@ -716,6 +716,7 @@ static void close3(int64_t h, int64_t w, const uint8_t *restrict src, uint8_t *r
  * Parameters attached to points: theta is K rows (a, b); point i is moved by the sum of its n_cols rows
  *          param_index[i * n_cols ..] (in column order, as torch sums them). param_index NULL: K = 1 and every
  *          point moves by row 0 (the paper's shared shift). A row's flow is the sum of its points' flows.
+ *          row_rate (K,): each row's factor on the level's rate (NULL: 1 for every row).
  * theta0:  (R, K, 2) starts (a, b), metres
  * Outputs: thetas (total / record_every + 1, R, K, 2) theta before the first step and after every
  *          record_every-th step; losses (total, R); failed (R,) the step (0-based) at which run r's theta
@@ -741,12 +742,13 @@ static void close3(int64_t h, int64_t w, const uint8_t *restrict src, uint8_t *r
         int64_t n_epoch, int64_t batch_size, const int64_t *levels, const double *rates, const uint8_t *modes,      \
         const int64_t *config_group, const int64_t *group_start, const int32_t *members, const double *crossing,   \
         const int64_t *orders, const int64_t *targets, const int64_t *bases, uint8_t *pyramid, int64_t no_rank,     \
-        int64_t n_rows, int64_t n_cols, const int64_t *param_index, int64_t record_every, const double *theta0,     \
+        int64_t n_rows, int64_t n_cols, const int64_t *param_index, const double *row_rate, int64_t record_every,  \
+        const double *theta0,                                                                                      \
         double *thetas, double *losses, int64_t *failed
 #define TRAIN_ARGUMENTS                                                                                          \
     n_runs, n_configs, offsets, points, pixels, rank, height, width, camera, steps, n_levels, n_epoch, batch_size, \
         levels, rates, modes, config_group, group_start, members, crossing, orders, targets, bases, pyramid,       \
-        no_rank, n_rows, n_cols, param_index, record_every, theta0, thetas, losses, failed
+        no_rank, n_rows, n_cols, param_index, row_rate, record_every, theta0, thetas, losses, failed
 
 /* Points projected per piece between prefetches (even: AVX2's pairs cover every piece but the last). */
 #define PROJECT_PIECE 32
@@ -986,7 +988,8 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
                     int finite = 1;
                     for (int64_t m = 0; m < n_moved; ++m) { /* theta = theta - rate * grad on the moved rows */
                         const int64_t row = moved_rows[m];
-                        const double move_a = rate * grad[2 * row], move_b = rate * grad[2 * row + 1];
+                        const double own_rate = row_rate ? rate * row_rate[row] : rate;
+                        const double move_a = own_rate * grad[2 * row], move_b = own_rate * grad[2 * row + 1];
                         theta[2 * row] = theta[2 * row] - move_a;
                         theta[2 * row + 1] = theta[2 * row + 1] - move_b;
                         finite &= isfinite(theta[2 * row]) && isfinite(theta[2 * row + 1]);

@@ -100,7 +100,7 @@ SIGNATURES: dict[str, tuple[object, list]] = {
     "sdm_paper_flow": (_I64, [_I64, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _I64,
                               _PTR, _PTR, _PTR, _PTR]),
     "sdm_train": (_I64, [_I64, _I64, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _PTR, _I64, _I64, _I64, _I64,
-                         *[_PTR] * 11, _I64, _I64, _I64, _PTR, _I64, _PTR, _PTR, _PTR, _PTR]),
+                         *[_PTR] * 11, _I64, _I64, _I64, _PTR, _PTR, _I64, _PTR, _PTR, _PTR, _PTR]),
     "sdm_noise_fill": (_I64, [_I64, _PTR, _I64, _PTR, _PTR, _I64, _I64, _PTR, _PTR, _I64]),
     # the CMA-ES baseline's count (pixel_mismatch below)
     "sdm_pixel_mismatch": (None, [_I64, _PTR, _I64, _I64, *[_PTR] * 8, _I64, _I64, _PTR, _I64, _I64,
@@ -418,7 +418,8 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
                   camera, steps: int, levels: list[int], n_epoch: int, batch_size: int, rates: list[float],
                   windows: list[str], orders: torch.Tensor, targets: list[list[torch.Tensor | None]],
                   theta0: torch.Tensor, bases: list[torch.Tensor] | None = None,
-                  param_index: torch.Tensor | None = None, record_every: int = 1):
+                  param_index: torch.Tensor | None = None, record_every: int = 1,
+                  row_rate: torch.Tensor | None = None):
     """``R`` whole SGD runs in one call (``sdm_train``): the compiled path of :func:`sdm.train.train_runs`.
 
     Args:
@@ -444,6 +445,7 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
             caller (:func:`sdm.train.train_runs`): point ``i`` is moved by the sum of rows
             ``param_index[i, 0..G-1]`` of its run's ``(K, 2)`` theta, and each of those rows takes its flow.
             With ``group_crossing``, every rigid group's points must share their rows.
+        row_rate: ``None`` or ``(K,)`` float64, each row's factor on the level's rate (with ``param_index``).
         record_every: theta is recorded before the first step and after every ``record_every``-th step (the
             total number of steps must be a multiple of it).
 
@@ -469,6 +471,8 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
         raise ValueError(f"train_program: {total} steps are not a multiple of record_every {record_every}")
     if param_index is not None:
         param_index = param_index.reshape(points.shape[0], -1).contiguous()
+    if row_rate is not None:
+        row_rate = row_rate.to(torch.float64).contiguous()
     row_shape = tuple(theta0.shape[1:])  # (2,), or (K, 2) with param_index
     n_rows = theta0.shape[1] if param_index is not None else 1
     constants = torch.tensor([camera.fx, camera.fy, camera.cx, camera.cy, camera.rows_per_image_pixel,
@@ -500,7 +504,7 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
         addresses.data_ptr(), base_addresses.data_ptr(), pyramid.data_ptr(), NO_RANK, n_rows,
         param_index.shape[1] if param_index is not None else 1,
         param_index.data_ptr() if param_index is not None else None,
-        record_every, theta0.data_ptr(),
+        row_rate.data_ptr() if row_rate is not None else None, record_every, theta0.data_ptr(),
         thetas.data_ptr(), losses.data_ptr(), failed.data_ptr())
     if code == -2:
         raise ValueError(f"sdm_train: a {height} x {width} screen is beyond its int32 chain (trains_screen)")
