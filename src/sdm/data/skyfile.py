@@ -288,7 +288,7 @@ class SkyFile:
     the file is not truncated); it does not decode configurations. Reads are
     verified: the first time a configuration is decoded, each array it reads
     is checked against the CRC-32 stored in the header (once per array and
-    opened file: about 10 ms for the default 37.6 MB file). :meth:`verify` checks every
+    opened file: about 10 ms for the default 42.3 MB file). :meth:`verify` checks every
     array at once.
 
     Args:

@@ -60,6 +60,8 @@ import torch
 from ..camera import APOLLO_CAMERA_5, Camera
 from ..errors import SDMInputError
 from ..io import current_umask
+from ..representation import screen_pixels
+from ..sky import circle_offsets
 from .readers import CAMERA_DIR, CAMERA_FILE, CAR_POSES, ImageCars
 
 #: Version of the scene model; written to ``synthetic.json`` in the folder.
@@ -553,9 +555,6 @@ def _visible_cars(rng: np.random.Generator, n_cars: int, model: SceneModel, came
     Keeps ``E'`` (nearest depth per screen pixel) and its owner up to date car by car, so a
     candidate costs one disc (57 pixels), not a new configuration.
     """
-    from ..representation import screen_pixels
-    from ..sky import circle_offsets
-
     height, width = camera.screen_shape
     offsets = circle_offsets().numpy()
     depth = np.full((height, width), np.inf)  # E' so far
