@@ -3,6 +3,7 @@ import math
 import pytest
 import torch
 
+from owner_reference import reference_cars
 from scenes import configurations, road_centres
 from sdm.camera import APOLLO_CAMERA_5
 from sdm.errors import SDMInputError
@@ -129,3 +130,67 @@ def test_draws_into_a_reused_noise_buffer_equal_fresh_draws(compiled):
             assert torch.equal(reused, fresh), (level, seed)
     with pytest.raises(SDMInputError, match="NoiseBuffer of shape"):
         add_target_noise(targets[:2], 1, out=buffer)
+
+
+# -- the car each point belongs to ---------------------------------------------------------
+
+
+def car_at(row: int, col: int, depth: float) -> list[float]:
+    """A car centre whose centre pixel of ``E`` is ``(row, col)`` at ``depth`` metres."""
+    return APOLLO_CAMERA_5.backproject(torch.tensor([[row + 0.5, col + 0.5]], dtype=torch.float64),
+                                       torch.tensor([depth], dtype=torch.float64))[0].tolist()
+
+
+def owned(cfg) -> list[int]:
+    """Number of points each car of ``cfg`` owns, in the order of ``cfg.centres``."""
+    return torch.bincount(cfg.cars, minlength=cfg.centres.shape[0]).tolist()
+
+
+def test_every_point_belongs_to_the_nearest_car_whose_circle_covers_it():
+    """On crowded road scenes the product's car of each point equals the reference loop's."""
+    for cfg in configurations(6, seed=11, mean_cars=20):
+        assert cfg.cars.dtype == torch.int64 and cfg.cars.shape == (cfg.num_points,)
+        assert cfg.cars.tolist() == reference_cars(cfg.pixels, cfg.centres, cfg.centre_depth)
+        assert torch.equal(cfg.depth, cfg.centre_depth[cfg.cars])  # the point's depth is its car's
+
+
+def test_overlapping_circles_give_the_shared_pixels_to_the_nearer_car():
+    near, far = (60, 100, 20.0), (60, 103, 40.0)  # 3 pixels apart: most of the far disc is hidden
+    for order in ((near, far), (far, near)):  # whichever is listed first in the annotation
+        cfg = build_configuration(torch.tensor([car_at(*c) for c in order], dtype=torch.float64))
+        assert cfg.centres.tolist() == [[60, 100], [60, 103]] and cfg.centre_depth.tolist() == [20.0, 40.0]
+        assert owned(cfg) == [57, cfg.num_points - 57] and 0 < owned(cfg)[1] < 57
+        near_disc = (cfg.pixels - torch.tensor([60, 100])).double().norm(dim=1) <= CIRCLE_RADIUS
+        assert bool((cfg.cars[near_disc] == 0).all()) and bool((cfg.cars[~near_disc] == 1).all())
+        assert cfg.cars.tolist() == reference_cars(cfg.pixels, cfg.centres, cfg.centre_depth)
+
+
+def test_equal_depth_circles_give_the_shared_pixels_to_the_car_listed_first():
+    """Two cars at the same depth: a pixel both discs cover belongs to the first in row-major order of ``E``."""
+    for upper, lower in (((50, 120), (53, 121)), ((50, 121), (53, 120))):
+        cfg = build_configuration(torch.tensor([car_at(*lower, 30.0), car_at(*upper, 30.0)], dtype=torch.float64))
+        assert cfg.centres.tolist() == [list(upper), list(lower)]
+        assert owned(cfg)[0] == 57 and 0 < owned(cfg)[1] < 57
+        assert cfg.cars.tolist() == reference_cars(cfg.pixels, cfg.centres, cfg.centre_depth)
+    # side by side on one row: the left one is listed first
+    cfg = build_configuration(torch.tensor([car_at(70, 42, 25.0), car_at(70, 40, 25.0)], dtype=torch.float64))
+    assert cfg.centres.tolist() == [[70, 40], [70, 42]] and owned(cfg)[0] == 57
+
+
+def test_a_fully_hidden_car_owns_no_point():
+    """A far car in the screen's corner, its on-screen quarter disc covered by a nearer car's disc."""
+    cfg = build_configuration(torch.tensor([car_at(1, 1, 20.0), car_at(0, 0, 50.0)], dtype=torch.float64))
+    assert cfg.centres.tolist() == [[0, 0], [1, 1]] and cfg.centre_depth.tolist() == [50.0, 20.0]
+    assert owned(cfg) == [0, cfg.num_points]
+    assert set(cfg.depth.tolist()) == {20.0}
+    # surrounded by nearer cars: a far car in the middle of the screen, hidden too
+    ring = [car_at(64 + dr, 128 + dc, 10.0 + i) for i, (dr, dc) in enumerate(((-3, 0), (3, 0), (0, -3), (0, 3)))]
+    cfg = build_configuration(torch.tensor([car_at(64, 128, 80.0), *ring], dtype=torch.float64))
+    hidden = cfg.centres.tolist().index([64, 128])
+    assert owned(cfg)[hidden] == 0 and all(n > 0 for k, n in enumerate(owned(cfg)) if k != hidden)
+    assert cfg.cars.tolist() == reference_cars(cfg.pixels, cfg.centres, cfg.centre_depth)
+
+
+def test_an_empty_configuration_has_no_car_index():
+    cfg = build_configuration(torch.zeros(0, 3, dtype=torch.float64))
+    assert cfg.cars.shape == (0,) and cfg.cars.dtype == torch.int64

@@ -1,6 +1,7 @@
 """The Sky dataset: sampling, the versioned file, lazy reading, determinism, damaged files."""
 from __future__ import annotations
 
+import dataclasses
 import struct
 from pathlib import Path
 
@@ -35,6 +36,8 @@ def same(a: SkyConfiguration, b: SkyConfiguration) -> bool:
         and torch.equal(a.target, b.target)
         and torch.equal(a.centres, b.centres)
         and torch.equal(a.centre_depth, b.centre_depth)
+        and a.cars.dtype == b.cars.dtype == torch.int64
+        and torch.equal(a.cars, b.cars)
     )
 
 
@@ -95,7 +98,7 @@ def test_sample_rejects_non_images():
 def test_round_trip(sky_path, configurations):
     sky = SkyFile(sky_path)
     assert len(sky) == len(configurations)
-    assert sky.version == FORMAT_VERSION == 1
+    assert sky.version == FORMAT_VERSION == 2
     assert sky.image_ids == [cfg.image_id for cfg in configurations]
     assert sky.shift == SKY_SHIFT and sky.camera == APOLLO_CAMERA_5
     assert sky.metadata == {"source": "test", "seed": 5}
@@ -170,6 +173,17 @@ def test_write_is_atomic(tmp_path, configurations):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["sky.bin"]
 
 
+def one_car(**change) -> SkyConfiguration:
+    cfg = build_configuration(torch.tensor([[1.0, 3.0, 30.0]], dtype=torch.float64), image_id="one")
+    return dataclasses.replace(cfg, **change)
+
+
+def two_cars_swapped() -> SkyConfiguration:
+    """Two cars whose points are given each other's car: the depths give the lie away."""
+    cfg = build_configuration(torch.tensor([[-4.0, 3.0, 30.0], [4.0, 3.0, 40.0]], dtype=torch.float64))
+    return dataclasses.replace(cfg, cars=1 - cfg.cars)
+
+
 @pytest.mark.parametrize(
     "make, message",
     [
@@ -178,6 +192,12 @@ def test_write_is_atomic(tmp_path, configurations):
         (lambda: SkyConfiguration(torch.zeros(1, 2), torch.tensor([1.0], dtype=torch.float64), torch.zeros(128, 256, dtype=torch.bool)), "pixels must be an integer tensor"),
         (lambda: SkyConfiguration(torch.zeros(0, 2, dtype=torch.int64), torch.zeros(0, dtype=torch.float64), torch.zeros(64, 256, dtype=torch.bool)), r"target must be a \(128, 256\) bool tensor"),
         (lambda: "not a configuration", r"configurations\[0\] must be a SkyConfiguration"),
+        (lambda: one_car(cars=None), r"configurations\[0\] \(image 'one'\): cars \(the car of each point\) is missing"),
+        (lambda: one_car(cars=torch.zeros(3, dtype=torch.int64)), r"cars must be a \(57,\) tensor"),
+        (lambda: one_car(cars=torch.zeros(57)), r"cars must be an integer tensor"),
+        (lambda: one_car(cars=torch.ones(57, dtype=torch.int64)), r"cars must index the 1 centres, got 1\.\.1"),
+        (lambda: one_car(cars=torch.full((57,), -1, dtype=torch.int64)), r"cars must index the 1 centres"),
+        (lambda: two_cars_swapped(), r"cars disagree with the depths"),
     ],
 )
 def test_bad_configurations_are_rejected(tmp_path, make, message):
@@ -218,9 +238,49 @@ def test_wrong_magic(sky_path):
 
 
 def test_other_version(sky_path):
-    damage(sky_path, lambda d: d[:8] + struct.pack("<I", 2) + d[12:])
-    with pytest.raises(SDMInputError, match=r"sky\.bin: Sky file format version 2 is not supported \(this sdm reads version 1\)"):
+    damage(sky_path, lambda d: d[:8] + struct.pack("<I", 3) + d[12:])
+    with pytest.raises(SDMInputError, match=r"sky\.bin: Sky file format version 3 is not supported \(this sdm reads version 2\)"):
         SkyFile(sky_path)
+
+
+def test_a_version_1_file_is_refused_saying_how_to_rebuild_it(tmp_path, configurations, monkeypatch):
+    """A file written in the old layout (no point_car) is refused, naming the file, its version and the rebuild."""
+    path = tmp_path / "old.bin"
+    with monkeypatch.context() as old:
+        old.setattr(skyfile_module, "FORMAT_VERSION", 1)
+        old.setattr(skyfile_module, "_ARRAYS", {k: v for k, v in skyfile_module._ARRAYS.items() if k != "point_car"})
+        write_sky_file(path, configurations[:4], SKY_SHIFT, APOLLO_CAMERA_5)
+    assert struct.unpack("<I", path.read_bytes()[8:12]) == (1,)
+    with pytest.raises(SDMInputError) as error:
+        SkyFile(path)
+    assert str(error.value) == (
+        f"{path}: Sky file format version 1 is not supported (this sdm reads version 2; version 1 does not record "
+        f"the car of each point); {skyfile_module.REBUILD_HINT}"
+    )
+    # the old layout under the new version number is refused too, never read without its car index
+    damage(path, lambda d: d[:8] + struct.pack("<I", 2) + d[12:])
+    with pytest.raises(SDMInputError, match=rf"old\.bin: header names format 'sdm-sky' version 1.*{REBUILD}"):
+        SkyFile(path)
+
+
+def test_a_version_2_header_without_point_car_is_refused(tmp_path, configurations):
+    path = tmp_path / "s.bin"
+    write_sky_file(path, configurations[:4], SKY_SHIFT, APOLLO_CAMERA_5)
+    damage(path, lambda d: d.replace(b'"point_car"', b'"point_cat"'))
+    with pytest.raises(SDMInputError, match=rf"s\.bin: header has no valid entry for array 'point_car'.*{REBUILD}"):
+        SkyFile(path)
+
+
+def test_a_car_index_outside_the_centres_is_refused_on_read(tmp_path, configurations, monkeypatch):
+    """A file whose point_car passes its CRC-32 but points past a configuration's centres is refused on read."""
+    path = tmp_path / "s.bin"
+    real = skyfile_module._check_cars
+    with monkeypatch.context() as writer:  # the writer refuses such an index: let one through
+        writer.setattr(skyfile_module, "_check_cars", lambda *args: real(*args) + 1)
+        write_sky_file(path, configurations[:4], SKY_SHIFT, APOLLO_CAMERA_5)
+    first = next(i for i, cfg in enumerate(configurations[:4]) if cfg.num_points)
+    with pytest.raises(SDMInputError, match=rf"s\.bin: configuration {first} has point_car outside its \d+ centres.*{REBUILD}"):
+        SkyFile(path)[first]
 
 
 REBUILD = r"delete it and run snakemake again to rebuild it \(the 'sky' stage\)"

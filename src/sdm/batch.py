@@ -58,10 +58,14 @@ class ConfigurationSet:
         rank: ``(P,)`` int64 ``rmin`` priority, comparable within a configuration.
         image_ids: ``N`` names of the source images.
         camera: the camera and screen.
+        cars: ``(P,)`` int64 the car each point belongs to, an index into its own configuration's cars
+            (:attr:`SkyConfiguration.cars <sdm.sky.SkyConfiguration>`: the car whose circle gave the
+            point its depth), or ``None`` for a set packed without it (points and targets given by hand).
+            :meth:`car_rows` numbers the cars across the set.
     """
 
     def __init__(self, points, pixels, offsets, targets, camera: Camera = APOLLO_CAMERA_5, image_ids=None,
-                 rank: torch.Tensor | None = None):
+                 rank: torch.Tensor | None = None, *, cars: torch.Tensor | None = None):
         self.points = points
         self.pixels = pixels
         self.offsets = offsets
@@ -70,6 +74,10 @@ class ConfigurationSet:
         self.image_ids = list(image_ids) if image_ids is not None else [str(i) for i in range(len(self))]
         if targets.shape[1:] != camera.screen_shape:
             raise SDMInputError(f"targets have screen {tuple(targets.shape[1:])}, camera has {camera.screen_shape}")
+        if cars is not None and (cars.shape != points.shape[:1] or cars.dtype != torch.int64):
+            raise SDMInputError(f"cars must be a ({points.shape[0]},) int64 tensor (the car of each point), "
+                                f"got {tuple(cars.shape)} {cars.dtype}")
+        self.cars = cars
         self.rank = priority_rank(points[:, 2]) if rank is None else rank
         self._pyramids: dict[int, list[torch.Tensor]] = {}
 
@@ -77,7 +85,11 @@ class ConfigurationSet:
     def from_configurations(
         cls, configurations: Sequence[SkyConfiguration], camera: Camera = APOLLO_CAMERA_5
     ) -> "ConfigurationSet":
-        """Pack configurations (empty ones allowed: they own no rows and contribute nothing)."""
+        """Pack configurations (empty ones allowed: they own no rows and contribute nothing).
+
+        The car of each point (:attr:`cars`) is packed when every configuration with points records
+        it (those of :func:`sdm.sky.build_configuration` and of a Sky file do), else it is ``None``.
+        """
         if len(configurations) == 0:
             raise SDMInputError("cannot pack an empty list of configurations")
         for i, cfg in enumerate(configurations):
@@ -96,7 +108,12 @@ class ConfigurationSet:
             points = pixel_centre_points(pixels, depth, camera)
         else:
             points = torch.zeros(0, 3, dtype=torch.float64, device=device)
-        return cls(points, pixels, offsets, targets, camera, [cfg.image_id for cfg in configurations])
+        cars = None
+        if all(cfg.cars is not None or cfg.num_points == 0 for cfg in configurations):
+            empty = torch.zeros(0, dtype=torch.int64, device=device)
+            cars = torch.cat([empty] + [cfg.cars.to(device=device, dtype=torch.int64)
+                                        for cfg in configurations if cfg.cars is not None])
+        return cls(points, pixels, offsets, targets, camera, [cfg.image_id for cfg in configurations], cars=cars)
 
     def __len__(self) -> int:
         return int(self.offsets.numel() - 1)
@@ -114,6 +131,7 @@ class ConfigurationSet:
         return ConfigurationSet(
             self.points.to(device), self.pixels.to(device), self.offsets.to(device), self.targets.to(device),
             self.camera, self.image_ids, rank=self.rank.to(device),
+            cars=None if self.cars is None else self.cars.to(device),
         )
 
     @property
@@ -195,7 +213,7 @@ class ConfigurationSet:
         rows, _ = self.rows(indices)
         return ConfigurationSet(
             self.points[rows], self.pixels[rows], _offsets(self.counts[indices]), self.targets[indices], self.camera,
-            [self.image_ids[i] for i in indices.tolist()],
+            [self.image_ids[i] for i in indices.tolist()], cars=None if self.cars is None else self.cars[rows],
         )
 
     def with_targets(self, targets: torch.Tensor) -> "ConfigurationSet":
@@ -203,7 +221,38 @@ class ConfigurationSet:
         if targets.shape != self.targets.shape:
             raise SDMInputError(f"targets must have shape {tuple(self.targets.shape)}, got {tuple(targets.shape)}")
         return ConfigurationSet(self.points, self.pixels, self.offsets, targets.bool().to(self.device), self.camera,
-                                self.image_ids, rank=self.rank)
+                                self.image_ids, rank=self.rank, cars=self.cars)
+
+    def point_configs(self) -> torch.Tensor:
+        """``(P,)`` int64 the configuration of each point, in ``[0, N)``, on the set's device."""
+        return torch.repeat_interleave(torch.arange(len(self), device=self.device), self.counts)
+
+    def car_rows(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """One parameter row per car that owns points: which row moves each point, and whose each row is.
+
+        Rows are numbered configuration by configuration, and within a configuration by car index
+        (:attr:`cars`). A car that owns no point (its disc hidden by nearer ones, or off screen)
+        gets no row; so does an empty configuration.
+
+        Returns:
+            ``(point_row, row_car)``, on the set's device:
+
+            * ``point_row``: ``(P,)`` int64 the row of each point's car, in ``[0, R)``;
+            * ``row_car``: ``(R, 2)`` int64 ``(configuration, car)`` of each row, configuration in
+              ``[0, N)``, car an index into that configuration's cars; sorted, no repeats.
+
+        Raises:
+            SDMInputError: the set has no car index (:attr:`cars` is ``None``).
+        """
+        if self.cars is None:
+            raise SDMInputError("this set has no car index (cars is None): pack it with "
+                                "ConfigurationSet.from_configurations from configurations that record it "
+                                "(sdm.sky.build_configuration, a Sky file)")
+        configs = self.point_configs()
+        stride = int(self.cars.max()) + 1 if self.cars.numel() else 1
+        keys, point_row = torch.unique(configs * stride + self.cars, sorted=True, return_inverse=True)
+        row_car = torch.stack((torch.div(keys, stride, rounding_mode="floor"), keys % stride), dim=1)
+        return point_row, row_car
 
 
 def _offsets(counts: torch.Tensor) -> torch.Tensor:

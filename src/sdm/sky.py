@@ -9,6 +9,10 @@ Construction (paper, section 3 and appendix A; docs/method.md, Geometry):
    keeping the minimum where circles overlap.
 3. ``Q``: one point per active pixel of ``E'``: the back-projection of the
    pixel centre at depth ``E'``. Each pixel holds exactly one point.
+   The point belongs to the car whose circle gave it its depth (the ``rmin``
+   winner: the nearest car; of cars at equal depth, the one listed first in
+   ``E``'s row-major order). A car whose circle is covered entirely by nearer
+   circles (or lies off screen) owns no point.
 4. ``L``: occupancy of ``floor(P(Q + (a, b, 0)))``; points leaving the screen
    are dropped.
 
@@ -25,7 +29,7 @@ import torch.nn.functional as F
 
 from .camera import APOLLO_CAMERA_5, Camera
 from .errors import SDMInputError
-from .representation import inside, occupancy, render_rmin, screen_pixels
+from .representation import first_by_rank, inside, occupancy, priority_rank, render_rmin, screen_pixels
 
 #: The shift of the Sky dataset, metres: theta* = (a, b).
 SKY_SHIFT = (0.517, 0.303)
@@ -43,8 +47,14 @@ class SkyConfiguration:
         depth: ``(K,)`` float64 depth in metres of each active pixel (the value of ``E'``).
         target: ``(H, W)`` bool target ``L``.
         image_id: name of the source image.
-        centres: ``(M, 2)`` int64 active pixels of ``E`` (car centres on screen).
+        centres: ``(M, 2)`` int64 active pixels of ``E`` (car centres on screen), row-major order: the
+            configuration's cars. Cars whose centres fall into one pixel of ``E`` are one car here
+            (``rmin`` keeps the nearest).
         centre_depth: ``(M,)`` float64 values of ``E`` there.
+        cars: ``(K,)`` int64 the car each point belongs to, an index into ``centres`` in ``[0, M)``: the
+            car whose circle gave the point its depth (:func:`paint_circles`), so
+            ``depth == centre_depth[cars]``. ``None`` for a configuration put together by hand
+            without it.
     """
 
     pixels: torch.Tensor
@@ -53,6 +63,7 @@ class SkyConfiguration:
     image_id: str = ""
     centres: torch.Tensor = field(default_factory=lambda: torch.zeros(0, 2, dtype=torch.int64))
     centre_depth: torch.Tensor = field(default_factory=lambda: torch.zeros(0, dtype=torch.float64))
+    cars: torch.Tensor | None = None
 
     @property
     def num_points(self) -> int:
@@ -98,21 +109,48 @@ def draw_circles(centre_image: torch.Tensor, radius: float = CIRCLE_RADIUS) -> t
         centre_image: ``(H, W)`` representation ``E`` (0 = empty).
 
     Returns:
-        ``(H, W)`` representation ``E'``, same dtype.
+        ``(H, W)`` representation ``E'``, same dtype and device.
+    """
+    return paint_circles(centre_image, radius)[0]
+
+
+def paint_circles(centre_image: torch.Tensor, radius: float = CIRCLE_RADIUS) -> tuple[torch.Tensor, torch.Tensor]:
+    """The representation ``E'`` and, per pixel, the car whose circle painted it.
+
+    Every active pixel of ``E`` (a car) paints the on-screen pixels of its disc with its value.
+    Where discs overlap, the ``rmin`` rule picks the painter: the smallest value (the nearest car)
+    wins; of cars with equal values the one listed first wins (row-major order of ``E``, the order
+    of :attr:`SkyConfiguration.centres`). The winner's value is the minimum, so ``E'`` is the
+    minimum of the overlapping values.
+
+    Args:
+        centre_image: ``(H, W)`` representation ``E`` (0 = empty).
+        radius: disc radius in screen pixels.
+
+    Returns:
+        ``(circles, owner)``: ``(H, W)`` representation ``E'`` (dtype and device of ``centre_image``,
+        0 where empty) and ``(H, W)`` int64 index of the painting car in ``centre_image.nonzero()``
+        (``-1`` where empty).
     """
     height, width = centre_image.shape
+    device = centre_image.device
+    circles = torch.zeros(height * width, dtype=centre_image.dtype, device=device)
+    owner = torch.full((height * width,), -1, dtype=torch.int64, device=device)
     active = centre_image.nonzero()
     if active.shape[0] == 0:
-        return torch.zeros_like(centre_image)
-    offsets = circle_offsets(radius).to(centre_image.device)
-    painted = (active[:, None, :] + offsets[None, :, :]).reshape(-1, 2)
+        return circles.view(height, width), owner.view(height, width)
+    offsets = circle_offsets(radius).to(device)
+    painted = (active[:, None, :] + offsets[None, :, :]).reshape(-1, 2)  # car by car, in E's row-major order
+    car = torch.arange(active.shape[0], device=device).repeat_interleave(offsets.shape[0])
     values = centre_image[active[:, 0], active[:, 1]].repeat_interleave(offsets.shape[0])
     on_screen = inside(painted, height, width)
     cells = painted[on_screen, 0] * width + painted[on_screen, 1]
-    image = torch.full((height * width,), math.inf, dtype=centre_image.dtype, device=centre_image.device)
-    image.scatter_reduce_(0, cells, values[on_screen], reduce="amin")
-    image[torch.isinf(image)] = 0
-    return image.view(height, width)
+    car, values = car[on_screen], values[on_screen]
+    # priority_rank sorts stably by value: among equal values the earlier car (lower index) ranks first.
+    winners = first_by_rank(cells, priority_rank(values), height * width)
+    circles[cells[winners]] = values[winners]
+    owner[cells[winners]] = car[winners]
+    return circles.view(height, width), owner.view(height, width)
 
 
 def pixel_centre_points(pixels: torch.Tensor, depth: torch.Tensor, camera: Camera = APOLLO_CAMERA_5) -> torch.Tensor:
@@ -176,7 +214,7 @@ def build_configuration(
         )
     shift = check_shift(shift)
     centre_image = render_centres(centres, camera).to(torch.float64)
-    circles = draw_circles(centre_image)
+    circles, owner = paint_circles(centre_image)
     pixels = circles.nonzero()
     depth = circles[pixels[:, 0], pixels[:, 1]]
     target = shifted_target(pixel_centre_points(pixels, depth, camera), shift, camera)
@@ -188,6 +226,7 @@ def build_configuration(
         image_id=image_id,
         centres=centre_pixels,
         centre_depth=centre_image[centre_pixels[:, 0], centre_pixels[:, 1]],
+        cars=owner[pixels[:, 0], pixels[:, 1]],
     )
 
 

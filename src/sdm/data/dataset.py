@@ -7,10 +7,12 @@ import numpy as np
 # tqdm.std, not tqdm.auto: the text bar renders in a notebook too, without auto's "IProgress not found" warning
 from tqdm.std import tqdm
 
+from ..batch import ConfigurationSet
 from ..camera import APOLLO_CAMERA_5, Camera
 from ..errors import SDMInputError
 from ..sky import SKY_SHIFT, SkyConfiguration, build_configuration
 from .readers import ImageCars
+from .synthetic import DEFAULT_MODEL, SceneModel, images_with_cars
 
 #: Number of images of the Sky dataset.
 SKY_N_IMAGES = 4248
@@ -105,3 +107,34 @@ def build_configurations(
             raise SDMInputError(f"images[{index}] must be ImageCars, got {type(image).__name__}")
     return [build_configuration(image.centres, shift, camera, image_id=image.image_id)
             for image in tqdm(images, desc="Sky configurations", unit="image", disable=not progress)]
+
+
+def set_with_cars(
+    n_images: int,
+    n_cars: int,
+    seed: int = 0,
+    shift: tuple[float, float] = SKY_SHIFT,
+    camera: Camera = APOLLO_CAMERA_5,
+    *,
+    model: SceneModel = DEFAULT_MODEL,
+    progress: bool = False,
+    n_images_name: str = "n_images",
+    n_cars_name: str = "n_cars",
+    seed_name: str = "seed",
+) -> ConfigurationSet:
+    """Sky configurations of synthetic images with exactly ``n_cars`` visible cars each, packed.
+
+    The images of :func:`~sdm.data.synthetic.images_with_cars` (same arguments), built with
+    :func:`build_configurations` and packed by :meth:`ConfigurationSet.from_configurations`: every
+    configuration has ``n_cars`` cars, each owning at least one point, so
+    :meth:`ConfigurationSet.car_rows` gives ``n_images * n_cars`` rows.
+
+    Returns:
+        A CPU set of ``n_images`` configurations with its car index (:attr:`ConfigurationSet.cars`).
+
+    Raises:
+        SDMInputError: as :func:`~sdm.data.synthetic.images_with_cars`, naming the value.
+    """
+    images = images_with_cars(n_images, n_cars, seed, model=model, camera=camera, n_images_name=n_images_name,
+                              n_cars_name=n_cars_name, seed_name=seed_name)
+    return ConfigurationSet.from_configurations(build_configurations(images, shift, camera, progress), camera)

@@ -1,11 +1,11 @@
 """The Sky dataset file: all configurations in one versioned, sparse, lazily readable file.
 
-Layout (format version 1; all integers little-endian; ``docs/data.md`` has the
+Layout (format version 2; all integers little-endian; ``docs/data.md`` has the
 full description)::
 
     offset  size  field
     0       8     magic b"\\x89SDMSKY\\n"
-    8       4     uint32 format version (1)
+    8       4     uint32 format version (2)
     12      4     uint32 header length L in bytes
     16      8     uint64 data offset D (multiple of 64)
     24      8     uint64 total file size in bytes
@@ -23,6 +23,9 @@ The header holds ``format`` ("sdm-sky"), ``version``, ``n_configurations``,
                                    point_offsets[i]:point_offsets[i+1]
     point_pixels    int16 (P, 2)   active pixels (row, col) of E', row-major per configuration
     point_depth     float64 (P,)   their depth (the value of E'), metres
+    point_car       int16 (P,)     the car each point belongs to: its index among the
+                                   configuration's centre_pixels (the car whose circle
+                                   gave the point its depth)
     target_offsets  int64 (N+1,)
     target_pixels   int16 (T, 2)   active pixels (row, col) of the target L, row-major
     centre_offsets  int64 (N+1,)
@@ -33,6 +36,8 @@ Opening a file reads the fixed prefix, the header and the three offset arrays
 (checking their CRC-32); configurations are decoded one at a time from a
 read-only memory map, and the first read of each array checks its CRC-32, so a
 damaged file is refused before any of its configurations is used.
+A file of another format version (version 1 had no ``point_car``) is refused,
+naming the file, its version and how to rebuild it.
 Writing is deterministic (no timestamp; the same inputs give the same bytes)
 and atomic (temporary file + ``os.replace``).
 """
@@ -55,8 +60,8 @@ from ..sky import SkyConfiguration, check_shift
 
 #: First 8 bytes of every Sky file.
 MAGIC = b"\x89SDMSKY\n"
-#: The format version this module writes and reads.
-FORMAT_VERSION = 1
+#: The format version this module writes and reads (2: ``point_car`` added).
+FORMAT_VERSION = 2
 #: Value of the header's ``format`` key.
 FORMAT_NAME = "sdm-sky"
 #: Alignment of the data section and of each array, bytes.
@@ -67,6 +72,7 @@ _ARRAYS = {
     "point_offsets": ("<i8", 1),
     "point_pixels": ("<i2", 2),
     "point_depth": ("<f8", 1),
+    "point_car": ("<i2", 1),
     "target_offsets": ("<i8", 1),
     "target_pixels": ("<i2", 2),
     "centre_offsets": ("<i8", 1),
@@ -74,6 +80,8 @@ _ARRAYS = {
     "centre_depth": ("<f8", 1),
 }
 _CAMERA_FIELDS = [f.name for f in dataclasses.fields(Camera)]
+#: What a refused older version lacked, said after "this sdm reads version N".
+_VERSION_NOTES = {1: "; version 1 does not record the car of each point"}
 #: What to do about a damaged Sky file; ends every "damaged" message.
 REBUILD_HINT = (
     "delete it and run snakemake again to rebuild it (the 'sky' stage), "
@@ -115,7 +123,8 @@ def write_sky_file(
     Raises:
         SDMInputError: a configuration with wrong shapes/dtypes, off-screen
             pixels, non-finite or non-positive depths, a target of the wrong
-            size; a bad shift; metadata that is not a JSON object.
+            size, no car index (``cars``) for its points or one that disagrees
+            with the depths; a bad shift; metadata that is not a JSON object.
     """
     path = Path(path)
     if not isinstance(camera, Camera):
@@ -129,12 +138,13 @@ def write_sky_file(
     if max(height, width) > np.iinfo(np.int16).max:
         raise SDMInputError(f"screen {height}x{width} too large for int16 pixel storage")
 
-    parts: dict[str, list[np.ndarray]] = {"point": [], "depth": [], "target": [], "centre": [], "cdepth": []}
+    parts: dict[str, list[np.ndarray]] = {"point": [], "depth": [], "car": [], "target": [], "centre": [], "cdepth": []}
     ids = []
     for index, cfg in enumerate(configurations):
-        pixels, depth, target, centres, centre_depth = _check_configuration(cfg, index, camera)
+        pixels, depth, cars, target, centres, centre_depth = _check_configuration(cfg, index, camera)
         parts["point"].append(pixels)
         parts["depth"].append(depth)
+        parts["car"].append(cars)
         parts["target"].append(target)
         parts["centre"].append(centres)
         parts["cdepth"].append(centre_depth)
@@ -150,6 +160,7 @@ def write_sky_file(
         "point_offsets": offsets(parts["point"]),
         "point_pixels": stack(parts["point"], (0, 2), "<i2"),
         "point_depth": stack(parts["depth"], (0,), "<f8"),
+        "point_car": stack(parts["car"], (0,), "<i2"),
         "target_offsets": offsets(parts["target"]),
         "target_pixels": stack(parts["target"], (0, 2), "<i2"),
         "centre_offsets": offsets(parts["centre"]),
@@ -196,7 +207,7 @@ def write_sky_file(
 
 
 def _check_configuration(cfg, index: int, camera: Camera):
-    """Validate one configuration; return numpy arrays (pixels, depth, target pixels, centres, centre depth)."""
+    """Validate one configuration; return numpy arrays (pixels, depth, cars, target pixels, centres, centre depth)."""
     if not isinstance(cfg, SkyConfiguration):
         raise SDMInputError(f"configurations[{index}] must be a SkyConfiguration, got {type(cfg).__name__}")
     where = f"configurations[{index}] (image {cfg.image_id!r})"
@@ -230,7 +241,36 @@ def _check_configuration(cfg, index: int, camera: Camera):
     if not isinstance(target, torch.Tensor) or tuple(target.shape) != (height, width) or target.dtype != torch.bool:
         raise SDMInputError(f"{where}: target must be a ({height}, {width}) bool tensor")
     target_pixels = target.detach().cpu().nonzero().numpy().astype(np.int64).reshape(-1, 2)
-    return pixels, depth, target_pixels, centres, centre_depth
+    cars = _check_cars(cfg.cars, where, depth, centre_depth)
+    return pixels, depth, cars, target_pixels, centres, centre_depth
+
+
+def _check_cars(cars, where: str, depth: np.ndarray, centre_depth: np.ndarray) -> np.ndarray:
+    """The car of each point as int64 numpy, checked: an index into the centres whose depth is the point's.
+
+    Every point of ``E'`` carries the depth of the car that painted it, so a car index that
+    disagrees with the depths is a wrong one, refused rather than stored.
+    """
+    n_points = depth.shape[0]
+    if cars is None:
+        if n_points == 0:
+            return np.zeros(0, dtype=np.int64)
+        raise SDMInputError(f"{where}: cars (the car of each point) is missing; build the configuration with "
+                            f"sdm.sky.build_configuration, which records it")
+    if not isinstance(cars, torch.Tensor) or tuple(cars.shape) != (n_points,):
+        raise SDMInputError(f"{where}: cars must be a ({n_points},) tensor (the car of each point)")
+    if cars.is_floating_point() or cars.is_complex() or cars.dtype == torch.bool:
+        raise SDMInputError(f"{where}: cars must be an integer tensor, got {cars.dtype}")
+    array = cars.detach().cpu().numpy().astype(np.int64)
+    if array.size and (array.min() < 0 or array.max() >= centre_depth.shape[0]):
+        raise SDMInputError(f"{where}: cars must index the {centre_depth.shape[0]} centres, "
+                            f"got {array.min()}..{array.max()}")
+    if array.size and array.max() > np.iinfo(np.int16).max:
+        raise SDMInputError(f"{where}: {array.max() + 1} cars are too many for int16 storage")
+    if not np.array_equal(depth, centre_depth[array]):
+        raise SDMInputError(f"{where}: cars disagree with the depths (a point's depth must be its car's, "
+                            f"centre_depth[cars])")
+    return array
 
 
 # -- reading -----------------------------------------------------------------------------
@@ -248,7 +288,7 @@ class SkyFile:
     the file is not truncated); it does not decode configurations. Reads are
     verified: the first time a configuration is decoded, each array it reads
     is checked against the CRC-32 stored in the header (once per array and
-    opened file: about 10 ms for the default 37.6 MB file). :meth:`verify` checks every
+    opened file: about 10 ms for the default 42.3 MB file). :meth:`verify` checks every
     array at once.
 
     Args:
@@ -279,7 +319,7 @@ class SkyFile:
             if version != FORMAT_VERSION:
                 raise SDMInputError(
                     f"{self.path}: Sky file format version {version} is not supported (this sdm reads version "
-                    f"{FORMAT_VERSION}); {REBUILD_HINT}"
+                    f"{FORMAT_VERSION}{_VERSION_NOTES.get(version, '')}); {REBUILD_HINT}"
                 )
             if total != size:
                 raise _damaged(self.path, f"file is {size} bytes but its header says {total} (truncated)")
@@ -325,8 +365,9 @@ class SkyFile:
             ):
                 raise _damaged(self.path, f"{kind}_offsets are inconsistent with {rows}")
             self._offsets[kind] = offsets
-        if self._arrays["point_depth"].shape[0] != self._arrays["point_pixels"].shape[0]:
-            raise _damaged(self.path, "point_depth and point_pixels differ in length")
+        for name in ("point_depth", "point_car"):
+            if self._arrays[name].shape[0] != self._arrays["point_pixels"].shape[0]:
+                raise _damaged(self.path, f"{name} and point_pixels differ in length")
         if self._arrays["centre_depth"].shape[0] != self._arrays["centre_pixels"].shape[0]:
             raise _damaged(self.path, "centre_depth and centre_pixels differ in length")
         if self.checksums:
@@ -389,6 +430,9 @@ class SkyFile:
             target[torch.from_numpy(target_pixels[:, 0]), torch.from_numpy(target_pixels[:, 1])] = True
         centres = torch.from_numpy(self._rows("centre", "centre_pixels", i).astype(np.int64))
         centre_depth = torch.from_numpy(self._rows("centre", "centre_depth", i).astype(np.float64))
+        cars = torch.from_numpy(self._rows("point", "point_car", i).astype(np.int64))
+        if cars.numel() and (int(cars.min()) < 0 or int(cars.max()) >= centre_depth.shape[0]):
+            raise _damaged(self.path, f"configuration {i} has point_car outside its {centre_depth.shape[0]} centres")
         return SkyConfiguration(
             pixels=pixels.reshape(-1, 2),
             depth=depth,
@@ -396,6 +440,7 @@ class SkyFile:
             image_id=self.image_ids[i],
             centres=centres.reshape(-1, 2),
             centre_depth=centre_depth,
+            cars=cars,
         )
 
     def load_all(self) -> list[SkyConfiguration]:

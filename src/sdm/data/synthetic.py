@@ -60,6 +60,8 @@ import torch
 from ..camera import APOLLO_CAMERA_5, Camera
 from ..errors import SDMInputError
 from ..io import current_umask
+from ..representation import screen_pixels
+from ..sky import circle_offsets
 from .readers import CAMERA_DIR, CAMERA_FILE, CAR_POSES, ImageCars
 
 #: Version of the scene model; written to ``synthetic.json`` in the folder.
@@ -312,18 +314,26 @@ def _drop_overlapping(poses: np.ndarray, m: SceneModel) -> np.ndarray:
     Footprints are the axis-aligned boxes (in x, z) of ``car_length[1] x car_width``
     rotated by the heading; greedy in list order.
     """
-    x, z, heading = poses[:, 0], poses[:, 1], poses[:, 2]
+    clash = _footprint_clash(poses[:, 0], poses[:, 1], poses[:, 2], m)
+    keep = np.zeros(poses.shape[0], dtype=bool)
+    for i in range(poses.shape[0]):
+        keep[i] = not bool((clash[i, :i] & keep[:i]).any())
+    return poses[keep]
+
+
+def _footprint_clash(x: np.ndarray, z: np.ndarray, heading: np.ndarray, m: SceneModel) -> np.ndarray:
+    """``(n, n)`` bool: the footprints of cars ``i`` and ``j`` overlap (axis-aligned boxes in x, z).
+
+    A box is ``car_length[1] x car_width`` rotated by the heading; a heading and its opposite
+    (a yaw) give the same box.
+    """
     c, s = np.abs(np.cos(heading)), np.abs(np.sin(heading))
     half_len, half_wid = m.car_length[1] / 2, m.car_width / 2
     ax = half_len * s + half_wid * c
     az = half_len * c + half_wid * s
-    clash = (np.abs(x[:, None] - x[None, :]) < ax[:, None] + ax[None, :]) & (
+    return (np.abs(x[:, None] - x[None, :]) < ax[:, None] + ax[None, :]) & (
         np.abs(z[:, None] - z[None, :]) < az[:, None] + az[None, :]
     )
-    keep = np.zeros(x.shape[0], dtype=bool)
-    for i in range(x.shape[0]):
-        keep[i] = not bool((clash[i, :i] & keep[:i]).any())
-    return poses[keep]
 
 
 def _wrap(angle: np.ndarray) -> np.ndarray:
@@ -462,3 +472,133 @@ def synthetic_images(
         centres = torch.tensor([r["pose"][3:] for r in records], dtype=torch.float64).reshape(-1, 3)
         images.append(ImageCars(synthetic_image_id(index, n_images), centres))
     return images
+
+
+# -- images with a given number of visible cars -------------------------------------------------
+
+#: Scenes :func:`images_with_cars` draws at most for one image before it gives up.
+MAX_SCENES_PER_IMAGE = 200
+
+
+def images_with_cars(
+    n_images: int,
+    n_cars: int,
+    seed: int = 0,
+    *,
+    model: SceneModel = DEFAULT_MODEL,
+    camera: Camera = APOLLO_CAMERA_5,
+    n_images_name: str = "n_images",
+    n_cars_name: str = "n_cars",
+    seed_name: str = "seed",
+) -> list[ImageCars]:
+    """Synthetic images with exactly ``n_cars`` cars each, every one of them visible in the Sky data.
+
+    For experiments that vary the number of unknowns per configuration. An image's cars are
+    drawn from the default scene model (:func:`generate_scene`: realistic depths, lanes and road
+    planes), the labelled cars of one scene in random order, then those of the next scene, until
+    ``n_cars`` are kept. A car is kept when, with the cars kept before it:
+
+    * its centre is in front of the camera and falls on a pixel of the Sky screen (``E``) that no
+      kept car holds;
+    * its depth equals no kept car's (no tie for the ``rmin`` rule to break);
+    * its footprint on the road overlaps no kept car's (cars of different scenes may meet);
+    * it owns at least one point of ``E'`` (its circle is not hidden by nearer ones), and every
+      kept car still does.
+
+    So :func:`sdm.sky.build_configuration` of an image gives ``n_cars`` cars (centres of ``E``),
+    each owning at least one point (:attr:`sdm.sky.SkyConfiguration.cars`). Up to about 11 cars
+    (the default model's mean) an image's cars mostly come from one scene; more cars mix scenes.
+
+    Determinism: image ``i`` draws from ``numpy.random.Generator(PCG64(SeedSequence(seed,
+    spawn_key=(n_cars, i))))``, so it depends on neither ``n_images`` nor the other car counts.
+    Centres are rounded to 6 decimals, like :func:`synthetic_images`.
+
+    Args:
+        n_images: number of images, a positive integer.
+        n_cars: cars per image, a positive integer.
+        seed: a non-negative integer.
+        model: scene parameters (defaults are the calibrated ones).
+        camera: camera and screen.
+        n_images_name, n_cars_name, seed_name: how error messages name the three values (a caller
+            that read them from a config passes the keys).
+
+    Returns:
+        ``n_images`` :class:`ImageCars`, ids ``cars<n_cars>_<i>`` (zero-padded), each with
+        ``(n_cars, 3)`` float64 centres sorted by depth.
+
+    Raises:
+        SDMInputError: naming the value, unless ``n_images`` and ``n_cars`` are positive integers and
+            ``seed`` a non-negative one; naming ``n_cars`` when an image cannot hold that many
+            visible cars (:data:`MAX_SCENES_PER_IMAGE` scenes drawn without reaching it).
+    """
+    for value, name, low in ((n_images, n_images_name, 1), (n_cars, n_cars_name, 1), (seed, seed_name, 0)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low:
+            kind = "positive" if low else "non-negative"
+            raise SDMInputError(f"{name} must be a {kind} integer, got {value!r}")
+    width = max(5, len(str(int(n_images) - 1)))
+    images = []
+    for index in range(int(n_images)):
+        rng = np.random.Generator(np.random.PCG64(np.random.SeedSequence(int(seed), spawn_key=(int(n_cars), index))))
+        centres = _visible_cars(rng, int(n_cars), model, camera)
+        if centres is None:
+            raise SDMInputError(
+                f"{n_cars_name} = {n_cars}: image {index} could not hold {n_cars} visible cars on the "
+                f"{camera.screen_height}x{camera.screen_width} Sky screen ({MAX_SCENES_PER_IMAGE} scenes drawn)"
+            )
+        images.append(ImageCars(f"cars{int(n_cars):02d}_{index:0{width}d}", centres))
+    return images
+
+
+def _visible_cars(rng: np.random.Generator, n_cars: int, model: SceneModel, camera: Camera) -> torch.Tensor | None:
+    """``(n_cars, 3)`` float64 centres sorted by depth kept as :func:`images_with_cars` says, or None.
+
+    Keeps ``E'`` (nearest depth per screen pixel) and its owner up to date car by car, so a
+    candidate costs one disc (57 pixels), not a new configuration.
+    """
+    height, width = camera.screen_shape
+    offsets = circle_offsets().numpy()
+    depth = np.full((height, width), np.inf)  # E' so far
+    owner = np.full((height, width), -1, dtype=np.int64)  # which kept car painted it
+    owned: list[int] = []  # pixels each kept car owns
+    kept: list[np.ndarray] = []  # rows [x, y, z, yaw]
+    centre_cells: set[tuple[int, int]] = set()
+    for _ in range(MAX_SCENES_PER_IMAGE):
+        cars = generate_scene(rng, model, camera)
+        if cars.shape[0] == 0:
+            continue
+        cars = cars[rng.permutation(cars.shape[0])]
+        xyz = np.round(cars[:, 3:6], 6)
+        front = xyz[:, 2] > 0
+        pixels = np.zeros((xyz.shape[0], 2), dtype=np.int64)
+        on_screen = np.zeros(xyz.shape[0], dtype=bool)
+        if front.any():  # the projection of render_centres (sdm.sky): the same pixel of E
+            found, inside = screen_pixels(camera.project(torch.from_numpy(xyz[front])), camera)
+            pixels[front], on_screen[front] = found.numpy(), inside.numpy()
+        for k in np.flatnonzero(on_screen):
+            row, col = (int(v) for v in pixels[k])
+            z = float(xyz[k, 2])
+            if (row, col) in centre_cells or any(z == car[2] for car in kept):
+                continue
+            if kept:
+                table = np.array(kept + [np.array([*xyz[k], cars[k, 2]])])
+                if _footprint_clash(table[:, 0], table[:, 2], table[:, 3], model)[-1, :-1].any():
+                    continue
+            disc = offsets + (row, col)
+            disc = disc[(disc[:, 0] >= 0) & (disc[:, 0] < height) & (disc[:, 1] >= 0) & (disc[:, 1] < width)]
+            wins = z < depth[disc[:, 0], disc[:, 1]]
+            if not wins.any():
+                continue  # hidden behind nearer circles
+            taken = disc[wins]
+            losers = owner[taken[:, 0], taken[:, 1]]
+            lost = np.bincount(losers[losers >= 0], minlength=len(owned))
+            if any(have - gone <= 0 for have, gone in zip(owned, lost)):
+                continue  # it would hide a kept car entirely
+            owned = [have - gone for have, gone in zip(owned, lost)] + [int(wins.sum())]
+            depth[taken[:, 0], taken[:, 1]] = z
+            owner[taken[:, 0], taken[:, 1]] = len(kept)
+            kept.append(np.array([*xyz[k], cars[k, 2]]))
+            centre_cells.add((row, col))
+            if len(kept) == n_cars:
+                table = np.array(kept)[:, :3]
+                return torch.from_numpy(table[np.argsort(table[:, 2], kind="stable")].copy())
+    return None
