@@ -7,6 +7,9 @@ Prints, in one run on one thread:
     operations alone, and the dense path at each zoom level, and their ratios;
   * ms per full training run (512 configurations, 5 levels, 1 epoch): compiled (the whole
     run in one kernel call, :func:`sdm.train.train_runs`) and on the torch path, and the ratio;
+  * a run with a shift per car (parameters attached to points: ``train_runs(param_index=)``, one row per car
+    that owns points, each at the same rate per point) against the shared run on the same points, targets and
+    settings, timed alternately, and the ratio;
   * the time to build the default Sky data set (4,248 configurations) on one core;
   * many runs as one program (issue 10): ``--runs`` (30) noise runs at noise level 2
     trained one after another (:func:`sdm.experiments.noise_runs` with groups of one run) and
@@ -41,7 +44,7 @@ from sdm.data.synthetic import synthetic_images
 from sdm.experiments import NOISE_GROUP_SIZE, noise_runs
 from sdm.mapping import SpatialDomainMapping, native
 from sdm.sky import shift_vector
-from sdm.train import TrainSettings, train
+from sdm.train import TrainSettings, rates_per_point, train, train_runs
 
 #: Table 2's settings in the default workflow: the tuned cell (n_epoch 2, lr 1e-4), s = 4, batches of 16.
 TABLE2_SETTINGS = TrainSettings(lr=1e-4, n_epoch=2, batch_size=16, s=4, zoom=0, lr_decay=0.5, seed=0)
@@ -135,6 +138,25 @@ def report_runs(runs: dict) -> None:
           f"{runs['ratio_default_groups_vs_torch_path']:.2f}x")
 
 
+def car_against_shared(data: ConfigurationSet, repeats: int) -> dict:
+    """CPU ms of a training run with one row per car (:meth:`ConfigurationSet.car_rows`, rows at the same rate per
+    point) and of the shared run on the same points and targets (the compiled path where the kernel is built),
+    timed alternately (median of ``repeats`` each)."""
+    index, _ = data.car_rows()
+    row_rate = rates_per_point(index)
+    settings = [TrainSettings(lr=3e-4, n_epoch=1)]
+    shared, car = [], []
+    for _ in range(repeats):
+        with Clock() as clock:
+            train_runs(data, [data.targets], settings)
+        shared.append(clock.cpu)
+        with Clock() as clock:
+            train_runs(data, [data.targets], settings, param_index=index, row_rate=row_rate)
+        car.append(clock.cpu)
+    shared_ms, car_ms = 1000 * statistics.median(shared), 1000 * statistics.median(car)
+    return {"rows": int(index.max()) + 1, "shared_ms": shared_ms, "car_ms": car_ms, "ratio": car_ms / shared_ms}
+
+
 def step_ms(data: ConfigurationSet, method: str, zoom: int, repeats: int, batch_size: int = 16) -> float:
     """Median ms of one SGD step (gather, forward, backward) at loss level ``zoom``."""
     layer = SpatialDomainMapping(data.camera, s=4, zoom=zoom, method=method)
@@ -211,6 +233,11 @@ def main() -> None:
           f"{statistics.median(torch_runs_cpu) / statistics.median(runs_cpu):.1f}x CPU "
           f"(targets: at most 25 ms, at least 12x)")
 
+    per_car = car_against_shared(data, args.train_repeats)
+    print(f"\none run with a shift per car ({per_car['rows']} rows, {len(data)} configurations, lr 3e-4 per point-mass, "
+          f"n_epoch 1; median of {args.train_repeats}, alternating): {per_car['car_ms']:.1f} ms CPU against the shared "
+          f"shift's {per_car['shared_ms']:.1f} ms on the same points: {per_car['ratio']:.2f}x (target: at most 1.5x)")
+
     devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
     many, tables = [], []
     for device in devices:
@@ -231,7 +258,7 @@ def main() -> None:
     if args.json:
         with open(args.json, "w") as handle:
             json.dump({"steps": rows, "training_run_s": runs, "training_run_torch_path_s": torch_runs,
-                       "configs": len(data), "sky_build_s": build_s,
+                       "configs": len(data), "sky_build_s": build_s, "per_car": per_car,
                        "runs_together_vs_alone": many, "table2": tables}, handle, indent=2)
 
 
