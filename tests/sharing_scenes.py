@@ -11,6 +11,7 @@ import math
 import torch
 
 from sdm.batch import ConfigurationSet
+from sdm.camera import APOLLO_CAMERA_5
 from sdm.sky import CIRCLE_RADIUS, SKY_SHIFT, build_configuration
 
 from scenes import configurations
@@ -41,14 +42,19 @@ def road_set(n: int, seed: int = 0, mean_cars: int = 11):
     return set_with_cars(configurations(n, seed, SKY_SHIFT, mean_cars))
 
 
-def car_row_scene(n_cars: int, n_configs: int = 1, seed: int = 0):
-    """``n_configs`` images of ``n_cars`` cars side by side at 12-40 m, discs apart (one row per car each)."""
+def car_grid_scene(n_cars: int, n_configs: int = 1, seed: int = 0, near: float = 12.0, far: float = 60.0):
+    """``n_configs`` images of ``n_cars`` cars each, centres on distinct nodes of a screen grid (16 columns
+    apart, 18 rows apart: discs 9 pixels wide never touch), depths uniform on ``[near, far]`` metres."""
+    camera = APOLLO_CAMERA_5
+    nodes = torch.tensor([[row, col] for row in range(20, 128 - 8, 18) for col in range(8, 256 - 4, 16)],
+                         dtype=torch.float64)
+    if n_cars > nodes.shape[0]:
+        raise ValueError(f"at most {nodes.shape[0]} cars fit the grid, got {n_cars}")
     generator = torch.Generator().manual_seed(seed)
     configs = []
     for i in range(n_configs):
-        z = 12.0 + 28.0 * torch.rand(n_cars, generator=generator, dtype=torch.float64)
-        x = torch.linspace(-0.35, 0.35, n_cars, dtype=torch.float64) * z if n_cars > 1 else torch.zeros(1)
-        x = x.double() + 0.05 * z * (torch.rand(n_cars, generator=generator, dtype=torch.float64) - 0.5)
-        y = 1.4 + 0.07 * z
-        configs.append(build_configuration(torch.stack((x, y, z), 1), SKY_SHIFT, image_id=f"row{i}"))
+        chosen = nodes[torch.randperm(nodes.shape[0], generator=generator)[:n_cars]]
+        depth = near + (far - near) * torch.rand(n_cars, generator=generator, dtype=torch.float64)
+        centres = camera.backproject(chosen + 0.5, depth)
+        configs.append(build_configuration(centres, SKY_SHIFT, camera, image_id=f"grid{n_cars}-{i}"))
     return set_with_cars(configs)

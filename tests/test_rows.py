@@ -12,7 +12,7 @@ from sdm.baselines.floor import FloorSettings
 from sdm.errors import SDMInputError
 from sdm.sky import add_target_noise, shifted_target
 
-from sharing_scenes import car_row_scene, road_set
+from sharing_scenes import car_grid_scene, road_set
 
 
 def reference_mismatch(points, unit, target, candidate, camera) -> int:
@@ -65,7 +65,7 @@ def test_count_one_at_a_time_equals_generation(scene):
 
 
 def test_cmaes_per_configuration_recovers_separate_cars():
-    data, cars, n_cars = car_row_scene(3, n_configs=2, seed=1)
+    data, cars, n_cars = car_grid_scene(3, n_configs=2, seed=1, far=40.0)
     level = S.per_car(data, cars, n_cars)
     truth = S.draw_truth(level, 3)
     shifted = S.shifted_set(data, truth, level.param_index)
