@@ -205,19 +205,12 @@ def fit_configurations(data: ConfigurationSet, units: Units, settings: RowsCMAES
     _check_units(data, units)
     totals = _start(theta0, units, "theta0")
     mismatch, evaluations, seconds = _per_configuration(len(data))
-    for index in _configs(data, configs):
-        first, last = int(units.offsets[index]), int(units.offsets[index + 1])
-        if first == last:
-            continue
-        began = time.process_time()
-        objective = configuration_objective(data, units, index)
-        start = totals[first:last].reshape(-1).tolist()
+    for index, own, objective, start, began in _each_configuration(data, units, configs, totals):
         result = _search(objective, settings.cmaes(len(start)), configuration_seed(seed, index), start)
-        best = torch.tensor(result.theta, dtype=torch.float64).view(-1, 2)
         mismatch[index] = objective(result.theta)
         seconds[index] = time.process_time() - began
         evaluations[index] = objective.evaluations - 1  # the closing count is not the search's
-        totals[first:last] = best
+        totals[own] = torch.tensor(result.theta, dtype=torch.float64).view(-1, 2)
     return RowsResult(totals, mismatch, evaluations, seconds)
 
 
@@ -226,8 +219,17 @@ def _per_configuration(n_configs: int):
             torch.zeros(n_configs, dtype=torch.float64))
 
 
-def _configs(data: ConfigurationSet, configs) -> list[int]:
-    return list(range(len(data))) if configs is None else data.check_indices(configs, "configs").tolist()
+def _each_configuration(data: ConfigurationSet, units: Units, configs, start: torch.Tensor):
+    """Per configuration of ``configs`` (default all) that has units, in order: ``(index, its units' slice,
+    its objective, its start as 2U floats, the process time before the objective was built)``."""
+    chosen = range(len(data)) if configs is None else data.check_indices(configs, "configs").tolist()
+    for index in chosen:
+        first, last = int(units.offsets[index]), int(units.offsets[index + 1])
+        if first == last:
+            continue
+        began = time.process_time()
+        objective = configuration_objective(data, units, index)
+        yield index, slice(first, last), objective, start[first:last].reshape(-1).tolist(), began
 
 
 @dataclass(frozen=True)
@@ -295,18 +297,12 @@ def floor_configurations(data: ConfigurationSet, units: Units, truth: torch.Tens
     totals, search_totals = truth.clone(), truth.clone()
     min_mismatch, evaluations, seconds = _per_configuration(len(data))
     at_truth = torch.zeros(len(data), dtype=torch.int64)
-    for index in _configs(data, configs):
-        first, last = int(units.offsets[index]), int(units.offsets[index + 1])
-        if first == last:
-            continue
-        began = time.process_time()
-        objective = configuration_objective(data, units, index)
-        start = truth[first:last].reshape(-1).tolist()
+    for index, own, objective, start, began in _each_configuration(data, units, configs, truth):
         result = floor_search(objective, configuration_seed(seed, index), settings.settings(len(start)),
                               theta0=start, truth=start)
         seconds[index] = time.process_time() - began
-        totals[first:last] = torch.tensor(result.theta, dtype=torch.float64).view(-1, 2)
-        search_totals[first:last] = torch.tensor(result.search_theta, dtype=torch.float64).view(-1, 2)
+        totals[own] = torch.tensor(result.theta, dtype=torch.float64).view(-1, 2)
+        search_totals[own] = torch.tensor(result.search_theta, dtype=torch.float64).view(-1, 2)
         min_mismatch[index], at_truth[index] = result.min_mismatch, result.mismatch_at_truth
         evaluations[index] = result.evaluations
     return RowsFloor(totals, search_totals, min_mismatch, at_truth, evaluations, seconds)
