@@ -284,11 +284,13 @@ def camera_and_car(data: ConfigurationSet, cars, n_cars=None) -> Sharing:
 
 
 def sharing(level: str, data: ConfigurationSet, cars=None, n_cars=None) -> Sharing:
-    """The :class:`Sharing` of ``level`` (:data:`LEVELS`); ``cars`` is needed for the car levels.
+    """The :class:`Sharing` of ``level`` (:data:`LEVELS`); the car levels need each point's car: ``cars``, or
+    the set's own ``cars`` attribute where it has one.
 
     Raises:
         SDMInputError: naming ``level`` if unknown, or ``cars`` if a car level is asked without it.
     """
+    cars = getattr(data, "cars", None) if cars is None else cars
     if level not in LEVELS:
         raise SDMInputError(f"level must be one of {', '.join(LEVELS)}, got {level!r}")
     if level in ("car", "camera+car") and cars is None:
