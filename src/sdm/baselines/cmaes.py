@@ -448,7 +448,13 @@ class PixelMismatch:
 
 
 def _search(objective: PixelMismatch, settings: CMAESSettings, seed: int, theta0) -> FitResult:
-    """One CMA-ES run on ``objective`` (``seconds`` left 0)."""
+    """One CMA-ES run on ``objective`` (``seconds`` left 0).
+
+    ``objective`` counts candidates of ``theta0``'s length ``d`` (``__call__``, ``many``, ``evaluations``):
+    ``d = 2`` for one shared ``(a, b)``, ``2 U`` for a configuration's ``U`` row shifts
+    (:mod:`sdm.baselines.rows`). The result's theta is the best candidate as a ``d``-tuple; the history
+    records ``a, b`` of the best so far only when ``d = 2``.
+    """
     import cma
 
     options = {
@@ -464,7 +470,8 @@ def _search(objective: PixelMismatch, settings: CMAESSettings, seed: int, theta0
     if settings.popsize:
         options["popsize"] = int(settings.popsize)
     strategy = cma.CMAEvolutionStrategy([float(v) for v in theta0], float(settings.sigma0), options)
-    history = {"stage": [], "loss": [], "a": [], "b": []}
+    planar = len(theta0) == 2
+    history = {"stage": [], "loss": [], "a": [], "b": []} if planar else {"stage": [], "loss": []}
     best_value, best_theta = objective(theta0), tuple(float(v) for v in theta0)
     generation = 0
     while not strategy.stop():
@@ -473,11 +480,12 @@ def _search(objective: PixelMismatch, settings: CMAESSettings, seed: int, theta0
         strategy.tell(candidates, values)
         winner = min(range(len(values)), key=values.__getitem__)
         if values[winner] < best_value:
-            best_value, best_theta = values[winner], (float(candidates[winner][0]), float(candidates[winner][1]))
+            best_value, best_theta = values[winner], tuple(float(v) for v in candidates[winner])
         history["stage"].append(generation)
         history["loss"].append(float(min(values)))
-        history["a"].append(best_theta[0])
-        history["b"].append(best_theta[1])
+        if planar:
+            history["a"].append(best_theta[0])
+            history["b"].append(best_theta[1])
         generation += 1
     return FitResult(best_theta, 0.0, objective.evaluations, history)
 

@@ -211,7 +211,8 @@ class FitResult:
     """What a baseline fit returns.
 
     Attributes:
-        theta: the estimate ``(a, b)`` in metres.
+        theta: the estimate ``(a, b)`` in metres; for a fit of per-row shifts (a parameter index,
+            :mod:`sdm.sharing`), the ``(K, 2)`` float64 tensor of the rows' estimates.
         seconds: wall time of the fit (setup included), seconds; for a run of ``fit_runs``, the
             whole batched fit's wall time divided by its number of runs (:func:`timed_runs`).
         evaluations: loss evaluations (gradient steps, or objective calls for CMA-ES).
@@ -278,6 +279,7 @@ def staged_adam_runs(
     theta0: Sequence[float] = (0.0, 0.0),
     dtype: torch.dtype = torch.float64,
     device: torch.device | str | None = None,
+    table: bool = False,
 ) -> list[FitResult]:
     """Adam on ``theta``, stage after stage (coarse to fine), the learning rate times ``lr_decay`` per
     stage; ``R`` independent runs at once, one per seed.
@@ -302,8 +304,12 @@ def staged_adam_runs(
         lr_decay: factor per stage.
         batch_size: configurations per step and run (full batch when ``>= n_configs``).
         seeds: one per run; seeds its mini-batches and any subsampling inside ``loss``.
-        theta0: every run's start ``(a, b)``, metres.
+        theta0: every run's start ``(a, b)``, metres; with ``table``, a ``(K, 2)`` table of row shifts.
         dtype, device: of ``theta``.
+        table: fit a table of ``K`` rows (parameters attached to points, :mod:`sdm.sharing`): ``theta``
+            is ``(R, 2K)`` (run ``r``'s rows flattened, row ``k`` at ``[2k, 2k + 1]``), each run's Adam
+            elementwise as before; the results' ``theta`` is a ``(K, 2)`` float64 tensor and their history
+            holds ``stage, loss`` only.
 
     Returns:
         One :class:`FitResult` per run, in the order of ``seeds`` (``seconds`` left 0: the caller
@@ -314,10 +320,12 @@ def staged_adam_runs(
     """
     generators = [torch.Generator().manual_seed(int(seed)) for seed in seeds]
     n_runs = len(generators)
-    theta = torch.tensor([[float(v) for v in theta0]] * n_runs, dtype=dtype, device=device, requires_grad=True)
+    start = torch.as_tensor(theta0, dtype=torch.float64).reshape(-1).tolist() if table else theta0
+    theta = torch.tensor([[float(v) for v in start]] * n_runs, dtype=dtype, device=device, requires_grad=True)
     adam = RowAdam(theta)
     batches = [batch_orders(n_configs, batch_size, generator) for generator in generators]
-    histories = [{"stage": [], "loss": [], "a": [], "b": []} for _ in range(n_runs)]
+    histories = [{"stage": [], "loss": []} if table else {"stage": [], "loss": [], "a": [], "b": []}
+                 for _ in range(n_runs)]
     rate = lr
     for stage in stages:
         for step in range(steps):
@@ -330,16 +338,21 @@ def staged_adam_runs(
             values.sum().backward()
             take = [False] * n_runs if theta.grad is None else torch.isfinite(theta.grad).all(1).tolist()
             adam.step(step_lr, take)
-            positions = theta.detach().tolist()
-            for run, ((a, b), value, history) in enumerate(zip(positions, values.detach().tolist(), histories)):
-                if not (math.isfinite(a) and math.isfinite(b)):
+            positions = torch.isfinite(theta.detach()).all(1).tolist() if table else theta.detach().tolist()
+            for run, (position, value, history) in enumerate(zip(positions, values.detach().tolist(), histories)):
+                if not (position if table else math.isfinite(position[0]) and math.isfinite(position[1])):
                     raise SDMInputError(f"theta of run {run} (seed {seeds[run]}) became non-finite at stage {stage} "
                                         f"(lr {rate!r} too large?)")
                 history["stage"].append(stage)
                 history["loss"].append(value)
-                history["a"].append(a)
-                history["b"].append(b)
+                if not table:
+                    history["a"].append(position[0])
+                    history["b"].append(position[1])
         rate *= lr_decay
+    if table:
+        final = theta.detach().to(torch.float64).view(n_runs, -1, 2)
+        return [FitResult(final[run].clone(), 0.0, len(history["loss"]), history)
+                for run, history in enumerate(histories)]
     return [FitResult((history["a"][-1], history["b"][-1]) if history["a"] else tuple(float(v) for v in theta0),
                       0.0, len(history["loss"]), history) for history in histories]
 

@@ -48,6 +48,7 @@ to its extent (0.04-0.07e-3 m).
 """
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Sequence
@@ -123,25 +124,39 @@ class FloorRegion:
     """Where one search ends and the minimal region around it.
 
     Attributes:
-        search_theta: the search's best ``(a, b)``, metres (after the compass search).
+    The search runs in any number ``d`` of coordinates: ``(a, b)`` for one shared shift, ``2 U`` for a
+    configuration's ``U`` row shifts (:mod:`sdm.baselines.rows`).
+
+    Attributes:
+        search_theta: the search's best point (``(a, b)``), metres (after the compass search).
         mismatch: the count there, the minimum found (pixels).
-        interval_a: ``(low, high)`` minimal interval along ``a`` at ``b = search_theta[1]``, metres.
-        interval_b: ``(low, high)`` minimal interval along ``b`` at ``a = theta[0]``, metres.
-        theta: the region's centre ``(a, b)``, metres: the midpoints of the two intervals (each where the
-            count there is ``mismatch``; else the coordinate of the point the interval was measured
-            through); the count at ``theta`` is ``mismatch``.
+        intervals: per coordinate ``i``, the ``(low, high)`` minimal interval along it through the point whose
+            coordinates before ``i`` are already the centre's and the others the search point's, metres
+            (``a`` at ``b = search_theta[1]``, then ``b`` at ``a = theta[0]``).
+        theta: the region's centre, metres: the midpoints of the intervals (each where the count there is
+            ``mismatch``; else the coordinate of the point the interval was measured through); the count
+            at ``theta`` is ``mismatch``.
     """
 
-    search_theta: tuple[float, float]
+    search_theta: tuple[float, ...]
     mismatch: int
-    interval_a: tuple[float, float]
-    interval_b: tuple[float, float]
-    theta: tuple[float, float]
+    intervals: tuple[tuple[float, float], ...]
+    theta: tuple[float, ...]
 
     @property
-    def extent(self) -> tuple[float, float]:
-        """The region's width along ``a`` and along ``b``, metres (each within ``2 extent_tol``)."""
-        return (self.interval_a[1] - self.interval_a[0], self.interval_b[1] - self.interval_b[0])
+    def interval_a(self) -> tuple[float, float]:
+        """The minimal interval along the first coordinate (``a``)."""
+        return self.intervals[0]
+
+    @property
+    def interval_b(self) -> tuple[float, float]:
+        """The minimal interval along the second coordinate (``b``)."""
+        return self.intervals[1]
+
+    @property
+    def extent(self) -> tuple[float, ...]:
+        """The region's width along each coordinate (``a``, ``b``), metres (each within ``2 extent_tol``)."""
+        return tuple(high - low for low, high in self.intervals)
 
 
 @dataclass
@@ -186,16 +201,21 @@ class FloorResult:
     @property
     def distance(self) -> float:
         """The centre's distance to theta*, metres."""
-        return float(distance(self.region.theta, self.truth))
+        return _distance(self.region.theta, self.truth)
 
     @property
     def search_distance(self) -> float:
-        return float(distance(self.region.search_theta, self.truth))
+        return _distance(self.region.search_theta, self.truth)
 
     @property
     def half_distance(self) -> float:
         """The half-budget floor's (its region centre's) distance to theta*, metres."""
-        return float(distance(self.half.theta, self.truth))
+        return _distance(self.half.theta, self.truth)
+
+
+def _distance(theta: Sequence[float], truth: Sequence[float]) -> float:
+    """Euclidean distance, metres: :func:`sdm.metrics.distance` for ``(a, b)``, over every coordinate beyond."""
+    return float(distance(theta, truth)) if len(theta) == 2 else math.dist(theta, truth)
 
 
 class _Memo:
@@ -214,22 +234,32 @@ class _Memo:
         return self.many([theta])[0]
 
     def many(self, thetas) -> list[int]:
-        keys = [(float(theta[0]), float(theta[1])) for theta in thetas]
+        keys = [tuple(float(v) for v in theta) for theta in thetas]
         new = list(dict.fromkeys(key for key in keys if key not in self.counts))
         if new:
             self.counts.update(zip(new, self.objective.many(new)))
         return [self.counts[key] for key in keys]
 
 
-#: The compass search's neighbours, in the order ties are broken (axes first, then diagonals).
+#: The compass search's neighbours in the plane, in the order ties are broken (axes first, then diagonals).
 _COMPASS = ((1, 0), (-1, 0), (0, 1), (0, -1), (1, 1), (1, -1), (-1, 1), (-1, -1))
 
 
-def _compass(count: _Memo, theta: tuple[float, float], value: int, settings: FloorSettings):
+def _neighbours(dimension: int) -> tuple[tuple[int, ...], ...]:
+    """The compass directions in ``dimension`` coordinates: :data:`_COMPASS` in the plane; beyond it the
+    axes alone (``+e_0, -e_0, +e_1, ...``: ``2 d`` neighbours instead of ``3^d - 1``)."""
+    if dimension == 2:
+        return _COMPASS
+    return tuple(tuple(sign if axis == i else 0 for i in range(dimension))
+                 for axis in range(dimension) for sign in (1, -1))
+
+
+def _compass(count: _Memo, theta: tuple[float, ...], value: int, settings: FloorSettings):
     """The compass search from ``theta`` (count ``value``): ``(theta, value)`` where it stops."""
     step = float(settings.refine_step)
+    directions = _neighbours(len(theta))
     while step >= settings.refine_tol:
-        candidates = [(theta[0] + step * i, theta[1] + step * j) for i, j in _COMPASS]
+        candidates = [tuple(v + step * i for v, i in zip(theta, direction)) for direction in directions]
         values = count.many(candidates)
         best = min(range(len(values)), key=values.__getitem__)  # first on ties
         if values[best] < value:
@@ -239,7 +269,7 @@ def _compass(count: _Memo, theta: tuple[float, float], value: int, settings: Flo
     return theta, value
 
 
-def _interval(count: _Memo, theta: tuple[float, float], value: int, axis: int, settings: FloorSettings):
+def _interval(count: _Memo, theta: tuple[float, ...], value: int, axis: int, settings: FloorSettings):
     """The minimal interval along ``axis`` through ``theta`` (count ``value``, taken as the minimum).
 
     Returns ``((low, high), lower)``: the interval's ends (coordinates along ``axis``, metres; the last
@@ -248,10 +278,10 @@ def _interval(count: _Memo, theta: tuple[float, float], value: int, axis: int, s
     """
     tol, reach = float(settings.extent_tol), float(settings.extent_reach)
 
-    def at(offset: float) -> tuple[float, float]:
+    def at(offset: float) -> tuple[float, ...]:
         moved = list(theta)
         moved[axis] = theta[axis] + offset
-        return moved[0], moved[1]
+        return tuple(moved)
 
     # Both directions advance together: one call counts a probe of each (the counts are per candidate,
     # so nothing is spent, and the calls halve).
@@ -287,29 +317,31 @@ def _interval(count: _Memo, theta: tuple[float, float], value: int, axis: int, s
     return (theta[axis] - inside[1], theta[axis] + inside[0]), None
 
 
-def _region(count: _Memo, theta: tuple[float, float], value: int, settings: FloorSettings) -> FloorRegion:
-    """Compass search from ``theta``, then the minimal region around where it stops (module docstring, 2-3)."""
+def _region(count: _Memo, theta: tuple[float, ...], value: int, settings: FloorSettings) -> FloorRegion:
+    """Compass search from ``theta``, then the minimal region around where it stops (module docstring, 2-3):
+    coordinate after coordinate, each interval through the point whose earlier coordinates are centred."""
     while True:
         theta, value = _compass(count, theta, value, settings)
-        interval_a, lower = _interval(count, theta, value, 0, settings)
+        line, intervals, lower = tuple(theta), [], None
+        for axis in range(len(theta)):
+            interval, lower = _interval(count, line, value, axis, settings)
+            if lower is None:
+                centre, lower = _centre(count, line, value, axis, interval)
+            if lower is not None:
+                break
+            intervals.append(interval)
+            line = line[:axis] + (centre,) + line[axis + 1:]
         if lower is None:
-            centre_a, lower = _centre(count, theta, value, 0, interval_a)
-        if lower is None:
-            line = (centre_a, theta[1])
-            interval_b, lower = _interval(count, line, value, 1, settings)
-        if lower is None:
-            centre_b, lower = _centre(count, line, value, 1, interval_b)
-        if lower is None:
-            return FloorRegion(theta, int(value), interval_a, interval_b, (centre_a, centre_b))
+            return FloorRegion(theta, int(value), tuple(intervals), line)
         theta, value = lower
 
 
-def _centre(count: _Memo, theta: tuple[float, float], value: int, axis: int, interval: tuple[float, float]):
+def _centre(count: _Memo, theta: tuple[float, ...], value: int, axis: int, interval: tuple[float, float]):
     """``(coordinate, lower)``: the interval's midpoint along ``axis`` if the count there is ``value``; else
     ``theta``'s own coordinate (the interval is not one piece: its ends were found from ``theta`` outwards,
     past a higher count in between); ``lower`` as :func:`_interval`'s."""
     middle = 0.5 * (interval[0] + interval[1])
-    point = (middle, theta[1]) if axis == 0 else (theta[0], middle)
+    point = theta[:axis] + (middle,) + theta[axis + 1:]
     point_value = count(point)
     if point_value < value:
         return None, (point, point_value)
@@ -324,8 +356,9 @@ def floor_search(objective: PixelMismatch, seed: int = 0, settings: FloorSetting
         objective: the exact pixel mismatch of a (noisy) training set.
         seed: seeds the CMA-ES runs (run ``k`` gets a seed drawn from ``(seed, k)``).
         settings: budget and resolution (default :class:`FloorSettings`).
-        theta0: the first CMA-ES run's start ``(a, b)``, metres.
-        truth: theta* ``(a, b)``, metres, for the distances and ``mismatch_at_truth``.
+        theta0: the first CMA-ES run's start ``(a, b)`` (or any ``d`` coordinates the objective counts), metres.
+        truth: theta* ``(a, b)`` (as many coordinates as ``theta0``), metres, for the distances and
+            ``mismatch_at_truth``.
 
     Returns:
         :class:`FloorResult`. Deterministic: the same objective, seed and settings give the same result.
@@ -333,10 +366,12 @@ def floor_search(objective: PixelMismatch, seed: int = 0, settings: FloorSetting
     settings = FloorSettings() if settings is None else settings
     if not isinstance(settings, FloorSettings):
         raise SDMInputError(f"settings must be FloorSettings, got {type(settings).__name__}")
-    truth = (float(truth[0]), float(truth[1]))
+    truth = tuple(float(v) for v in truth)
     start, first = time.perf_counter(), objective.evaluations
     count = _Memo(objective)
-    best_theta = (float(theta0[0]), float(theta0[1]))
+    best_theta = tuple(float(v) for v in theta0)
+    if len(best_theta) != len(truth):
+        raise SDMInputError(f"theta0 has {len(best_theta)} coordinates, truth {len(truth)}")
     best_value = count(best_theta)
     restart_best, half_state = [], None
     seeds = np.random.SeedSequence([int(seed)]).generate_state(settings.restarts, dtype=np.uint32)
@@ -344,7 +379,7 @@ def floor_search(objective: PixelMismatch, seed: int = 0, settings: FloorSetting
         run = _search(count, settings.cmaes(restart), int(seeds[restart]), best_theta)
         value = count(run.theta)
         if value < best_value:  # ties keep the incumbent
-            best_theta, best_value = (float(run.theta[0]), float(run.theta[1])), value
+            best_theta, best_value = tuple(float(v) for v in run.theta), value
         restart_best.append((int(best_value), best_theta))
         if restart + 1 == settings.restarts // 2:
             half_state = (best_theta, best_value)

@@ -31,6 +31,7 @@ import torch
 from ..batch import ConfigurationSet
 from ..camera import Camera
 from ..errors import SDMInputError
+from ..sharing import check_param_index, check_theta, point_shifts
 from ..zoom import check_divisible
 from .common import (
     FitResult, check_positive, check_positive_int, check_runs, field_error, project_shifted, staged_adam_runs,
@@ -153,22 +154,24 @@ def settings_dtype(settings: SilhouetteSettings) -> torch.dtype:
 
 
 def fit(train_set: ConfigurationSet, settings: SilhouetteSettings = SilhouetteSettings(), seed: int = 0,
-        camera: Camera | None = None, theta0=(0.0, 0.0)) -> FitResult:
+        camera: Camera | None = None, theta0=(0.0, 0.0), param_index=None) -> FitResult:
     """Estimate ``theta`` by Adam on the soft-silhouette loss, levels ``s..0``: one run of :func:`fit_runs`.
 
     Args:
         train_set: configurations (points ``Q``, targets ``L``).
         settings: hyper-parameters.
         seed: seeds the mini-batches.
+        param_index: rows moving each point (:func:`fit_runs`); ``theta0`` is then the ``(K, 2)`` start.
 
     Returns:
         :class:`~sdm.baselines.common.FitResult`; history stages are the zoom levels.
     """
-    return fit_runs([train_set], settings, [seed], camera, theta0)[0]
+    return fit_runs([train_set], settings, [seed], camera, theta0, param_index)[0]
 
 
 def fit_runs(train_sets: Sequence[ConfigurationSet], settings: SilhouetteSettings = SilhouetteSettings(),
-             seeds: Sequence[int] = (0,), camera: Camera | None = None, theta0=(0.0, 0.0)) -> list[FitResult]:
+             seeds: Sequence[int] = (0,), camera: Camera | None = None, theta0=(0.0, 0.0),
+             param_index=None) -> list[FitResult]:
     """``R`` independent soft-silhouette fits as one program: run ``r`` is ``fit(train_sets[r], settings, seeds[r])``.
 
     Each step splats the runs' mini-batches as one batch of ``R x batch_size`` silhouettes (run
@@ -185,15 +188,29 @@ def fit_runs(train_sets: Sequence[ConfigurationSet], settings: SilhouetteSetting
         settings: shared by every run.
         seeds: ``R`` seeds; ``seeds[r]`` draws run ``r``'s mini-batches as ``fit`` does.
         camera: default the sets' camera.
-        theta0: every run's start ``(a, b)``, metres.
+        theta0: every run's start ``(a, b)``, metres; with ``param_index``, the ``(K, 2)`` table of rows.
+        param_index: ``None`` (one shift for every point: the paper's case, the path of Table 3), or the
+            rows moving each point, ``(P,)`` or ``(P, G)`` (:mod:`sdm.sharing`): each point is shifted by
+            the sum of its rows of its run's ``theta`` and each run fits a ``(K, 2)`` table. A row's
+            gradient comes from its configurations alone, so a mini-batch moves only the rows of its
+            configurations (and Adam's momentum the others): fit per-row tables with ``batch_size`` at
+            least the number of configurations (every row a gradient every step).
 
     Returns:
-        One :class:`~sdm.baselines.common.FitResult` per run; ``seconds`` is the batched fit's wall
-        time divided by ``R`` (its cost per run).
+        One :class:`~sdm.baselines.common.FitResult` per run (``theta`` ``(K, 2)`` with ``param_index``);
+        ``seconds`` is the batched fit's wall time divided by ``R`` (its cost per run).
+
+    Raises:
+        SDMInputError: naming ``param_index`` (out of range, negative, wrong length, a row without points)
+            or ``theta0`` (not ``(K, 2)``).
     """
     check_runs(train_sets, seeds)
     camera = camera or train_sets[0].camera
     first = train_sets[0]
+    index = None
+    if param_index is not None:
+        theta0 = check_theta(theta0, name="theta0")
+        index = check_param_index(param_index, first, theta0.shape[0]).to(first.device)
 
     def run() -> list[FitResult]:
         check_divisible(camera.screen_shape, settings.s)
@@ -203,7 +220,11 @@ def fit_runs(train_sets: Sequence[ConfigurationSet], settings: SilhouetteSetting
             n_runs, n_rows = configs.shape
             rows, local = first.rows(configs.reshape(-1))
             run_of_row = torch.div(local, n_rows, rounding_mode="floor")
-            screen = project_shifted(first.points.index_select(0, rows), theta.index_select(0, run_of_row), camera)
+            if index is None:  # one shift per run
+                shift = theta.index_select(0, run_of_row)
+            else:  # each point its rows' sum, of its run's table
+                shift = point_shifts(theta.view(n_runs, -1, 2), index.index_select(0, rows), runs=run_of_row)
+            screen = project_shifted(first.points.index_select(0, rows), shift, camera)
             silhouette = soft_silhouette(screen.to(settings_dtype(settings)), local, n_runs * n_rows, level,
                                          settings.sigma, camera.screen_shape)
             target = torch.cat([pyramid[level].index_select(0, run_configs)
@@ -219,6 +240,7 @@ def fit_runs(train_sets: Sequence[ConfigurationSet], settings: SilhouetteSetting
                               for first_run in range(0, len(pyramids), chunk)])
 
         return staged_adam_runs(loss, len(first), range(settings.s, -1, -1), settings.steps, settings.lr,
-                                settings.lr_decay, settings.batch_size, seeds, theta0, device=first.points.device)
+                                settings.lr_decay, settings.batch_size, seeds, theta0, device=first.points.device,
+                                table=index is not None)
 
     return timed_runs(run)

@@ -1,0 +1,122 @@
+"""CMA-ES and the floor per configuration on per-row shifts (sdm.baselines.rows)."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+pytest.importorskip("cma")
+
+from sdm import sharing as S
+from sdm.baselines import rows
+from sdm.baselines.floor import FloorSettings
+from sdm.errors import SDMInputError
+from sdm.sky import add_target_noise, shifted_target
+
+from sharing_scenes import car_grid_scene, road_set
+
+
+def reference_mismatch(points, unit, target, candidate, camera) -> int:
+    """The straightforward count: render the points moved by their units' shifts, count the differing pixels."""
+    shifts = torch.as_tensor(candidate, dtype=torch.float64).view(-1, 2)[unit]
+    return int((shifted_target(points, shifts, camera) ^ target).sum())
+
+
+@pytest.fixture(scope="module")
+def scene():
+    data, cars, n_cars = road_set(5, seed=9)
+    level = S.camera_and_car(data, cars, n_cars)
+    truth = S.draw_truth(level, 11)
+    shifted = S.shifted_set(data, truth, level.param_index)
+    units = S.units(shifted, level.param_index, level.n_rows)
+    return shifted, units, S.unit_totals(truth, units)
+
+
+def test_count_equals_reference(scene):
+    data, units, totals = scene
+    generator = torch.Generator().manual_seed(0)
+    for index in range(len(data)):
+        objective = rows.configuration_objective(data, units, index)
+        first, last = int(units.offsets[index]), int(units.offsets[index + 1])
+        centre = totals[first:last].reshape(1, -1)
+        # candidates near theta* (small moves, pixels shared between cars) and far (discs off screen)
+        candidates = torch.cat((centre, centre + 0.05 * torch.randn(7, centre.shape[1], generator=generator,
+                                                                     dtype=torch.float64),
+                                centre + 3.0 * torch.randn(4, centre.shape[1], generator=generator,
+                                                           dtype=torch.float64)))
+        noisy = add_target_noise(data.targets[index], 2, torch.Generator().manual_seed(index))
+        for target in (data.targets[index], noisy):
+            counted = rows.ConfigurationMismatch(objective.points, objective.unit, target, data.camera)
+            fast = counted.many(candidates.numpy())
+            slow = [reference_mismatch(objective.points, objective.unit, target, c, data.camera) for c in candidates]
+            assert fast == slow
+        assert objective(centre[0].tolist()) == 0  # the target is the rendering at theta*
+
+
+def test_count_one_at_a_time_equals_generation(scene):
+    data, units, totals = scene
+    objective = rows.configuration_objective(data, units, 1)
+    candidates = (totals[units.offsets[1]:units.offsets[2]].reshape(1, -1)
+                  + 0.1 * torch.randn(6, 2 * objective.n_units, generator=torch.Generator().manual_seed(1),
+                                      dtype=torch.float64)).numpy()
+    assert objective.many(candidates) == [objective(c) for c in candidates]
+    assert objective.evaluations == 12
+    with pytest.raises(SDMInputError, match="coordinates"):
+        objective.many([[0.0, 0.0]])
+
+
+def test_cmaes_per_configuration_recovers_separate_cars():
+    data, cars, n_cars = car_grid_scene(3, n_configs=2, seed=1, far=40.0)
+    level = S.per_car(data, cars, n_cars)
+    truth = S.draw_truth(level, 3)
+    shifted = S.shifted_set(data, truth, level.param_index)
+    units = S.units(shifted, level.param_index, level.n_rows)
+    result = rows.fit_configurations(shifted, units, rows.RowsCMAESSettings(), seed=2)
+    again = rows.fit_configurations(shifted, units, rows.RowsCMAESSettings(), seed=2)
+    assert torch.equal(result.totals, again.totals) and torch.equal(result.evaluations, again.evaluations)
+    assert result.mismatch.tolist() == [0, 0]  # every car in its pixel cell
+    assert bool((result.evaluations <= 150 * 6 + 20).all()) and bool((result.seconds > 0).all())
+    theta = S.theta_from_totals(result.totals, units, level.n_rows)
+    distances = S.row_distances(theta, truth)
+    # a car's exact count is flat over its pixel cell: z / f' metres across (at most about 0.25 m here)
+    assert float(distances.max()) < 0.3
+    for index in range(len(shifted)):
+        objective = rows.configuration_objective(shifted, units, index)
+        first, last = int(units.offsets[index]), int(units.offsets[index + 1])
+        assert reference_mismatch(objective.points, objective.unit, shifted.targets[index],
+                                  result.totals[first:last], shifted.camera) == int(result.mismatch[index])
+
+
+def test_floor_per_configuration_is_in_theta_stars_region(scene):
+    data, units, totals = scene
+    settings = rows.RowsFloorSettings(evaluations_per_unknown=50, floor=FloorSettings(refine_tol=1e-4,
+                                                                                     extent_tol=1e-4))
+    floor = rows.floor_configurations(data, units, totals, settings, seed=0, configs=[0, 2])
+    assert floor.min_mismatch.tolist() == [0, 0, 0, 0, 0] and floor.mismatch_at_truth[[0, 2]].tolist() == [0, 0]
+    for index in (0, 2):  # without noise theta* is a minimiser: the floor is its region's centre
+        objective = rows.configuration_objective(data, units, index)
+        first, last = int(units.offsets[index]), int(units.offsets[index + 1])
+        assert objective(floor.totals[first:last].reshape(-1).tolist()) == 0
+        assert floor.evaluations[index] > 0
+    untouched = slice(int(units.offsets[1]), int(units.offsets[2]))
+    assert torch.equal(floor.totals[untouched], totals[untouched])
+    noisy = data.with_targets(torch.stack([add_target_noise(t, 3, torch.Generator().manual_seed(i))
+                                           for i, t in enumerate(data.targets)]))
+    noisy_floor = rows.floor_configurations(noisy, units, totals, settings, seed=0, configs=[0])
+    assert int(noisy_floor.min_mismatch[0]) <= int(noisy_floor.mismatch_at_truth[0])
+
+
+def test_settings_and_arguments_checked(scene):
+    data, units, _ = scene
+    with pytest.raises(SDMInputError, match="evaluations_per_unknown"):
+        rows.RowsCMAESSettings(evaluations_per_unknown=0)
+    with pytest.raises(SDMInputError, match="sigma0"):
+        rows.RowsFloorSettings(sigma0=-1.0)
+    with pytest.raises(SDMInputError, match="units"):
+        rows.fit_configurations(data.subset([0, 1]), units)
+    with pytest.raises(SDMInputError, match="theta0"):
+        rows.fit_configurations(data, units, theta0=torch.zeros(len(units) + 1, 2))
+    with pytest.raises(SDMInputError, match="truth"):
+        rows.floor_configurations(data, units, torch.zeros(1, 2))
+    with pytest.raises(SDMInputError, match="configs"):
+        rows.fit_configurations(data, units, configs=[len(data)])
+    assert rows.RowsCMAESSettings(evaluations_per_unknown=10).cmaes(6).budget == 60
