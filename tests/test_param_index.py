@@ -154,12 +154,12 @@ def test_a_row_learns_from_its_own_points_only():
 
 
 @pytest.mark.parametrize("bad,message", [
-    (lambda p: torch.zeros(p - 1, dtype=torch.int64), "shape"),
-    (lambda p: -torch.ones(p, dtype=torch.int64), "non-negative"),
-    (lambda p: torch.zeros(p, dtype=torch.float64), "integer"),
-    (lambda p: torch.full((p,), 2, dtype=torch.int64), "row 0 with no point"),
-    (lambda p: torch.zeros(p, 0, dtype=torch.int64), "shape"),
-    (lambda p: [0] * p, "integer tensor"),
+    (lambda p: torch.zeros(p - 1, dtype=torch.int64), "one entry per point"),
+    (lambda p: -torch.ones(p, dtype=torch.int64), "must not be negative"),
+    (lambda p: torch.zeros(p, dtype=torch.float64), "must hold integers"),
+    (lambda p: torch.full((p,), 2, dtype=torch.int64), "row 0 of theta moves no point"),
+    (lambda p: torch.zeros(p, 0, dtype=torch.int64), "at least one row per point"),
+    (lambda p: torch.zeros(p, 2, 2, dtype=torch.int64), "shape (P,) or (P, G)"),
 ])
 def test_bad_param_index_is_named(bad, message):
     data = configuration_set(16, seed=35)
@@ -181,8 +181,10 @@ def test_row_rate_is_checked():
 def test_theta0_must_match_the_rows():
     data = configuration_set(16, seed=36)
     index = point_config(data)
-    with pytest.raises(SDMInputError, match=r"theta0\[0\] must be \(16, 2\)"):
+    with pytest.raises(SDMInputError, match=r"param_index must lie in \[0, 15\)"):  # an index beyond theta's rows
         train_runs(data, [data.targets], [TrainSettings()], theta0=[torch.zeros(15, 2)], param_index=index)
+    with pytest.raises(SDMInputError, match=r"theta0\[0\] must be \(16, 2\)"):
+        train_runs(data, [data.targets], [TrainSettings()], theta0=[torch.zeros(16, 3)], param_index=index)
     with pytest.raises(SDMInputError, match="fit_depth"):
         train_runs(data, [data.targets], [TrainSettings(fit_depth=True)], param_index=index)
 

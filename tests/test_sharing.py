@@ -1,6 +1,7 @@
 """sdm.sharing: the parameter index per point, its levels, theta* draws, targets, units and distances."""
 from __future__ import annotations
 
+import copy
 import math
 
 import pytest
@@ -126,8 +127,10 @@ def test_cars_checked(road):
         S.per_car(data, cars.double())
     with pytest.raises(SDMInputError, match="cars"):
         S.per_car(data, cars, torch.zeros_like(n_cars))
+    bare = copy.copy(data)
+    bare.cars = None  # a set packed without its points' cars
     with pytest.raises(SDMInputError, match="cars"):
-        S.sharing("car", data)
+        S.sharing("car", bare)
     with pytest.raises(SDMInputError, match="level"):
         S.sharing("camera", data)
 

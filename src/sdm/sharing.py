@@ -49,14 +49,14 @@ def _n_points(data: ConfigurationSet | int) -> int:
     return int(data.points.shape[0]) if isinstance(data, ConfigurationSet) else int(data)
 
 
-def check_param_index(param_index, data: ConfigurationSet | int, n_rows: int,
+def check_param_index(param_index, data: ConfigurationSet | int, n_rows: int | None,
                       name: str = "param_index") -> torch.Tensor:
     """``param_index`` checked against a set of ``P`` points and a ``theta`` of ``n_rows`` rows.
 
     Args:
         param_index: ``(P,)`` or ``(P, G)`` integer tensor (or nested sequence): the rows moving each point.
         data: the set (or its number of points ``P``).
-        n_rows: ``K``, the rows of ``theta``.
+        n_rows: ``K``, the rows of ``theta``; ``None``: as many as the index names (its largest entry + 1).
         name: what the messages call the argument.
 
     Returns:
@@ -87,14 +87,14 @@ def check_param_index(param_index, data: ConfigurationSet | int, n_rows: int,
         index = index.unsqueeze(1)
     if index.shape[1] == 0:
         raise SDMInputError(f"{name} must name at least one row per point, got shape {tuple(param_index.shape)}")
+    if index.numel() and int(index.min()) < 0:
+        raise SDMInputError(f"{name} must not be negative (rows are counted from 0), got {int(index.min())}")
+    if n_rows is None:
+        n_rows = int(index.max()) + 1 if index.numel() else 1
     if isinstance(n_rows, bool) or int(n_rows) != n_rows or n_rows < 1:
         raise SDMInputError(f"theta must have at least one row, got {n_rows!r} rows")
-    if index.numel():
-        low, high = int(index.min()), int(index.max())
-        if low < 0:
-            raise SDMInputError(f"{name} must not be negative (rows are counted from 0), got {low}")
-        if high >= n_rows:
-            raise SDMInputError(f"{name} must lie in [0, {n_rows}) (the rows of theta), got {high}")
+    if index.numel() and int(index.max()) >= n_rows:
+        raise SDMInputError(f"{name} must lie in [0, {n_rows}) (the rows of theta), got {int(index.max())}")
     used = torch.bincount(index.reshape(-1), minlength=int(n_rows))
     empty = (used == 0).nonzero()
     if empty.numel():

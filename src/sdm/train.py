@@ -30,6 +30,7 @@ from .errors import SDMInputError
 from .mapping import SpatialDomainMapping, native
 from .mapping.layer import METHODS
 from .mapping.rules import flow_rule, kernel_form, rule_by_name
+from .sharing import check_param_index, point_shifts
 from .sky import shift_vector
 from .zoom import check_divisible, target_pyramid
 
@@ -317,7 +318,7 @@ def train_runs(
         if tuple(run_targets.shape) != tuple(train_set.targets.shape) or run_targets.dtype != torch.bool:
             raise SDMInputError(f"targets[{run}] must be bool of shape {tuple(train_set.targets.shape)}, "
                                 f"got {run_targets.dtype} {tuple(run_targets.shape)}")
-    rows = None if param_index is None else check_param_index(param_index, train_set)
+    rows = None if param_index is None else check_param_index(param_index, train_set, _theta0_rows(theta0))
     if rows is not None and (common.fit_depth or method == "dense"):
         raise SDMInputError("param_index: parameters attached to points train the shift (a, b) with method 'fast'; "
                             f"got fit_depth={common.fit_depth}, method={method!r}")
@@ -354,6 +355,15 @@ def rates_per_point(param_index: torch.Tensor) -> torch.Tensor:
     return counts.mean() / counts
 
 
+def _theta0_rows(theta0) -> int | None:
+    """The rows ``K`` of the first start of ``theta0`` where it has that shape (``(K, 2)``), else ``None``: then the
+    index's own count, and the starts are checked against it (:func:`_starts`)."""
+    if theta0 is None or len(theta0) == 0:
+        return None
+    first = torch.as_tensor(theta0[0])
+    return int(first.shape[0]) if first.dim() == 2 and first.shape[0] > 0 else None
+
+
 def _row_rate(row_rate, rows, device) -> torch.Tensor | None:
     """``row_rate`` checked against the checked ``rows``: ``(K,)`` float64 on ``device``, or ``None``."""
     if row_rate is None:
@@ -366,39 +376,6 @@ def _row_rate(row_rate, rows, device) -> torch.Tensor | None:
         raise SDMInputError(f"row_rate must be {n_rows} positive finite numbers (one per row of param_index), got "
                             f"{rate.dtype} {tuple(rate.shape)}")
     return rate.to(dtype=torch.float64, device=device)
-
-
-def check_param_index(param_index, train_set: ConfigurationSet) -> torch.Tensor:
-    """``param_index`` checked against ``train_set``: ``(P, G)`` int64 on the set's device.
-
-    Args:
-        param_index: ``(P,)`` or ``(P, G)`` integer tensor (``G >= 1``), the rows of theta that move each of the
-            set's ``P`` points (summed over ``G``).
-        train_set: the packed set whose points it indexes.
-
-    Raises:
-        SDMInputError: naming ``param_index`` unless it is an integer tensor of ``P`` rows and at least one
-            column with no negative entry, and naming the first row ``0 .. max`` that moves no point (a row
-            with no point would get no pull and no meaning).
-    """
-    n_points = train_set.points.shape[0]
-    if not isinstance(param_index, torch.Tensor) or param_index.dtype.is_floating_point or param_index.is_complex() \
-            or param_index.dtype == torch.bool:
-        raise SDMInputError(f"param_index must be an integer tensor, got "
-                            f"{getattr(param_index, 'dtype', type(param_index).__name__)}")
-    if param_index.dim() not in (1, 2) or param_index.shape[0] != n_points or param_index.numel() == 0 \
-            or (param_index.dim() == 2 and param_index.shape[1] == 0):
-        raise SDMInputError(f"param_index must have shape (P,) or (P, G) with P = {n_points} points of the set, "
-                            f"got {tuple(param_index.shape)}")
-    rows = param_index.reshape(n_points, -1).to(device=train_set.device, dtype=torch.int64)
-    if bool((rows < 0).any()):
-        raise SDMInputError(f"param_index must be non-negative, got {int(rows.min())}")
-    used = torch.bincount(rows.reshape(-1), minlength=int(rows.max()) + 1)
-    if bool((used == 0).any()):
-        empty = int((used == 0).nonzero()[0])
-        raise SDMInputError(f"param_index leaves row {empty} with no point (rows 0..{used.numel() - 1} must "
-                            f"each move a point)")
-    return rows.contiguous()
 
 
 @dataclass(frozen=True)
@@ -497,7 +474,7 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     orders = _shufflings([refine_seed(one.seed) for one in settings], len(train_set), refinement.epochs)
     rates = refinement.rates(common)
     starts = history.theta[-1].to(train_set.device)
-    rows = None if param_index is None else check_param_index(param_index, train_set)
+    rows = None if param_index is None else check_param_index(param_index, train_set, starts.shape[1])
     row_rate = _row_rate(row_rate, rows, train_set.device)
     per_pass = len(train_set) // common.batch_size
     record_every = 1 if rows is None else per_pass
@@ -660,11 +637,7 @@ def _train_torch(train_set, pyramids, settings, camera, method, levels, rates, o
                 batch, target_rows, run_of_point, run_bounds = epoch.batch(index)
                 if batch.points.shape[0]:  # a step where every run drew empty configurations pulls nothing
                     if rows is not None:  # each point moved by the sum of its rows of its run's theta
-                        point_rows = epoch.rows_of(index)
-                        shift = theta[run_of_point, point_rows[:, 0]]
-                        for column in range(1, point_rows.shape[1]):  # in column order, as the kernel sums
-                            shift = shift + theta[run_of_point, point_rows[:, column]]
-                        moves = shift_vector(shift, batch.points)
+                        moves = shift_vector(point_shifts(theta, epoch.rows_of(index), run_of_point), batch.points)
                     # One run: theta broadcast, so that autograd sums the flow as the single-run loop did.
                     elif n_runs == 1:
                         moves = shift_vector(theta[0], batch.points)
