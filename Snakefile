@@ -32,6 +32,7 @@ include: "workflow/rules/tuning.smk"
 include: "workflow/rules/noise.smk"
 include: "workflow/rules/baselines.smk"
 include: "workflow/rules/research.smk"
+include: "workflow/rules/objects.smk"
 include: "workflow/rules/report.smk"
 
 
@@ -43,6 +44,8 @@ wildcard_constraints:
     method=one_of(BASELINES),
     flow=one_of(RULE_LABELS),
     c=one_of(DEPTH_SHIFTS),
+    sharing=one_of(OBJECT_SHARINGS),
+    cars=r"\d+",
 
 
 # Small jobs run on the submitting node on a cluster (no queue wait for seconds of work).
@@ -55,6 +58,7 @@ localrules:
     table3,
     table4,
     table5,
+    table6,
 
 
 rule all:
@@ -63,7 +67,7 @@ rule all:
     input:
         [
             getattr(rules, stage).output
-            for stage in ("tables", "table3", "table4", "table5", "figures", "report")
+            for stage in ("tables", "table3", "table4", "table5", "table6", "figures", "report")
             if JOBS[stage]
         ],
         [each(stage, "html") for stage in JOBS],

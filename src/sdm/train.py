@@ -567,11 +567,11 @@ def _train_program(train_set, targets, own_targets, settings, camera, method, le
     common = settings[0]
     device = train_set.device
     windows = [kernel_form(common.flow, level) for level in levels]
-    if rows is not None and "crossing" in windows:
-        _check_rigid_rows(train_set, rows)
     if not (method == "fast" and not common.fit_depth and None not in windows and device.type == "cpu"
             and train_set.points.dtype == torch.float64 and native.enabled()
             and native.trains_screen(camera.screen_shape)):
+        if rows is not None and "crossing" in windows:  # the compiled groups split by rows; the torch rule cannot
+            _check_rigid_rows(train_set, rows)
         pyramids = _run_pyramids(train_set, targets, own_targets, common.s)  # run r's levels 0..s
         return _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar,
                             rows, record_every, row_rate)
@@ -593,8 +593,9 @@ def _train_program(train_set, targets, own_targets, settings, camera, method, le
 
 def _check_rigid_rows(train_set: ConfigurationSet, rows: torch.Tensor) -> None:
     """:class:`SDMInputError` naming ``param_index`` where a rigid group of ``group_crossing`` (the points of one
-    configuration at one depth, :func:`sdm.mapping.crossing.rigid_groups`) holds points of different rows: the
-    rule moves each group as one, which then would not be one shift."""
+    configuration at one depth, :func:`sdm.mapping.crossing.rigid_groups`) holds points of different rows, on the
+    torch path: its rule moves each group as one, which then would not be one shift. (The compiled trainer splits
+    such groups by rows.)"""
     from .mapping.crossing import rigid_groups
 
     if rows.shape[0] == 0:

@@ -483,7 +483,8 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     if any(window not in _WINDOWS for window in windows):  # sdm_train refuses a level it cannot run (-3)
         raise ValueError(f"train_program: windows must be of {sorted(_WINDOWS)}, got {windows}")
     modes_t = torch.tensor([_WINDOWS[window] for window in windows], dtype=torch.uint8, device=device)
-    groups = _crossing_groups(points, offsets) if "crossing" in windows else (torch.zeros(1, dtype=torch.int64),) * 3
+    groups = (_crossing_groups(points, offsets, param_index) if "crossing" in windows
+              else (torch.zeros(1, dtype=torch.int64),) * 3)
     crossing = _crossing_constants(device)
     addresses = torch.tensor([[level.data_ptr() if level is not None else 0 for level in run] for run in targets],
                              dtype=torch.int64, device=device)
@@ -525,14 +526,19 @@ _WINDOWS = {"paper": 0, "centred": 1, "crossing": 2}
 _GROUPS_CACHE: list = []
 
 
-def _crossing_groups(points: torch.Tensor, offsets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _crossing_groups(points: torch.Tensor, offsets: torch.Tensor,
+                     rows: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """``group_crossing``'s rigid groups of a packed set for ``sdm_train``, on the device of ``points``.
 
     Returns ``(config_group (N + 1,) int64, group_start (G + 1,) int64, members (P,) int32)``: configuration
     ``c``'s groups are ``config_group[c] .. config_group[c + 1]``, group ``g``'s points (indices within their
     configuration, ascending) ``members[group_start[g] .. group_start[g + 1]]``; groups as
-    :func:`sdm.mapping.crossing.rigid_groups` numbers them (configuration, then depth).
+    :func:`sdm.mapping.crossing.rigid_groups` numbers them (configuration, then depth). With ``rows`` ``(P, G)``
+    (parameters attached to points) a group is further split by its points' rows, so that each group moves as
+    one shift (two cars of one configuration may lie at one depth), numbered by configuration, depth, rows.
     """
+    if rows is not None:
+        return _crossing_layout(points, offsets, rows)
     key = (points._version, offsets._version)
     if _GROUPS_CACHE and _GROUPS_CACHE[0]() is points and _GROUPS_CACHE[1]() is offsets and _GROUPS_CACHE[2] == key:
         return _GROUPS_CACHE[3]
@@ -541,7 +547,8 @@ def _crossing_groups(points: torch.Tensor, offsets: torch.Tensor) -> tuple[torch
     return layout
 
 
-def _crossing_layout(points: torch.Tensor, offsets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+def _crossing_layout(points: torch.Tensor, offsets: torch.Tensor,
+                     rows: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """:func:`_crossing_groups`, computed."""
     from .crossing import rigid_groups  # the rules import this module
 
@@ -552,6 +559,10 @@ def _crossing_layout(points: torch.Tensor, offsets: torch.Tensor) -> tuple[torch
                 torch.zeros(1, dtype=torch.int64, device=points.device),
                 torch.zeros(1, dtype=torch.int32, device=points.device))
     group, first = rigid_groups(points[:, :2], points[:, 2], config)
+    if rows is not None:  # split each group by its points' rows (sorted: configuration, depth, rows)
+        group = torch.unique(torch.cat((group[:, None], rows), 1), dim=0, return_inverse=True)[1]
+        first = torch.full((int(group.max()) + 1,), points.shape[0], dtype=torch.int64, device=points.device)
+        first.scatter_reduce_(0, group, torch.arange(points.shape[0], device=points.device), "amin")
     order = torch.argsort(group, stable=True)
     members = (order - offsets.index_select(0, config.index_select(0, order))).to(torch.int32)
     sizes = torch.bincount(group, minlength=first.numel())

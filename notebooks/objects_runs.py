@@ -1,0 +1,69 @@
+# ---
+# jupyter:
+#   jupytext:
+#     text_representation:
+#       extension: .py
+#       format_name: percent
+#   kernelspec:
+#     display_name: Python 3
+#     language: python
+#     name: python3
+# ---
+
+# %% [markdown]
+# # Table 6: the paired runs of one sharing level at one noise level
+#
+# The paper's fundamental problem: each point carries its own shift, and the camera is what shifts points share.
+# Here the first configurations of the training split get a shift per configuration, per car, or a camera plus
+# a residual per car, drawn from the documented distribution (`sdm.sharing.TruthDistribution`); their targets
+# are rendered from those shifts and get Table 2's noise. SDM (the paper's rule and the recommended schedule),
+# CMA-ES per configuration, the soft-silhouette baseline and the floor all fit the same targets of a run
+# (`sdm.objects.objects_runs`; docs/method/objects.md). One row per (run, method, unit); the stage `table6`
+# gathers the files.
+
+# %% tags=["parameters"]
+sky = "results/sky/sky.bin"  # input
+split = "results/split/split.json"  # input
+runs_file = "results/research/objects/configuration_level0.csv"  # output: one row per (run, method, unit)
+sharing = "configuration"  # the sharing level (sdm.objects.SHARINGS)
+level = 0  # the noise level
+runs = 2  # runs 0..runs-1
+configurations = 8  # the first configurations of the training split
+truth = {"camera_sd": 0.15, "car_sd": 0.15, "residual_sd": 0.05}
+warm = {"lr": 1.0e-4, "n_epoch": 16}
+rows = {"lr": 5.0e-3, "n_epoch": 4, "s": 3}
+schedule = "closed_centred_r1+group_crossing:4"
+cmaes = {"evaluations_per_unknown": 150}
+floor = {"evaluations_per_unknown": 50, "restarts": 2}
+silhouette = {"lr": 0.1, "sigma": 0.5, "batch_size": 8, "steps": 27}
+seed = 0  # noise.seed: run r at level n draws theta*, its noise and its seeds from (seed, n, r)
+s = 4
+batch_size = 16
+lr_decay = 0.5
+threads = 1
+
+# %%
+import torch
+from IPython.display import display
+
+from sdm.data import SkyFile
+from sdm.experiments import single_thread
+from sdm.io import read_json, write_csv
+from sdm.batch import ConfigurationSet
+from sdm.objects import objects_runs, settings_from_config
+
+single_thread(threads)
+chosen = read_json(split)["train"][:configurations]
+with SkyFile(sky) as file:
+    configs = [file[i] for i in chosen]
+    camera = file.camera
+data = ConfigurationSet.from_configurations(configs, camera)
+n_cars = torch.tensor([int(config.centres.shape[0]) for config in configs], dtype=torch.int64)
+settings = settings_from_config(truth, warm, rows, schedule, cmaes, floor, silhouette, s, batch_size, lr_decay)
+print(f"{len(data)} configurations, {data.points.shape[0]} points, {int(n_cars.sum())} cars on screen")
+
+# %%
+results = objects_runs(data, sharing, level, list(range(runs)), seed, settings, n_cars=n_cars, progress=True)
+write_csv(runs_file, results)
+scored = results[results["method"] != "hidden"]
+display((1000 * scored.groupby("method")[["distance", "cpu_s"]].mean()).round(2))

@@ -1,0 +1,275 @@
+"""Parameters attached to points, measured (Table 6 and the scaling with the number of unknowns).
+
+The paper's title problem: every point carries its own shift, and the camera is the sharing of shifts
+between points (:mod:`sdm.sharing`). Table 2 solves its special case, one shift for everything. Here
+the shifts are one per configuration, one per car, or a camera per configuration plus a residual per
+car, each drawn from :class:`sdm.sharing.TruthDistribution`; the targets are rendered from them
+(:func:`sdm.sharing.render_targets`) and get Table 2's noise. Every method sees the same targets of a
+run (paired runs, :func:`sdm.experiments.run_seed`) and is scored per *unit* (:class:`sdm.sharing.Units`:
+a configuration's row, a car's row, or a car's camera + residual total), the quantity a configuration's
+pixels identify.
+
+The methods (:data:`METHODS`):
+
+* ``sdm_paper``: SDM with the paper's rule. First the paper's schedule on one shared shift (the camera
+  concept at its coarsest: one row for the run's configurations; :attr:`ObjectsSettings.warm`), then every
+  row from that start (:attr:`ObjectsSettings.rows`: levels ``s..0``, each row at the same rate per point,
+  :func:`sdm.train.rates_per_point`). A lone car's disc at the coarse levels sits inside its target's
+  block and is pulled by nothing: started from (0, 0) the rows barely move (docs/method/objects.md).
+* ``sdm_schedule``: the same with the recommended schedule (its rule for both stages, then its
+  refinement on the rows).
+* ``cmaes``: CMA-ES per configuration over all of its units (:func:`sdm.baselines.rows.fit_configurations`),
+  started from SDM's shared estimate (the same start as SDM's rows).
+* ``silhouette``: the soft-silhouette baseline on the rows, from the same start.
+* ``floor``: each configuration's exact-mismatch minimiser nearest theta*
+  (:func:`sdm.baselines.rows.floor_configurations`).
+
+CPU seconds per configuration: the method's process time for the run over the configurations that own
+units (SDM's and the per-configuration baselines' shared start included in each method that uses it).
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+from typing import Sequence
+
+import pandas as pd
+import torch
+
+from . import sharing as S
+from .batch import ConfigurationSet
+from .errors import SDMInputError
+from .experiments import noisy_targets, run_seed
+from .train import TrainSettings, parse_schedule, rates_per_point, refine_runs, train_runs
+
+#: The methods of Table 6, in its row order.
+METHODS = ("sdm_paper", "sdm_schedule", "cmaes", "silhouette", "floor")
+#: The sharing levels Table 6 runs (the shared level is Table 2's runs, quoted).
+SHARINGS = ("configuration", "car", "camera+car")
+
+
+@dataclass(frozen=True)
+class ObjectsSettings:
+    """Everything a run of Table 6 needs besides its data.
+
+    Attributes:
+        warm: the shared start's schedule (the paper's: levels ``s..0``, ``n_epoch`` epochs each).
+        rows: the rows' schedule; its ``lr`` is per row at the mean points per row (``rates_per_point``).
+        schedule: the recommended schedule's name (``"RULE+REFINE:E"``, :func:`sdm.train.parse_schedule`).
+        cmaes, floor, silhouette: the baselines' settings (``sdm.baselines``).
+        truth: how theta* is drawn.
+    """
+
+    warm: TrainSettings
+    rows: TrainSettings
+    schedule: str
+    cmaes: object
+    floor: object
+    silhouette: object
+    truth: S.TruthDistribution = S.TruthDistribution()
+
+
+def _cpu() -> float:
+    return time.process_time()
+
+
+def sdm_rows(data: ConfigurationSet, targets: torch.Tensor, sharing: S.Sharing, seed: int, settings: ObjectsSettings,
+             schedule: str | None) -> tuple[torch.Tensor, torch.Tensor, float, float]:
+    """SDM on the rows of ``sharing``: the shared start, then the rows (``schedule``: ``None`` for the paper's rule).
+
+    Returns:
+        ``(theta (K, 2), shared (2,), seconds, shared_seconds)``: the rows' estimate, the shared start (metres),
+        the CPU seconds of the whole fit and of its shared start.
+    """
+    flow, refine = parse_schedule(schedule) if schedule else ("paper", None)
+    warm = replace(settings.warm, flow=flow, seed=seed)
+    began = _cpu()
+    shared = train_runs(data, [targets], [warm]).theta[-1, 0]
+    shared_seconds = _cpu() - began
+    start = _start_table(sharing, shared)
+    rows = [replace(settings.rows, flow=flow, seed=seed)]
+    row_rate = rates_per_point(sharing.param_index)
+    history = train_runs(data, [targets], rows, theta0=[start], param_index=sharing.param_index, row_rate=row_rate)
+    if refine is not None:
+        history = refine_runs(data, [targets], rows, history, refine, param_index=sharing.param_index,
+                              row_rate=row_rate)
+    return history.theta[-1, 0], shared, _cpu() - began, shared_seconds
+
+
+def _start_table(sharing: S.Sharing, shared: torch.Tensor) -> torch.Tensor:
+    """``(K, 2)`` rows starting from the shared estimate: every row at it, a camera's residuals at 0."""
+    start = shared.to(torch.float64).expand(sharing.n_rows, 2).clone()
+    if sharing.level == "camera+car":
+        start[sharing.rows[:, 1].cpu() != S.NO_INDEX] = 0.0  # residual rows: the camera row carries the shift
+    return start
+
+
+def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[int], seed: int,
+                 settings: ObjectsSettings, n_cars: torch.Tensor | None = None,
+                 methods: Sequence[str] = METHODS, progress: bool = False) -> pd.DataFrame:
+    """Table 6's runs of one sharing ``level`` at one ``noise`` level: one record per (run, method, unit).
+
+    Run ``r`` takes ``run_seed(seed, noise, r)``: it draws theta* (:func:`sdm.sharing.draw_truth`), the noise
+    of the targets, SDM's shuffling and the baselines' seeds, so every method of the run sees the same targets.
+
+    Args:
+        data: the configurations (with their points' cars for the car levels).
+        level: one of :data:`SHARINGS`; noise: the noise level of the targets (Table 2's).
+        n_cars: ``(N,)`` cars per configuration (on screen, hidden or not), to count the hidden ones.
+        methods: a subset of :data:`METHODS`.
+
+    Returns:
+        A DataFrame with columns ``sharing, level, run, seed, method, config, car, unit, a, b, a_true, b_true,
+        distance, cpu_s`` (``car`` -1 for a configuration's unit; ``cpu_s`` the run's CPU seconds per
+        configuration with units), and per run a row of method ``"hidden"`` whose ``unit`` counts the cars
+        that own no point (no row, nothing to estimate; left out of every mean).
+    """
+    from tqdm.std import tqdm
+
+    from .baselines import silhouette
+    from .baselines.rows import fit_configurations, floor_configurations
+
+    if level not in SHARINGS:
+        raise SDMInputError(f"level must be one of {', '.join(SHARINGS)}, got {level!r}")
+    unknown = sorted(set(methods) - set(METHODS))
+    if unknown:
+        raise SDMInputError(f"methods must be of {', '.join(METHODS)}, got {unknown}")
+    sharing = S.sharing(level, data, n_cars=n_cars)
+    units = S.units(data, sharing.param_index, sharing.n_rows)
+    unit_car = _unit_cars(sharing, units)
+    owners = max(int((units.offsets[1:] > units.offsets[:-1]).sum()), 1)
+    records = []
+    for run in tqdm(list(runs), desc=f"{level}, noise {noise}", unit="run", disable=not progress, leave=False):
+        own_seed = run_seed(seed, noise, run)
+        truth = S.draw_truth(sharing, own_seed, settings.truth)
+        clean = S.render_targets(data, truth, sharing.param_index)
+        targets = clean if noise == 0 else noisy_targets(clean, noise, own_seed)
+        noisy = data.with_targets(targets)
+        true_totals = S.unit_totals(truth, units)
+        estimates, shared = {}, None
+        for method in methods:
+            if method in ("sdm_paper", "sdm_schedule"):
+                theta, start, seconds, shared_seconds = sdm_rows(
+                    data, targets, sharing, own_seed, settings, settings.schedule if method == "sdm_schedule" else None)
+                if method == "sdm_paper":
+                    shared = (start, shared_seconds)
+                estimates[method] = (S.unit_totals(theta, units), seconds)
+        for method in methods:
+            if method in ("cmaes", "silhouette"):
+                if shared is None:  # the shared start alone, as SDM's paper rule makes it
+                    began = _cpu()
+                    start = train_runs(data, [targets], [replace(settings.warm, seed=own_seed)]).theta[-1, 0]
+                    shared = (start, _cpu() - began)
+                start, shared_seconds = shared
+                table = _start_table(sharing, start)
+                began = _cpu()
+                if method == "cmaes":
+                    fit = fit_configurations(noisy, units, settings.cmaes, own_seed, theta0=S.unit_totals(table, units))
+                    totals = fit.totals
+                else:
+                    result = silhouette.fit(noisy, settings.silhouette, own_seed, theta0=table,
+                                            param_index=sharing.param_index)
+                    totals = S.unit_totals(torch.as_tensor(result.theta, dtype=torch.float64), units)
+                estimates[method] = (totals, _cpu() - began + shared_seconds)
+            elif method == "floor":
+                began = _cpu()
+                floor = floor_configurations(noisy, units, true_totals, settings.floor, own_seed)
+                estimates[method] = (floor.totals, _cpu() - began)
+        for method, (totals, seconds) in estimates.items():
+            distance = (totals - true_totals).norm(dim=1)
+            for u in range(len(units)):
+                records.append({"sharing": level, "level": noise, "run": run, "seed": own_seed, "method": method,
+                                "config": int(units.config[u]), "car": int(unit_car[u]), "unit": u,
+                                "a": float(totals[u, 0]), "b": float(totals[u, 1]),
+                                "a_true": float(true_totals[u, 0]), "b_true": float(true_totals[u, 1]),
+                                "distance": float(distance[u]), "cpu_s": seconds / owners})
+        records.append({"sharing": level, "level": noise, "run": run, "seed": own_seed, "method": "hidden",
+                        "config": -1, "car": -1, "unit": int(sharing.hidden.shape[0]), "a": 0.0, "b": 0.0,
+                        "a_true": 0.0, "b_true": 0.0, "distance": 0.0, "cpu_s": 0.0})
+    return pd.DataFrame.from_records(records, columns=RUN_COLUMNS)
+
+
+#: The columns of :func:`objects_runs`' records.
+RUN_COLUMNS = ["sharing", "level", "run", "seed", "method", "config", "car", "unit", "a", "b", "a_true", "b_true",
+               "distance", "cpu_s"]
+
+
+def _unit_cars(sharing: S.Sharing, units: S.Units) -> torch.Tensor:
+    """``(U,)`` int64 the car of each unit (its last row's car; -1 for a configuration's unit)."""
+    last_row = units.rows[:, -1]
+    return sharing.rows[last_row, 1].cpu()
+
+
+def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence[int], seed: int,
+                 settings: ObjectsSettings, epochs: Sequence[int], budgets: Sequence[int],
+                 progress: bool = False) -> pd.DataFrame:
+    """Error against CPU time per configuration, one row per car, for SDM and CMA-ES at several budgets.
+
+    Images with exactly ``n_cars`` cars each (:func:`sdm.data.set_with_cars`), one row per car. SDM (the
+    paper's rule, :func:`sdm_rows`) runs with ``n_epoch`` in ``epochs`` for its rows; CMA-ES with
+    ``evaluations_per_unknown`` in ``budgets``, from SDM's shared start.
+
+    Returns:
+        A DataFrame with columns ``cars, level, run, method, budget, mean, median, cpu_s`` (distances in
+        metres over the run's cars; ``cpu_s`` per configuration).
+    """
+    from tqdm.std import tqdm
+
+    from .baselines.rows import fit_configurations
+
+    sharing = S.sharing("car", data)
+    units = S.units(data, sharing.param_index, sharing.n_rows)
+    records = []
+    for run in tqdm(list(runs), desc=f"{n_cars} cars", unit="run", disable=not progress, leave=False):
+        own_seed = run_seed(seed, noise, run)
+        truth = S.draw_truth(sharing, own_seed, settings.truth)
+        clean = S.render_targets(data, truth, sharing.param_index)
+        targets = clean if noise == 0 else noisy_targets(clean, noise, own_seed)
+        true_totals = S.unit_totals(truth, units)
+        shared = None
+        for n_epoch in epochs:
+            theta, start, seconds, shared_seconds = sdm_rows(
+                data, targets, sharing, own_seed, replace(settings, rows=replace(settings.rows, n_epoch=int(n_epoch))),
+                None)
+            shared = shared or (start, shared_seconds)
+            records.append(_scaling_record(n_cars, noise, run, "sdm_paper", n_epoch,
+                                           S.unit_totals(theta, units) - true_totals, seconds / len(data)))
+        start, shared_seconds = shared
+        for budget in budgets:
+            began = _cpu()
+            fit = fit_configurations(data.with_targets(targets), units,
+                                     replace(settings.cmaes, evaluations_per_unknown=int(budget)), own_seed,
+                                     theta0=S.unit_totals(_start_table(sharing, start), units))
+            records.append(_scaling_record(n_cars, noise, run, "cmaes", budget, fit.totals - true_totals,
+                                           (_cpu() - began + shared_seconds) / len(data)))
+    return pd.DataFrame.from_records(records, columns=SCALING_COLUMNS)
+
+
+#: The columns of :func:`scaling_runs`' records.
+SCALING_COLUMNS = ["cars", "level", "run", "method", "budget", "mean", "median", "cpu_s"]
+
+
+def _scaling_record(n_cars, noise, run, method, budget, error, cpu_s) -> dict:
+    distance = error.norm(dim=1)
+    return {"cars": int(n_cars), "level": int(noise), "run": int(run), "method": method, "budget": int(budget),
+            "mean": float(distance.mean()), "median": float(distance.median()), "cpu_s": float(cpu_s)}
+
+
+def settings_from_config(truth: dict, warm: dict, rows: dict, schedule: str, cmaes: dict, floor: dict,
+                         silhouette: dict, s: int, batch_size: int, lr_decay: float) -> ObjectsSettings:
+    """:class:`ObjectsSettings` from the config's ``research.objects`` values and the ``train`` section."""
+    from .baselines.rows import RowsCMAESSettings, RowsFloorSettings
+    from .baselines.silhouette import SilhouetteSettings
+
+    common = dict(batch_size=int(batch_size), lr_decay=float(lr_decay), zoom=0)
+    return ObjectsSettings(
+        warm=TrainSettings(lr=float(warm["lr"]), n_epoch=int(warm["n_epoch"]), s=int(s), **common),
+        rows=TrainSettings(lr=float(rows["lr"]), n_epoch=int(rows["n_epoch"]), s=int(rows["s"]), **common),
+        schedule=str(schedule),
+        cmaes=RowsCMAESSettings(evaluations_per_unknown=int(cmaes["evaluations_per_unknown"])),
+        floor=RowsFloorSettings(evaluations_per_unknown=int(floor["evaluations_per_unknown"]),
+                                restarts=int(floor["restarts"])),
+        silhouette=SilhouetteSettings(**silhouette),
+        truth=S.TruthDistribution(camera_sd=float(truth["camera_sd"]), car_sd=float(truth["car_sd"]),
+                                  residual_sd=float(truth["residual_sd"])),
+    )
