@@ -2,6 +2,13 @@
 
     PYTHONPATH=src python benchmarks/flow_rules.py SKY.bin SPLIT.json [--rules paper,closed_centred_r1] [--runs 20] [--levels 0,1,2,3,4]
 
+On another run's data (the real sample: results/apollocar3d-sample/...), ``--best BEST.json`` trains with that
+run's Table 1 choice instead of the default's, and ``--cmaes TUNING.csv`` adds CMA-ES (that run's tuned cell) on
+the same runs, with each rule's ratio to it. ``--pass-steps K`` and ``--refine-rate-from K`` change the
+refined schedules' :class:`sdm.train.Refinement`; ``--crossing-width W`` (metres) is a measurement knob, not a
+setting of the library: it widens ``group_crossing``'s kernel (``sdm.mapping.crossing.CROSSING_WIDTH``, read by
+the compiled kernel at each call) for this process, to measure how far the rule's pull reaches.
+
 For every rule: Table 2's protocol (noise levels, runs r = 0..R-1 with the noisy
 targets and shuffling of ``run_seed(0, level, r)``, the tuned settings: 2 epochs,
 lr 1e-4, s 4, batches of 16, lr decay 0.5), the mean and standard deviation of the
@@ -43,24 +50,39 @@ def main(argv=None) -> int:
                         help="runs FIRST..FIRST+runs-1 (60 and up: runs no table of the default run holds)")
     parser.add_argument("--refine-rate-from", type=int, default=None,
                         help="Refinement.rate_from of the refined schedules (default: the class's)")
+    parser.add_argument("--pass-steps", type=int, default=None,
+                        help="Refinement.pass_steps of the refined schedules (default: the class's)")
+    parser.add_argument("--best", help="a run's results/tuning/best.json: train with its n_epoch and lr")
+    parser.add_argument("--cmaes", help="a run's results/baselines/tuning_cmaes.csv: CMA-ES on the same runs")
+    parser.add_argument("--crossing-width", type=float, default=None,
+                        help="group_crossing's kernel half-width in metres for this measurement (default 2e-3)")
     parser.add_argument("--levels", default="0,1,2,3,4")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--no-flow", action="store_true", help="skip the flow at theta*")
     parser.add_argument("--csv", help="write the per-run rows here")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
-    train_set, _, _ = load_split(args.sky, json.load(open(args.split)))
+    if args.crossing_width is not None:
+        import sdm.mapping.crossing
+
+        sdm.mapping.crossing.CROSSING_WIDTH = args.crossing_width
+    train_set, _, camera = load_split(args.sky, json.load(open(args.split)))
     levels = [int(v) for v in args.levels.split(",")]
-    settings = settings_for(**TUNED)
+    best = json.load(open(args.best)) if args.best else {}
+    settings = settings_for(**(TUNED | {key: best[key] for key in ("n_epoch", "lr") if key in best}))
+    print(f"# {len(train_set)} training configurations; n_epoch {settings.n_epoch}, lr {settings.lr:g}",
+          file=sys.stderr)
     rows, table, flows = [], [], []
     for rule in args.rules.split(","):
         start, cpu = time.time(), time.process_time()
         base, refine = parse_schedule(rule)
         if refine is not None and args.refine_rate_from is not None:
             refine = replace(refine, rate_from=args.refine_rate_from)
+        if refine is not None and args.pass_steps is not None:
+            refine = replace(refine, pass_steps=args.pass_steps)
         for level in levels:
             frame = noise_runs(train_set, level, range(args.first_run, args.first_run + args.runs),
-                               replace(settings, flow=base), refine=refine)
+                               replace(settings, flow=base), camera=camera, refine=refine)
             frame.insert(0, "rule", rule)
             rows.append(frame)
             table.append({"rule": rule, "level": level, "mean_mm": 1e3 * frame.distance.mean(),
@@ -74,12 +96,26 @@ def main(argv=None) -> int:
         print(f"# {rule}: {time.time() - start:.0f} s wall, "
               f"{(time.process_time() - cpu) / max(len(levels) * args.runs, 1):.3f} CPU s per run (with the flow at theta*"
               f" unless --no-flow)", file=sys.stderr, flush=True)
+    if args.cmaes:
+        from sdm.baselines import best_settings, noise_runs as baseline_runs
+
+        chosen = best_settings("cmaes", pd.read_csv(args.cmaes))
+        for level in levels:
+            frame = baseline_runs("cmaes", train_set, level, range(args.first_run, args.first_run + args.runs), chosen,
+                                  settings.seed, camera=camera)
+            table.append({"rule": "CMA-ES", "level": level, "mean_mm": 1e3 * frame.distance.mean(),
+                          "std_mm": 1e3 * frame.distance.std(), "runs": len(frame),
+                          "bar_mm": 0.68 if level == 0 else 0.5e3 * PAPER_TABLE2.get(level, float("nan"))})
     pd.set_option("display.width", 200)
     table = pd.DataFrame(table)
     table["meets_bar"] = table.mean_mm <= table.bar_mm
     print("Table 2 per rule: distance of final theta to theta*, 1e-3 m")
     print(table.pivot(index="rule", columns="level", values="mean_mm").round(2).to_string())
     print(table.round(3).to_string(index=False))
+    if args.cmaes:
+        means = table.pivot(index="rule", columns="level", values="mean_mm")
+        print("\nMean distance / CMA-ES's on the same runs")
+        print((means / means.loc["CMA-ES"]).drop(index="CMA-ES").round(2).to_string())
     if flows:
         print("\nFlow at theta* (zoom 0), per training configuration; unmatched share of entered points")
         print(pd.concat(flows).round(3).to_string(index=False))

@@ -42,6 +42,9 @@ report_html = "results/report/reproduction.html"  # output: the report as a page
 verdict = "results/report/verdict.md"  # output: the verdict, its figure linked relative to it
 methods = ["sdm"]  # the methods of Table 3 the verdict compares (SDM and the configured baselines)
 rules = []  # the rules of Table 4 the verdict compares (the configured ones)
+table4_elsewhere = []  # optional input: Table 4 of other data (committed snapshots, CSV)
+data = "this run's data"  # this run's data, in words
+elsewhere = []  # the data of each of table4_elsewhere, in words
 config = {}
 threads = 1
 
@@ -97,6 +100,7 @@ display(Markdown(text))
 # %%
 # Its figure is Table 2's, linked as ../figures/distances.png: beside report/ under the results root.
 answer = verdict_text(pd.read_csv(table1), pd.read_csv(table2), pd.read_csv(table3_csv) if table3_csv else None,
-                      methods, pd.read_csv(table4_csv) if table4_csv else None, rules)
+                      methods, pd.read_csv(table4_csv) if table4_csv else None, rules, data=data,
+                      elsewhere={words: pd.read_csv(path) for words, path in zip(elsewhere, table4_elsewhere)})
 write_text(verdict, answer)
 display(Markdown(answer))

@@ -62,6 +62,28 @@ def test_table4_compares_every_row_with_cmaes_on_the_runs_both_have():
     rules_figure(table)  # CMA-ES's rows drawn as a line, not as a rule
 
 
+def test_a_schedule_that_misses_cmaes_is_read_against_its_first_rule_alone():
+    """A schedule RULE+REFINE:E beyond 2x CMA-ES: the summary sets, at each missed level, where RULE alone ends, where
+    the refinement takes it and CMA-ES's mean on the same runs, with the share of the gap closed; none where it meets."""
+    table2 = _runs([1, 2], range(4), 1e-2, seed=1)
+    cmaes = _runs([1, 2], range(4), 1e-3, seed=2, flow=CMAES_ROW)
+    alone = cmaes.assign(flow="closed_centred_r1", distance=cmaes["distance"] * 10)
+    schedule = cmaes.assign(flow="closed_centred_r1+group_crossing:4",
+                            distance=cmaes["distance"] * 8.0)
+    schedule.loc[schedule["level"] == 2, "distance"] = cmaes.loc[cmaes["level"] == 2, "distance"] * 1.5
+    table = table4_frame(pd.concat([alone, schedule, cmaes], ignore_index=True), table2, cmaes)
+    words = table4_summary(table)
+    line = next(line for line in words.splitlines() if line.startswith("  Why it misses"))
+    at = table.set_index(["flow", "level"])
+    start = at.loc[("closed_centred_r1", 1), "mean_m"]
+    end = at.loc[("closed_centred_r1+group_crossing:4", 1), "mean_m"]
+    target = at.loc[(CMAES_ROW, 1), "mean_m"]
+    assert (f"level 1: `closed_centred_r1` alone ends at {1e3 * start:.3f}, the refinement at {1e3 * end:.3f}, CMA-ES "
+            f"{1e3 * target:.3f} ({100 * (start - end) / (start - target):.0f}% of the gap closed)") in line
+    assert "level 2" not in line  # met there
+    assert "Why it misses" not in table4_summary(table[table["flow"] != "closed_centred_r1"])  # no first rule alone
+
+
 def test_reference_rows_take_cmaes_from_table3_and_the_floor_as_is():
     baselines = pd.concat([_runs([0], range(2), 1e-3, method="cmaes"), _runs([0], range(2), 1.0, method="chamfer")])
     floor = _floor_runs([0], range(2))

@@ -122,10 +122,11 @@ def test_the_refinement_moves_rows_as_the_torch_path(sharing):
     for compiled in (True, False):
         with native.disabled() if not compiled else _nothing():
             history = train_runs(data, [data.targets], settings, theta0=starts, param_index=index)
-            runs[compiled] = refine_runs(data, [data.targets], settings, history, Refinement("group_crossing", 2),
-                                         param_index=index)
+            runs[compiled] = refine_runs(data, [data.targets], settings, history,
+                                         Refinement("group_crossing", 2, pass_steps=3), param_index=index)
     assert torch.equal(runs[True].theta, runs[False].theta)
-    assert runs[True].theta_steps.tolist() == [0, 2, 4, 6, 8, 10]
+    # the rows after every epoch (2 steps) of the levels, then after every step of the passes (3 steps each)
+    assert runs[True].theta_steps.tolist() == [0, 2, 4, 6, 7, 8, 9, 10, 11, 12]
     at_truth = RunsHistory(truth[None, None], torch.zeros(0, 1, dtype=torch.float64), torch.zeros(0, dtype=torch.int64),
                            torch.zeros(0, dtype=torch.float64), settings)
     fixed = refine_runs(data, [data.targets], settings, at_truth, Refinement("group_crossing", 1), param_index=index)

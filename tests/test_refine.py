@@ -1,4 +1,4 @@
-"""The schedule's refinement passes (issue 20: closed_centred_r1, then group_crossing at zoom 0)."""
+"""The schedule's refinement passes (closed_centred_r1, then group_crossing at zoom 0), counted in SGD steps."""
 from dataclasses import replace
 
 import pytest
@@ -12,6 +12,8 @@ from sdm.sky import SKY_SHIFT
 from sdm.train import Refinement, TrainSettings, parse_schedule, refine_runs, refine_seed, train_runs
 
 BASE = TrainSettings(lr=1e-4, n_epoch=1, s=4, flow="closed_centred_r1")
+#: An epoch of the 64-configuration set: its passes below are one epoch each (pass_steps = PER_EPOCH).
+PER_EPOCH = 64 // 16
 
 
 @pytest.fixture(scope="module")
@@ -24,7 +26,7 @@ def test_refined_runs_packed_equal_each_run_refined_alone(small):
     group_crossing's flow values are exact binary fractions, so the packed sum cannot round otherwise."""
     settings = [replace(BASE, seed=seed) for seed in (4, 9, 4)]
     targets = [noisy_targets(small.targets, 2, 1), noisy_targets(small.targets, 1, 5), small.targets]
-    refinement = Refinement("group_crossing", 3)
+    refinement = Refinement("group_crossing", 3, pass_steps=PER_EPOCH)
     together = refine_runs(small, targets, settings, train_runs(small, targets, settings), refinement)
     main_steps = 5 * (64 // 16)
     assert together.theta.shape == (main_steps + 3 * (64 // 16) + 1, 3, 2)
@@ -40,7 +42,7 @@ def test_the_compiled_refinement_equals_the_torch_path_bit_for_bit(small, monkey
     path's theta history to the bit and its loss (the mismatch count) exactly."""
     settings = [replace(BASE, seed=seed) for seed in (3, 8)]
     targets = [noisy_targets(small.targets, 3, 2), noisy_targets(small.targets, 1, 6)]
-    refinement = Refinement("group_crossing", 3)
+    refinement = Refinement("group_crossing", 3, pass_steps=PER_EPOCH)
     calls = []
     program = native.train_program
     monkeypatch.setattr(native, "train_program", lambda *args, **kwargs: calls.append(1) or program(*args, **kwargs))
@@ -60,7 +62,7 @@ def test_the_compiled_refinement_equals_the_torch_path_bit_for_bit(small, monkey
 def test_refinement_passes_continue_the_halving_at_the_finest_level(small):
     """Pass i runs at level zoom, at four times the last level's rate times lr_decay^i (rate_from 2), shuffled by
     its own seed; rate_from 1 starts at twice the last level's."""
-    history = train_group(small, [small.targets], BASE, [7], refine=Refinement("group_crossing", 3))
+    history = train_group(small, [small.targets], BASE, [7], refine=Refinement("group_crossing", 3, pass_steps=PER_EPOCH))
     per_pass = 64 // 16
     assert history.level[-3 * per_pass:].tolist() == [0] * (3 * per_pass)
     rates = history.lr[-3 * per_pass:].reshape(3, per_pass)
@@ -75,7 +77,7 @@ def test_refinement_keeps_the_true_shift_without_noise(small):
     settings = BASE
     start = train_runs(small, [small.targets], [settings], theta0=[SKY_SHIFT])
     assert torch.equal(start.theta[-1, 0], torch.tensor(SKY_SHIFT, dtype=torch.float64))
-    stay = refine_runs(small, [small.targets], [settings], start, Refinement("group_crossing", 2))
+    stay = refine_runs(small, [small.targets], [settings], start, Refinement("group_crossing", 2, pass_steps=PER_EPOCH))
     moved = (stay.theta[len(start.theta):, 0] - torch.tensor(SKY_SHIFT, dtype=torch.float64)).abs().max()
     assert float(moved) == 0
 
@@ -87,8 +89,8 @@ def test_the_refinement_moves_c_with_fit_depth_unless_told_not_to(small):
     targets = [noisy_targets(small.targets, 2, 3)]
     history = train_runs(small, targets, settings)
     per_pass = 64 // 16
-    moving = refine_runs(small, targets, settings, history, Refinement("group_crossing", 2))
-    held = refine_runs(small, targets, settings, history, Refinement("group_crossing", 2, moves_c=False))
+    moving = refine_runs(small, targets, settings, history, Refinement("group_crossing", 2, pass_steps=PER_EPOCH))
+    held = refine_runs(small, targets, settings, history, Refinement("group_crossing", 2, moves_c=False, pass_steps=PER_EPOCH))
     end = history.theta[-1, 0]
     assert bool((held.theta[-2 * per_pass:, 0, 2] == end[2]).all())
     assert float((moving.theta[-1, 0, 2] - end[2]).abs()) > 0
@@ -96,8 +98,10 @@ def test_the_refinement_moves_c_with_fit_depth_unless_told_not_to(small):
     assert not torch.equal(held.theta[-1, 0, :2], end[:2])
 
 
-@pytest.mark.parametrize("kwargs,match", [({"flow": "no-such"}, "flow"), ({"epochs": 0}, "epochs"),
-                                          ({"epochs": 2.0}, "epochs"), ({"epochs": True}, "epochs"),
+@pytest.mark.parametrize("kwargs,match", [({"flow": "no-such"}, "flow"), ({"passes": 0}, "passes"),
+                                          ({"passes": 2.0}, "passes"), ({"passes": True}, "passes"),
+                                          ({"pass_steps": 0}, "pass_steps"), ({"pass_steps": 32.0}, "pass_steps"),
+                                          ({"pass_steps": False}, "pass_steps"), ({"pass_steps": "32"}, "pass_steps"),
                                           ({"rate_from": -1}, "rate_from"), ({"rate_from": 1.5}, "rate_from"),
                                           ({"moves_c": 1}, "moves_c")])
 def test_bad_refinements_are_refused_naming_the_field(kwargs, match):
@@ -119,3 +123,58 @@ def test_schedules_are_parsed_by_name(name, expected):
 def test_bad_schedules_are_refused_naming_the_part(name, match):
     with pytest.raises(SDMInputError, match=match):
         parse_schedule(name)
+
+
+def test_a_pass_counts_sgd_steps_whatever_the_size_of_the_training_set(small):
+    """A pass is pass_steps SGD steps: on 64 configurations (4 steps an epoch) a pass of 8 steps is two epochs at
+    one rate, and the refinement's steps do not change with the set's size (40 configurations: 2 steps an epoch)."""
+    refinement = Refinement("group_crossing", 3, pass_steps=8)
+    assert refinement.steps == 24
+    for configs in (small, small.subset(range(40))):
+        history = train_group(configs, [configs.targets], BASE, [7], refine=refinement)
+        main_steps = 5 * (len(configs) // 16)
+        assert history.theta.shape == (main_steps + 24 + 1, 1, 2)
+        assert history.level[main_steps:].tolist() == [0] * 24
+        assert history.lr[main_steps:].tolist() == [1e-4 * 0.5 ** (2 + i // 8) for i in range(24)]
+
+
+def test_passes_of_whole_epochs_are_the_epochs_of_one_program(small):
+    """Where an epoch's steps divide pass_steps, the passes are whole epochs in one program: 2 passes of 8 steps on
+    64 configurations are the 4 epochs of the run's refine_seed generator, at the pass's rate (one sdm_train call
+    on the compiled path), the same steps as 4 one-epoch passes at those rates."""
+    settings = [replace(BASE, seed=seed) for seed in (2, 6)]
+    targets = [noisy_targets(small.targets, 2, 4), noisy_targets(small.targets, 1, 8)]
+    history = train_runs(small, targets, settings)
+    two = refine_runs(small, targets, settings, history, Refinement("group_crossing", 2, pass_steps=8))
+
+    class Halving(Refinement):  # four one-epoch passes, the rate halving every second one
+        def rates(self, one):
+            return [rate for rate in Refinement("group_crossing", 2).rates(one) for _ in range(2)]
+
+    four = refine_runs(small, targets, settings, history, Halving("group_crossing", 4, pass_steps=PER_EPOCH))
+    assert torch.equal(two.theta, four.theta) and torch.equal(two.lr, four.lr)
+
+
+def test_a_pass_that_ends_inside_an_epoch_is_cut_after_its_steps(small):
+    """pass_steps 6 on 64 configurations (4 steps an epoch): each pass trains two epochs and keeps its first 6 steps;
+    the next pass starts from the 6th step's theta with the next epochs' shufflings. Held to the passes run one by
+    one by hand from the same shufflings."""
+    from tqdm.std import tqdm
+
+    from sdm.train import _shufflings, _train_program
+
+    settings = [replace(BASE, seed=seed) for seed in (3, 5)]
+    targets = [noisy_targets(small.targets, 3, 1), noisy_targets(small.targets, 1, 2)]
+    history = train_runs(small, targets, settings)
+    refinement = Refinement("group_crossing", 2, pass_steps=6)
+    cut = refine_runs(small, targets, settings, history, refinement)
+    assert cut.theta.shape[0] == history.theta.shape[0] + 12
+    orders = _shufflings([refine_seed(one.seed) for one in settings], 64, 4)
+    passes = [replace(one, flow="group_crossing", depth_zoom=one.zoom) for one in settings]
+    theta = history.theta[-1]
+    for index, rate in enumerate(refinement.rates(passes[0])):
+        steps, _ = _train_program(small, targets, [False, False], passes, small.camera, "fast", [0, 0], [rate, rate],
+                                  orders[2 * index : 2 * index + 2], theta, tqdm(disable=True))
+        start = history.theta.shape[0] + 6 * index
+        assert torch.equal(cut.theta[start : start + 6], steps[1:7]), index
+        theta = steps[6]

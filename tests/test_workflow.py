@@ -33,8 +33,8 @@ from config_check import ConfigError, check_config, load_config, validate_schema
 SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
 APOLLO_SAMPLE = ROOT / "data" / "apollocar3d-sample"
 STAGES = ["synthetic", "data", "sample", "sky", "split", "tune", "best", "noise", "tables", "baseline_tune",
-          "baseline_runs", "floor_runs", "table3", "rule_runs", "rule_bias", "depth_runs", "table4", "table5",
-          "figures", "report"]
+          "baseline_runs", "floor_runs", "table3", "rule_runs", "rule_bias", "depth_runs", "objects_runs",
+          "objects_scaling", "table4", "table5", "table6", "figures", "report"]
 
 pytestmark = pytest.mark.workflow
 
@@ -639,7 +639,49 @@ def _key_cases() -> dict[str, tuple[dict, str | None]]:
         "research.depth.runs": ({"research": {"depth": {"runs": 1}}}, "depth_runs"),
         "research.depth.flow": ({"research": {"depth": {"flow": "paper"}}}, "depth_runs"),
         "research.depth.lr_scale": ({"research": {"depth": {"lr_scale": 3}}}, "depth_runs"),
+        **_objects_cases(),
     }
+
+
+def _objects_cases() -> dict[str, tuple[dict, str | None]]:
+    """The Table 6 keys' cases: (config change, first stage expected to rerun); the .test config runs Table 6."""
+    cases = {
+        "enabled": (False, None),
+        "sharings": (["camera+car"], "objects_runs"),
+        "levels": ([0, 1], "objects_runs"),
+        "runs": (2, "objects_runs"),
+        "configurations": (32, "objects_runs"),
+        "truth.camera_sd": (0.1, "objects_runs"),
+        "truth.car_sd": (0.1, "objects_runs"),
+        "truth.residual_sd": (0.01, "objects_runs"),
+        "warm.lr": (0.0003, "objects_runs"),
+        "warm.n_epoch": (3, "objects_runs"),
+        "rows.lr": (0.001, "objects_runs"),
+        "rows.n_epoch": (2, "objects_runs"),
+        "rows.s": (3, "objects_runs"),
+        "schedule": ('paper', "objects_runs"),
+        "cmaes.evaluations_per_unknown": (20, "objects_runs"),
+        "floor.evaluations_per_unknown": (20, "objects_runs"),
+        "floor.restarts": (4, "objects_runs"),
+        "silhouette.lr": (0.2, "objects_runs"),
+        "silhouette.sigma": (1.0, "objects_runs"),
+        "silhouette.batch_size": (16, "objects_runs"),
+        "silhouette.steps": (4, "objects_runs"),
+        "scaling.cars": ([4], "objects_scaling"),
+        "scaling.n_images": (17, "objects_scaling"),
+        "scaling.seed": (1, "objects_scaling"),
+        "scaling.runs": (2, "objects_scaling"),
+        "scaling.level": (1, "objects_scaling"),
+        "scaling.epochs": ([2], "objects_scaling"),
+        "scaling.budgets": ([7], "objects_scaling"),
+    }
+    changes = {}
+    for key, (value, stage) in cases.items():
+        change = value
+        for part in reversed(["research", "objects", *key.split(".")]):
+            change = {part: change}
+        changes[f"research.objects.{key}"] = (change, stage)
+    return changes
 
 
 def _schema_keys(schema: dict, prefix: str = "") -> list[str]:

@@ -380,50 +380,63 @@ def _row_rate(row_rate, rows, device) -> torch.Tensor | None:
 
 @dataclass(frozen=True)
 class Refinement:
-    """A documented extension of the paper's schedule: more epochs at the finest level with another rule.
+    """A documented extension of the paper's schedule: SGD steps at the finest level with another rule.
 
-    After the levels ``s .. zoom`` of :class:`TrainSettings`, ``epochs`` more passes at level ``zoom`` with the
-    gradient rule ``flow``; pass ``i`` (from 0) runs at the rate of level ``zoom + rate_from`` times
-    ``lr_decay^i`` (by default four times the last level's rate, then halving each pass: the paper's halving,
-    continued per epoch), with the chain ``s .. zoom`` of the last level (:func:`refine_runs`).
+    After the levels ``s .. zoom`` of :class:`TrainSettings`, ``passes`` passes of ``pass_steps`` SGD steps each
+    at level ``zoom`` with the gradient rule ``flow``; pass ``i`` (from 0) runs at the rate of level
+    ``zoom + rate_from`` times ``lr_decay^i`` (by default four times the last level's rate, then halving each
+    pass: the paper's halving, continued per pass), with the chain ``s .. zoom`` of the last level
+    (:func:`refine_runs`).
 
-    Issue 20 (docs/method.md, "A rule aimed at the floor"): ``closed_centred_r1`` brings theta within a few
-    millimetres, where ``group_crossing`` (whose fixed point is near the floor but whose pull far from it is
-    weak) refines it.
+    The passes are counted in SGD steps, not in epochs, so the refinement's strength does not depend on the size
+    of the training set: 4 passes of 32 steps are 4 epochs of the default's 512 configurations (batches of 16),
+    and 64 epochs of a 41-configuration set (docs/method.md, "The schedule that reaches the floor").
+
+    ``closed_centred_r1`` brings theta within a few millimetres, where ``group_crossing`` (whose fixed point is
+    near the floor but whose pull far from it is weak) refines it (docs/method.md, "A rule aimed at the floor").
 
     Attributes:
         flow: a rule name (:func:`sdm.mapping.rules.flow_rule`).
-        epochs: passes, a positive integer.
+        passes: passes, a positive integer.
         rate_from: the first pass's rate is level ``zoom + rate_from``'s (a non-negative integer; 2 was chosen
             on runs no table holds: docs/method.md, "The schedule that reaches the floor").
         moves_c: with ``fit_depth``, the passes move ``c`` too (at ``depth_lr_scale`` times their rate), whatever
             ``depth_zoom`` says: ``group_crossing``'s depth flow at theta* under noise is less biased at zoom 0 than
             the paper's rule's at zoom 1 (measured by ``sdm.experiments.depth_bias``: Table 5's ``table5_bias``).
+        pass_steps: SGD steps per pass, a positive integer (32: one epoch of the default's 512 configurations).
     """
 
     flow: str = "group_crossing"
-    epochs: int = 4
+    passes: int = 4
     rate_from: int = 2
     moves_c: bool = True
+    pass_steps: int = 32
 
     def __post_init__(self) -> None:
         rule_by_name(self.flow)
-        if isinstance(self.epochs, bool) or not isinstance(self.epochs, int) or self.epochs < 1:
-            raise SDMInputError(f"refinement epochs must be a positive integer, got {self.epochs!r}")
-        if isinstance(self.rate_from, bool) or not isinstance(self.rate_from, int) or self.rate_from < 0:
-            raise SDMInputError(f"refinement rate_from must be a non-negative integer, got {self.rate_from!r}")
+        for name, least in (("passes", 1), ("rate_from", 0), ("pass_steps", 1)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < least:
+                kind = "a positive" if least else "a non-negative"
+                raise SDMInputError(f"refinement {name} must be {kind} integer, got {value!r}")
         if not isinstance(self.moves_c, bool):
             raise SDMInputError(f"refinement moves_c must be True or False, got {self.moves_c!r}")
+
+    @property
+    def steps(self) -> int:
+        """The refinement's SGD steps, ``passes * pass_steps``."""
+        return self.passes * self.pass_steps
 
     def rates(self, settings: TrainSettings) -> list[float]:
         """The learning rate of each pass (metres per unit of summed flow)."""
         rate = settings.lr * settings.lr_decay ** max(settings.s - settings.zoom - self.rate_from, 0)
-        return [rate * settings.lr_decay ** i for i in range(self.epochs)]
+        return [rate * settings.lr_decay ** i for i in range(self.passes)]
 
 
 def parse_schedule(name: str) -> tuple[str, Refinement | None]:
     """A training schedule by name: ``"RULE"`` (the paper's schedule, rule ``RULE``) or ``"RULE+REFINE:E"``
-    (then ``E`` refinement passes with rule ``REFINE``, :class:`Refinement`; ``"RULE+REFINE"``: 4 passes).
+    (then ``E`` refinement passes of :attr:`Refinement.pass_steps` SGD steps with rule ``REFINE``,
+    :class:`Refinement`; ``"RULE+REFINE"``: 4 passes).
 
     Table 4 (``research.rules.names``) and ``benchmarks/flow_rules.py --rules`` name schedules this way.
 
@@ -439,10 +452,10 @@ def parse_schedule(name: str) -> tuple[str, Refinement | None]:
     rule_by_name(flow)
     if not plus:
         return flow, None
-    refine, colon, epochs = refined.partition(":")
-    if colon and not (epochs.isdigit() and epochs[0] != "0"):
-        raise SDMInputError(f"schedule {name!r}: the passes after ':' must be a positive integer, got {epochs!r}")
-    return flow, Refinement(refine, int(epochs) if colon else Refinement.epochs)
+    refine, colon, passes = refined.partition(":")
+    if colon and not (passes.isdigit() and passes[0] != "0"):
+        raise SDMInputError(f"schedule {name!r}: the passes after ':' must be a positive integer, got {passes!r}")
+    return flow, Refinement(refine, int(passes) if colon else Refinement.passes)
 
 
 def refine_seed(seed: int) -> int:
@@ -458,10 +471,16 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
 
     The passes train at level ``zoom`` only, through the whole chain ``s .. zoom`` (the forward of the
     schedule's last level), from each run's last theta, on the paths of :func:`train_runs` (compiled where
-    it applies: for ``group_crossing`` on float64 CPU points; else packed runs in torch); run ``r`` shuffles
-    its passes with a generator seeded :func:`refine_seed` ``(settings[r].seed)``, one permutation per pass. Returns the whole history: the
-    steps of ``history``, then those of the passes. ``param_index``: that of :func:`train_runs` (the passes move
-    the same rows, with ``row_rate``).
+    it applies: for ``group_crossing`` on float64 CPU points; else packed runs in torch). Their steps are
+    epochs of the training set (shuffled mini-batches, the incomplete last one dropped): run ``r`` draws one
+    permutation per epoch from a generator seeded :func:`refine_seed` ``(settings[r].seed)``. A pass is the
+    fewest whole epochs that hold its ``pass_steps`` steps, cut after them: where an epoch's steps divide
+    ``pass_steps`` (the default's 32 steps an epoch; 2 of a 41-configuration set) no step is cut and every pass
+    is one program; elsewhere each pass is its own program and the steps of its last epoch beyond ``pass_steps``
+    are computed and dropped (a set of more than ``16 * pass_steps`` configurations computes a whole epoch
+    per pass). Returns the whole history: the steps of ``history``, then the refinement's
+    :attr:`Refinement.steps`. ``param_index``: that of :func:`train_runs` (the passes move the same rows, with
+    ``row_rate``; their theta is recorded after every step).
     """
     settings = list(settings)
     passes = [replace(one, n_epoch=1, flow=refinement.flow,
@@ -471,24 +490,32 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     own_targets = [run_targets is train_set.targets for run_targets in targets]  # before the set moves
     if device is not None:
         train_set = train_set.to(_usable_device(device))
-    orders = _shufflings([refine_seed(one.seed) for one in settings], len(train_set), refinement.epochs)
+    per_epoch = len(train_set) // common.batch_size
+    epochs_per_pass = -(-refinement.pass_steps // per_epoch)
+    orders = _shufflings([refine_seed(one.seed) for one in settings], len(train_set),
+                         refinement.passes * epochs_per_pass)
     rates = refinement.rates(common)
-    starts = history.theta[-1].to(train_set.device)
-    rows = None if param_index is None else check_param_index(param_index, train_set, starts.shape[1])
+    whole = refinement.pass_steps % per_epoch == 0  # no step cut: every pass in one program
+    programs = [range(refinement.passes)] if whole else [range(i, i + 1) for i in range(refinement.passes)]
+    theta = history.theta[-1].to(train_set.device)
+    rows = None if param_index is None else check_param_index(param_index, train_set, theta.shape[1])
     row_rate = _row_rate(row_rate, rows, train_set.device)
-    per_pass = len(train_set) // common.batch_size
-    record_every = 1 if rows is None else per_pass
-    with tqdm(total=0, disable=True) as bar:
-        thetas, losses = _train_program(train_set, targets, own_targets, passes, camera, "fast",
-                                        [common.zoom] * refinement.epochs, rates, orders, starts, bar, rows,
-                                        record_every, row_rate)
-    done = int(history.theta_steps[-1])
-    steps = torch.arange(record_every, refinement.epochs * per_pass + 1, record_every, dtype=torch.int64) + done
-    return RunsHistory(torch.cat((history.theta, thetas[1:].cpu())), torch.cat((history.loss, losses.cpu())),
-                       torch.cat((history.level, torch.full((refinement.epochs * per_pass,), common.zoom,
-                                                            dtype=torch.int64))),
-                       torch.cat((history.lr, torch.tensor(rates, dtype=torch.float64).repeat_interleave(per_pass))),
-                       settings, torch.cat((history.theta_steps, steps)))
+    thetas, losses = [], []
+    for program in programs:
+        epochs = [i * epochs_per_pass + j for i in program for j in range(epochs_per_pass)]
+        with tqdm(total=0, disable=True) as bar:
+            steps, step_losses = _train_program(train_set, targets, own_targets, passes, camera, "fast",
+                                                [common.zoom] * len(epochs), [rates[i // epochs_per_pass] for i in epochs],
+                                                orders[epochs], theta, bar, rows, 1, row_rate)
+        kept = len(program) * refinement.pass_steps  # the steps of the program's passes; the rest are cut
+        thetas.append(steps[1 : kept + 1].cpu())
+        losses.append(step_losses[:kept].cpu())
+        theta = steps[kept]
+    step_rates = torch.tensor(rates, dtype=torch.float64).repeat_interleave(refinement.pass_steps)
+    recorded = torch.arange(1, refinement.steps + 1, dtype=torch.int64) + int(history.theta_steps[-1])
+    return RunsHistory(torch.cat((history.theta, *thetas)), torch.cat((history.loss, *losses)),
+                       torch.cat((history.level, torch.full((refinement.steps,), common.zoom, dtype=torch.int64))),
+                       torch.cat((history.lr, step_rates)), settings, torch.cat((history.theta_steps, recorded)))
 
 
 def _shufflings(seeds: Sequence[int], n_configs: int, n_epochs: int) -> torch.Tensor:

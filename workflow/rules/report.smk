@@ -50,6 +50,7 @@ notebook_stage(
         summary=result("data/summary.json"),
         sky=SKY_FILE,
         split=SPLIT_FILE,
+        table4_elsewhere=list(table4_elsewhere()),
     ),
     # a dict literal: a line that starts with the word report is Snakemake's report directive
     output={
@@ -63,6 +64,8 @@ notebook_stage(
         # the methods and rules the verdict compares: the configured ones (a table's other rows are no method)
         methods=["sdm", *BASELINES],
         rules=RULE_NAMES,
+        data=data_words(),
+        elsewhere=list(table4_elsewhere().values()),
         config=config_values(
             "data.source",
             *annotation_keys(),

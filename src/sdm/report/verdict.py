@@ -12,12 +12,13 @@ table may carry besides them (a reference row that is no method) never become "t
 from __future__ import annotations
 
 import math
-from typing import Sequence
+from typing import Mapping, Sequence
 
 import pandas as pd
 
 from .. import paper
 from .reproduction import NOISY_RATIO, checks
+from .research import CMAES_FACTOR
 
 
 def _levels(levels: Sequence[int]) -> str:
@@ -50,7 +51,8 @@ def recommended_rule(table4: pd.DataFrame, rules: Sequence[str]) -> str | None:
 
 def verdict(table1: pd.DataFrame, table2: pd.DataFrame, table3: pd.DataFrame | None = None,
             methods: Sequence[str] = (), table4: pd.DataFrame | None = None, rules: Sequence[str] = (),
-            figure: str = "../figures/distances.png") -> str:
+            figure: str = "../figures/distances.png", data: str = "this run's data",
+            elsewhere: Mapping[str, pd.DataFrame] | None = None) -> str:
     """The verdict's Markdown.
 
     Args:
@@ -61,6 +63,9 @@ def verdict(table1: pd.DataFrame, table2: pd.DataFrame, table3: pd.DataFrame | N
         table4: Table 4's CSV (:func:`sdm.report.research.table4_frame`, metres), or None; ``rules``: the rules
             compared in it (the configured ones).
         figure: the key figure (Table 2's distances against the paper's), relative to the verdict's file.
+        data: what this run's data is, in words (the recommended-rule line names it).
+        elsewhere: Table 4 measured on other data (its CSV, committed), by the words naming that data: the
+            recommended-rule line names the rule's worst ratio to CMA-ES over this run's and each of these.
     """
     by_level = table2.set_index("level").sort_index()
     best = best_methods(table3, methods) if table3 is not None else None
@@ -91,7 +96,7 @@ def verdict(table1: pd.DataFrame, table2: pd.DataFrame, table3: pd.DataFrame | N
     if best is not None:
         out.append(f"- **Does SDM beat the alternatives?** {_against(table3, best)}")
     if table4 is not None:
-        out.append(f"- **Recommended rule:** {_rule_sentence(table4, rule)}")
+        out.append(f"- **Recommended rule:** {_rule_sentence(table4, rule, data, elsewhere or {})}")
     return "\n".join(out) + "\n"
 
 
@@ -155,7 +160,7 @@ def _against(table3: pd.DataFrame, best: pd.DataFrame) -> str:
     return f"{head} (Table 3, the same noisy targets for every method): " + "; ".join(losses) + won + "."
 
 
-def _rule_sentence(table4: pd.DataFrame, rule: str | None) -> str:
+def _rule_sentence(table4: pd.DataFrame, rule: str | None, data: str, elsewhere: Mapping[str, pd.DataFrame]) -> str:
     if rule is None:
         return "keep the paper's rule: no rule of Table 4 meets the issue's bar (half the paper's mean) at any level."
     rows = table4[table4["flow"] == rule].sort_values("level")
@@ -164,4 +169,31 @@ def _rule_sentence(table4: pd.DataFrame, rule: str | None) -> str:
     moved = (f"; at the noisy levels its mean is {ratios.min():.2f}x-{ratios.max():.2f}x the paper's rule's on the "
              f"same draws" if len(ratios) else "")
     return (f"`{rule}` (Table 4): it meets the issue's bar (half the paper's mean; the paper's mean noise-free) at "
-            f"{int(judged['meets_bar'].sum())} of {len(judged)} levels{moved}.")
+            f"{int(judged['meets_bar'].sum())} of {len(judged)} levels{moved}.{_against_cmaes(rule, data, table4, elsewhere)}")
+
+
+def _against_cmaes(rule: str, data: str, table4: pd.DataFrame, elsewhere: Mapping[str, pd.DataFrame]) -> str:
+    """The rule against CMA-ES on every data set its Table 4 was measured on: where its ratio to CMA-ES's mean
+    (on the runs both have) is worst, and where it misses the bar of :data:`CMAES_FACTOR`; "" without CMA-ES."""
+    worst, missed, measured = None, [], []
+    for name, table in {data: table4, **elsewhere}.items():
+        if "ratio_to_cmaes" not in table:
+            continue
+        rows = table[(table["flow"] == rule) & (table["cmaes_runs"] > 0)].sort_values("level")
+        if rows.empty:
+            continue
+        measured.append(f"{name} ({', '.join(sorted({str(int(n)) for n in rows['cmaes_runs']}))} runs per level)")
+        top = rows.loc[rows["ratio_to_cmaes"].idxmax()]
+        if worst is None or top["ratio_to_cmaes"] > worst[1]["ratio_to_cmaes"]:
+            worst = (name, top)
+        over = rows[rows["ratio_to_cmaes"] > CMAES_FACTOR]
+        if len(over):
+            missed.append(f"on {name} at {_levels(over['level'])} ({over['ratio_to_cmaes'].min():.2f}x-"
+                          f"{over['ratio_to_cmaes'].max():.2f}x)")
+    if worst is None:
+        return ""
+    name, top = worst
+    bar = (f"within {CMAES_FACTOR:g}x of CMA-ES at every level" if not missed
+           else f"beyond {CMAES_FACTOR:g}x of CMA-ES " + " and ".join(missed))
+    return (f" Measured on {' and on '.join(measured)}: its worst mean against CMA-ES's on the same runs is "
+            f"{top['ratio_to_cmaes']:.2f}x, at level {int(top['level'])} on {name}; {bar}.")
