@@ -45,6 +45,7 @@ rules = []  # the rules of Table 4 the verdict compares (the configured ones)
 table4_elsewhere = []  # optional input: Table 4 of other data (committed snapshots, CSV)
 data = "this run's data"  # this run's data, in words
 elsewhere = []  # the data of each of table4_elsewhere, in words
+table6_csv = ""  # optional input: Table 6 (CSV), this run's or the committed snapshot's
 config = {}
 threads = 1
 
@@ -101,6 +102,7 @@ display(Markdown(text))
 # Its figure is Table 2's, linked as ../figures/distances.png: beside report/ under the results root.
 answer = verdict_text(pd.read_csv(table1), pd.read_csv(table2), pd.read_csv(table3_csv) if table3_csv else None,
                       methods, pd.read_csv(table4_csv) if table4_csv else None, rules, data=data,
-                      elsewhere={words: pd.read_csv(path) for words, path in zip(elsewhere, table4_elsewhere)})
+                      elsewhere={words: pd.read_csv(path) for words, path in zip(elsewhere, table4_elsewhere)},
+                      table6=pd.read_csv(table6_csv) if table6_csv else None)
 write_text(verdict, answer)
 display(Markdown(answer))

@@ -70,3 +70,11 @@ notebook_stage(
     ),
     params=dict(levels=OBJECT_LEVELS, runs=OBJECTS.get("runs")),
 )
+
+
+def table6_read_by_report():
+    """Table 6 for the verdict: this run's when the stage runs, else the committed snapshot where it exists."""
+    if OBJECTS_ON:
+        return dict(table6_csv=result("tables/table6.csv"))
+    snapshot = Path("docs/results/objects/table6.csv")
+    return dict(table6_csv=str(snapshot)) if snapshot.exists() else {}

@@ -51,6 +51,7 @@ notebook_stage(
         sky=SKY_FILE,
         split=SPLIT_FILE,
         table4_elsewhere=list(table4_elsewhere()),
+        **table6_read_by_report(),
     ),
     # a dict literal: a line that starts with the word report is Snakemake's report directive
     output={

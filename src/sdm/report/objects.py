@@ -80,6 +80,32 @@ def _row(sharing, level, method, distances: np.ndarray, hidden: int, cpu_ms: flo
             "q3_m": float(np.quantile(distances, 0.75)), "cpu_ms": cpu_ms}
 
 
+def verdict_sentence(table: pd.DataFrame) -> str:
+    """Table 6 in one sentence for the verdict: per sharing level, SDM's best rule's mean against CMA-ES's over
+    the noise levels (the range of the ratio) and how much less CPU time it takes per configuration."""
+    parts = []
+    for sharing in SHARING_ORDER[1:]:
+        rows = table[table["sharing"] == sharing]
+        ratios, speeds = [], []
+        for _, group in rows.groupby("level", sort=True):
+            by = group.set_index("method")
+            rules = [m for m in ("sdm_paper", "sdm_schedule") if m in by.index]
+            if "cmaes" not in by.index or not rules:
+                continue
+            best = min(rules, key=lambda m: by.loc[m, "mean_m"])
+            ratios.append(by.loc[best, "mean_m"] / by.loc["cmaes", "mean_m"])
+            speeds.append(by.loc["cmaes", "cpu_ms"] / by.loc[best, "cpu_ms"])
+        if ratios:
+            levels = sorted(set(rows["level"]))
+            span = f"{min(ratios):.2f}-{max(ratios):.2f}x" if len(ratios) > 1 else f"{ratios[0]:.2f}x"
+            parts.append(f"with {UNIT[sharing]} unknown, SDM's closer rule ends at {span} CMA-ES's mean distance "
+                         f"(noise levels {levels[0]}-{levels[-1]}) at 1/{min(speeds):.0f} to 1/{max(speeds):.0f} of "
+                         f"its CPU time per configuration")
+    if not parts:
+        return "no sharing level was run."
+    return "; ".join(parts) + " (docs/results/objects/)."
+
+
 def write_table6(frame: pd.DataFrame, stem: str | Path) -> list[Path]:
     """Table 6's CSV (metres), Markdown, LaTeX and HTML (1e-3 m)."""
     shown = frame.assign(mean=1e3 * frame["mean_m"], median=1e3 * frame["median_m"], q3=1e3 * frame["q3_m"],

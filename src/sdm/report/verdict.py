@@ -52,7 +52,7 @@ def recommended_rule(table4: pd.DataFrame, rules: Sequence[str]) -> str | None:
 def verdict(table1: pd.DataFrame, table2: pd.DataFrame, table3: pd.DataFrame | None = None,
             methods: Sequence[str] = (), table4: pd.DataFrame | None = None, rules: Sequence[str] = (),
             figure: str = "../figures/distances.png", data: str = "this run's data",
-            elsewhere: Mapping[str, pd.DataFrame] | None = None) -> str:
+            elsewhere: Mapping[str, pd.DataFrame] | None = None, table6: pd.DataFrame | None = None) -> str:
     """The verdict's Markdown.
 
     Args:
@@ -66,6 +66,8 @@ def verdict(table1: pd.DataFrame, table2: pd.DataFrame, table3: pd.DataFrame | N
         data: what this run's data is, in words (the recommended-rule line names it).
         elsewhere: Table 4 measured on other data (its CSV, committed), by the words naming that data: the
             recommended-rule line names the rule's worst ratio to CMA-ES over this run's and each of these.
+        table6: Table 6's CSV (:func:`sdm.report.objects.table6`: this run's, or the committed snapshot), or None:
+            the line on parameters attached to points.
     """
     by_level = table2.set_index("level").sort_index()
     best = best_methods(table3, methods) if table3 is not None else None
@@ -97,6 +99,10 @@ def verdict(table1: pd.DataFrame, table2: pd.DataFrame, table3: pd.DataFrame | N
         out.append(f"- **Does SDM beat the alternatives?** {_against(table3, best)}")
     if table4 is not None:
         out.append(f"- **Recommended rule:** {_rule_sentence(table4, rule, data, elsewhere or {})}")
+    if table6 is not None and len(table6):
+        from .objects import verdict_sentence
+
+        out.append(f"- **Parameters attached to points (Table 6):** {verdict_sentence(table6)}")
     return "\n".join(out) + "\n"
 
 
