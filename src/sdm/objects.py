@@ -104,6 +104,17 @@ def _start_table(sharing: S.Sharing, shared: torch.Tensor) -> torch.Tensor:
     return start
 
 
+def paired_targets(data: ConfigurationSet, sharing: S.Sharing, units: S.Units, noise: int, run: int, seed: int,
+                   truth: S.TruthDistribution) -> tuple[int, torch.Tensor, torch.Tensor]:
+    """Run ``run``'s seed ``run_seed(seed, noise, run)``, its targets ``(N, H, W)`` bool (theta* drawn from ``truth``
+    with that seed, rendered, then Table 2's noise of that seed) and theta*'s unit totals ``(U, 2)`` metres."""
+    own_seed = run_seed(seed, noise, run)
+    theta = S.draw_truth(sharing, own_seed, truth)
+    clean = S.render_targets(data, theta, sharing.param_index)
+    targets = clean if noise == 0 else noisy_targets(clean, noise, own_seed)
+    return own_seed, targets, S.unit_totals(theta, units)
+
+
 def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[int], seed: int,
                  settings: ObjectsSettings, n_cars: torch.Tensor | None = None,
                  methods: Sequence[str] = METHODS, progress: bool = False) -> pd.DataFrame:
@@ -140,12 +151,8 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
     owners = max(int((units.offsets[1:] > units.offsets[:-1]).sum()), 1)
     records = []
     for run in tqdm(list(runs), desc=f"{level}, noise {noise}", unit="run", disable=not progress, leave=False):
-        own_seed = run_seed(seed, noise, run)
-        truth = S.draw_truth(sharing, own_seed, settings.truth)
-        clean = S.render_targets(data, truth, sharing.param_index)
-        targets = clean if noise == 0 else noisy_targets(clean, noise, own_seed)
+        own_seed, targets, true_totals = paired_targets(data, sharing, units, noise, run, seed, settings.truth)
         noisy = data.with_targets(targets)
-        true_totals = S.unit_totals(truth, units)
         estimates, shared = {}, None
         for method in methods:
             if method in ("sdm_paper", "sdm_schedule"):
@@ -221,11 +228,7 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
     units = S.units(data, sharing.param_index, sharing.n_rows)
     records = []
     for run in tqdm(list(runs), desc=f"{n_cars} cars", unit="run", disable=not progress, leave=False):
-        own_seed = run_seed(seed, noise, run)
-        truth = S.draw_truth(sharing, own_seed, settings.truth)
-        clean = S.render_targets(data, truth, sharing.param_index)
-        targets = clean if noise == 0 else noisy_targets(clean, noise, own_seed)
-        true_totals = S.unit_totals(truth, units)
+        own_seed, targets, true_totals = paired_targets(data, sharing, units, noise, run, seed, settings.truth)
         shared = None
         for n_epoch in epochs:
             theta, start, seconds, shared_seconds = sdm_rows(
