@@ -639,6 +639,9 @@ def _key_cases() -> dict[str, tuple[dict, str | None]]:
         "research.depth.runs": ({"research": {"depth": {"runs": 1}}}, "depth_runs"),
         "research.depth.flow": ({"research": {"depth": {"flow": "paper"}}}, "depth_runs"),
         "research.depth.lr_scale": ({"research": {"depth": {"lr_scale": 3}}}, "depth_runs"),
+        "research.objects.scaling.cars": ({"research": {"objects": {"scaling": {"cars": [1, 3]}}}}, None),
+        "research.objects.scaling.n_images": ({"research": {"objects": {"scaling": {"n_images": 5}}}}, None),
+        "research.objects.scaling.seed": ({"research": {"objects": {"scaling": {"seed": 1}}}}, None),
     }
 
 
