@@ -231,7 +231,7 @@ class ConfigurationSet:
         """One parameter row per car that owns points: which row moves each point, and whose each row is.
 
         Rows are numbered configuration by configuration, and within a configuration by car index
-        (:attr:`cars`). A car that owns no point (its disc hidden by nearer ones, or off screen)
+        (:attr:`cars`). A car that owns no point (its disc hidden by nearer ones)
         gets no row; so does an empty configuration.
 
         Returns:

@@ -11,8 +11,8 @@ Construction (paper, section 3 and appendix A; docs/method.md, Geometry):
    pixel centre at depth ``E'``. Each pixel holds exactly one point.
    The point belongs to the car whose circle gave it its depth (the ``rmin``
    winner: the nearest car; of cars at equal depth, the one listed first in
-   ``E``'s row-major order). A car whose circle is covered entirely by nearer
-   circles (or lies off screen) owns no point.
+   ``E``'s row-major order). A car whose on-screen disc nearer circles cover
+   entirely owns no point.
 4. ``L``: occupancy of ``floor(P(Q + (a, b, 0)))``; points leaving the screen
    are dropped.
 

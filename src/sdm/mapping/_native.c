@@ -11,7 +11,7 @@
  * it); only sdm_train's loss is summed in another order (see there). Built with -ffp-contract=off:
  * no fused multiply-adds.
  *
- * Speed without changing a bit (sdm_train, issue 18): built with -O3, so loops are vectorised, but a
+ * Speed without changing a bit (sdm_train): built with -O3, so loops are vectorised, but a
  * float loop only elementwise: without -ffast-math (-fassociative-math) the compiler never reorders
  * float operations, and a vector lane of add, multiply, divide or floor rounds exactly as its scalar
  * form (IEEE: each correctly rounded). Sums over points whose order matters stay scalar loops: the
@@ -525,7 +525,7 @@ static int64_t count_active(int64_t n, const uint8_t *grid) {
     return total;
 }
 
-/* ---- group_crossing at zoom 0 (sdm.mapping.crossing.group_crossing_flow, issue 20) ----
+/* ---- group_crossing at zoom 0 (sdm.mapping.crossing.group_crossing_flow) ----
  *
  * One configuration's flow summed into (grad_a, grad_b) and its exact pixel mismatch, from its n points'
  * projections (screen, and their floors in `projected`, as project() leaves them). The points are grouped
