@@ -1,4 +1,4 @@
-"""The alternative gradient rules (issue 12): registry, fixed point at theta*, bias under noise."""
+"""The alternative gradient rules: registry, fixed point at theta*, bias under noise."""
 from __future__ import annotations
 
 import pytest
@@ -157,7 +157,7 @@ def test_closing_the_target_removes_most_of_the_bias_at_the_true_shift(batch, na
 
 @pytest.mark.parametrize("level", [2, 4])
 def test_group_crossing_is_far_less_biased_at_the_true_shift_than_the_paper(batch, level):
-    """Issue 20's rule: its mean flow at theta* under noise (the bias SGD follows) measured on the same draws as
+    """group_crossing: its mean flow at theta* under noise (the bias SGD follows) measured on the same draws as
     the paper's. The paper's mean y pull is about -80 per configuration; this rule pulls only through the
     crossings within CROSSING_WIDTH of theta, and its mean stays within a few units (docs/method.md measures it
     on the default data). The bound, a tenth of the paper's, fails for every closed rule of the test above at

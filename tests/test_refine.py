@@ -1,4 +1,4 @@
-"""The schedule's refinement passes (issue 20: closed_centred_r1, then group_crossing at zoom 0)."""
+"""The schedule's refinement passes (closed_centred_r1, then group_crossing at zoom 0)."""
 from dataclasses import replace
 
 import pytest

@@ -122,7 +122,7 @@ def test_json_round_trip_is_atomic(tmp_path):
 # -- the reproduction report ---------------------------------------------------------------------
 
 
-def test_checks_apply_the_issue_criteria():
+def test_checks_apply_the_acceptance_criteria():
     table1 = table1_frame(grid())
     good = table2_frame(distances((0.6, 16.0, 25.0, 35.0, 40.0)), {})
     assert all(c.passed for c in checks(table1, good))

@@ -1,4 +1,4 @@
-"""Table 3: SDM against the losses a researcher would use instead (issue 11).
+"""Table 3: SDM against the losses a researcher would use instead.
 
 Every method estimates the shift ``theta = (a, b)`` (metres) from the same training configurations
 (points ``Q``, binary targets ``L``) through one interface::

@@ -1,4 +1,4 @@
-"""``group_crossing`` (issue 20): a gradient flow built from CMA-ES's objective, the exact zoom-0 pixel mismatch.
+"""``group_crossing``: a gradient flow built from CMA-ES's objective, the exact zoom-0 pixel mismatch.
 
 docs/method.md, "A rule aimed at the floor". Table 4 trains ``closed_centred_r1`` and then refines with this
 rule at zoom 0 (:class:`sdm.train.Refinement`); :data:`sdm.FLOW_RULES` registers it as ``"group_crossing"``

@@ -1,6 +1,6 @@
 """Experimental gradient rules: the experiments of docs/method.md, "Beyond the paper"; no table uses them.
 
-Issue 12 asked for a rule that is unbiased under noise: with noisy targets the
+The aim is a rule that is unbiased under noise. With noisy targets the
 paper's summed flow does not vanish at the true shift theta*, so SGD settles
 beyond it. The rules here change *which* points are pulled and *how much*, each
 keeping theta* an exact fixed point without noise (no point is unmatched there,
