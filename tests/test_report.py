@@ -110,6 +110,9 @@ def test_writers_produce_csv_markdown_and_latex(tmp_path):
     assert latex.count(r"\\") == 1 + len(table)
     assert r"\begin{tabular}{|" + "|".join("c" * len(TABLE2_FORMAT.columns)) + "|}" in latex
     assert "||theta\\textasciitilde{} - theta*||" in to_latex(table, TABLE2_FORMAT)
+    # the title renders bold as a whole, its theta~ and theta* as written (a bare * closed the bold early)
+    assert f"<strong>{TABLE2_FORMAT.caption}</strong>" in page
+    assert markdown.startswith("**Table 2: distance ||theta\\~ - theta\\*|| per noise level")
     assert not list(tmp_path.glob("tables/.*"))  # no temporary file left behind
 
 
