@@ -6,7 +6,7 @@ and plugs into the same autograd layer (``SpatialDomainMapping(flow=NAME)``,
 ``TrainSettings(flow=NAME)``). ``"paper"`` is the paper's eq. 19, unchanged.
 
 :data:`FLOW_RULES` holds the rules a configuration or table of this project uses.
-``"closed_centred_r1"`` (docs/method.md, "Beyond the paper") is eq. 19 at every
+``"closed_centred_r1"`` docs/method/rules.md is eq. 19 at every
 zoom >= 1 (the coarse levels, where blocks are wider than the noise's holes and
 the paper's strong pull brings theta near theta*), and at zoom 0 a 3x3 closing
 of the target with the window centred on the landing block: the one rule that
