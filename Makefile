@@ -7,7 +7,7 @@ CORES ?= 2
 # torch comes from PyTorch's CPU-only index (no GPU libraries); `make TORCH_INDEX= install` takes pip's default build
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 
-.PHONY: install run test test-slurm bench report snapshot clean
+.PHONY: install run test test-slurm bench timing report snapshot clean
 
 install: $(VENV)/.installed
 
@@ -35,6 +35,11 @@ test-slurm: install
 
 bench: install
 	$(BIN)/python benchmarks/bench_sdm.py
+
+# docs/results/timing.md, rewritten whole: `make run`, `make bench` and `make test` timed one after another on a
+# fresh clone of HEAD (install included), and the run's per-job times (benchmarks/timing.py; about 30 minutes).
+timing:
+	$(PYTHON) benchmarks/timing.py
 
 report: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/snakemake --profile profiles/default --report report.html

@@ -1,4 +1,5 @@
-"""A Table 4 rule's runs against CMA-ES on all of them (issue 20's bar: at most 2x CMA-ES's mean distance).
+"""A Table 4 rule's runs against CMA-ES on all of them (the bar "within 2x of CMA-ES": at most 2x CMA-ES's
+mean distance).
 
 The default run pairs Table 4's 60 runs per level with Table 3's CMA-ES on runs 0..baselines.runs-1 (20, for
 the time budget). This runs CMA-ES (the default run's tuned settings) on every run a rule's files hold and

@@ -11,7 +11,7 @@ Prints, in one run on one thread:
     that owns points, each at the same rate per point) against the shared run on the same points, targets and
     settings, timed alternately, and the ratio;
   * the time to build the default Sky data set (4,248 configurations) on one core;
-  * many runs as one program (issue 10): ``--runs`` (30) noise runs at noise level 2
+  * many runs as one program: ``--runs`` (30) noise runs at noise level 2
     trained one after another (:func:`sdm.experiments.noise_runs` with groups of one run) and
     together (one group of ``--runs``, and the default group size), ms per run-step of each and
     the ratio;

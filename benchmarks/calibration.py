@@ -23,7 +23,7 @@
 # * about 11.4 labelled cars per image (over 60K cars on 5,277 images);
 # * a mean depth of the Sky target points of about 50.95 m, which is what
 #   Table 2's "Avg. Dist." column (283.4, 494.6, 699.8, 904.8 mm) stands for
-#   (docs/method.md, Experiments).
+#   (docs/method/paper.md, Experiments).
 #
 # The real sample is one short, light-traffic street sequence, so it is
 # *expected* to be sparser and nearer than the whole dataset; it anchors the

@@ -1,4 +1,4 @@
-"""Depth table (issue 12): train (a, b, c) on a Sky split's training set retargeted to theta* = (a, b, c).
+"""Depth table: train (a, b, c) on a Sky split's training set retargeted to theta* = (a, b, c).
 
     PYTHONPATH=src python benchmarks/depth.py SKY.bin SPLIT.json [--depths -1,0.5,1] [--levels 0] [--runs 20] [--flow paper]
         [--depth-lr-scale 20] [--depth-zoom 1] [--epochs 2] [--group 20] [--csv runs.csv]

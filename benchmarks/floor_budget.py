@@ -10,7 +10,7 @@ best point and of the half-budget floor (the same search after its first ``resta
 runs), the change of the mean when the budget doubles from half to full, the mean extents, how
 often theta* itself is a minimiser, and the CPU seconds per run (process time: the time the run had
 the core, less sensitive to the machine's load than the wall ``seconds`` column). CMA-ES's Table 3
-means at its default budget of 240 (60 runs per level, quoted from issue 20) are printed beside.
+means at its default budget of 240 (60 runs per level, quoted from the default run) are printed beside.
 """
 from __future__ import annotations
 
@@ -24,7 +24,7 @@ import torch
 from sdm.baselines.floor import FloorSettings, floor_runs
 from sdm.experiments import load_split
 
-#: CMA-ES (budget 240) mean distance per level in the default run's Table 3, 1e-3 m (60 runs; issue 20).
+#: CMA-ES (budget 240) mean distance per level in the default run's Table 3, 1e-3 m (60 runs).
 CMAES_TABLE3 = {0: 0.063, 1: 0.110, 2: 0.293, 3: 0.762, 4: 1.480}
 
 

@@ -1,4 +1,4 @@
-"""Table 2 per gradient rule, and each rule's flow at theta* (issue 12; docs/method.md, "Beyond the paper").
+"""Table 2 per gradient rule, and each rule's flow at theta* (docs/method/rules.md).
 
     PYTHONPATH=src python benchmarks/flow_rules.py SKY.bin SPLIT.json [--rules paper,closed_centred_r1] [--runs 20] [--levels 0,1,2,3,4]
 
@@ -34,7 +34,7 @@ from sdm.experiments import flow_at_true_shift, load_split, noise_runs, settings
 from sdm.train import parse_schedule
 
 TUNED = dict(n_epoch=2, lr=1e-4, s=4, batch_size=16, lr_decay=0.5, seed=0)
-#: Table 2 of the paper, mean distance (metres) per noise level 1..4; the issue's bar is half of it.
+#: Table 2 of the paper, mean distance (metres) per noise level 1..4; the bar is half of it ("half the paper's mean").
 PAPER_TABLE2 = {1: 16.3e-3, 2: 25.0e-3, 3: 35.4e-3, 4: 40.1e-3}
 
 

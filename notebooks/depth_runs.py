@@ -16,7 +16,7 @@
 # The paper poses the general shift (a, b, c) with depth and solves (a, b) only. Here the training set's
 # targets are rebuilt for its points moved by theta* = (a*, b*, c*), noise is drawn as Table 2's (the same
 # seeds), and (a, b, c) is trained from (0, 0, 0) with the depth flow (`TrainSettings(fit_depth=True)`;
-# docs/method.md, "Beyond the paper"). `flow` is a rule or a schedule `RULE+REFINE:E` (`sdm.train.parse_schedule`):
+# docs/method/depth.md). `flow` is a rule or a schedule `RULE+REFINE:E` (`sdm.train.parse_schedule`):
 # the schedule's refinement passes at zoom 0 move c too (`Refinement.moves_c`), where the paper's schedule holds c
 # below `TrainSettings.depth_zoom`. The stage `table5` gathers this stage's files.
 #

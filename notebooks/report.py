@@ -13,8 +13,8 @@
 # %% [markdown]
 # # Stage 10: the reproduction report
 #
-# Every number of Tables 1 and 2 beside the paper's, checked against the acceptance criteria of the
-# project's issue 4 (Table 2's noise-free mean at most 1e-3 m; each noisy mean within 0.5x to 2x of the
+# Every number of Tables 1 and 2 beside the paper's, checked against the acceptance criteria
+# (Table 2's noise-free mean at most 1e-3 m; each noisy mean within 0.5x to 2x of the
 # paper's; Table 1's pick beside the paper's). The text is built by `sdm.report.reproduction` from the
 # measured tables only. The verdict (`verdict`, the README's first screen: `make snapshot` copies it there) is
 # built by `sdm.report.verdict` from the CSVs of Tables 1-4: ours against the paper's Table 2, Table 3's
@@ -88,7 +88,7 @@ if table3_summary:
     text += ("\n## SDM against the losses a researcher would use instead (Table 3)\n\n"
              + Path(table3).read_text() + "\n" + Path(table3_summary).read_text())
 if table4_summary or table5_summary:
-    # Beyond the paper (issue 12): the measured tables, and what they say in plain words.
+    # Beyond the paper: the measured tables, and what they say in plain words.
     text += beyond_the_paper(*(Path(path).read_text() if path else "" for path in
                                (table4, table4_summary, table5, table5_summary)))
 write_text(report, text)

@@ -15,7 +15,7 @@
 #
 # The paper ends with "the solution is stable against noise and has many potentials for further
 # improvements". Table 4 is Table 2 again with another gradient rule (`sdm.FLOW_RULES`; `closed` fills the
-# holes the noise leaves in the target before matching; docs/method.md, "Beyond the paper"). Run r at
+# holes the noise leaves in the target before matching; docs/method/rules.md. Run r at
 # level n trains on exactly the noisy targets and shuffling of Table 2's run r (the seed from (seed, n, r)
 # does not depend on the rule), so each rule sits beside the paper's rule on the same draws; the stage
 # `table4` gathers this stage's files.

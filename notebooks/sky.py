@@ -13,7 +13,7 @@
 # %% [markdown]
 # # Stage 3: build the Sky dataset
 #
-# For every sampled image (paper, section 3; docs/method.md, Geometry):
+# For every sampled image (paper, section 3; docs/method/paper.md, Geometry):
 #
 # 1. **E**: the car centres rendered with rmin (r = depth) on the 128 x 256 screen;
 # 2. **E'**: a disc of radius 3 ln 4 (57 pixels) around each active pixel of E, the nearest car winning;

@@ -15,8 +15,8 @@
 #
 # The runs of the stage `rule_runs` (one file per rule and noise level) beside the paper's rule's own runs
 # with the same (level, run), i.e. Table 2's runs (`table2_distances`): both sides of each row saw the same
-# noisy targets. The issue's bar: at most half the paper's published mean at every noisy level, the paper's
-# mean noise-free. Every expected (rule, level, run) must be there.
+# noisy targets. The bar "half the paper's mean": at most half the paper's published mean at every noisy
+# level, the paper's mean noise-free. Every expected (rule, level, run) must be there.
 
 # %% tags=["parameters"]
 rule_files = []  # input: the rule_runs files
@@ -56,7 +56,8 @@ single_thread(threads)
 expected = {(name, level, run) for name in names for level in levels for run in range(runs)}
 rule_runs = gathered_runs(rule_files, ("flow", "level", "run"), expected, "Table 4")
 # Beside the rules: CMA-ES (Table 3's runs) and the floor (each run's exact-mismatch minimiser), on their own
-# paired runs; every row is compared with CMA-ES on the runs both have (issue 20's bar: at most 2x its mean).
+# paired runs; every row is compared with CMA-ES on the runs both have (the bar "within 2x of CMA-ES":
+# at most 2x its mean).
 baseline_runs = pd.concat([pd.read_csv(path) for path in baseline_run_files]) if baseline_run_files else None
 floor_runs = pd.concat([pd.read_csv(path) for path in floor_files]) if floor_files else None
 references = reference_rows(baseline_runs, floor_runs)

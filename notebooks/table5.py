@@ -14,7 +14,7 @@
 # # Beyond the paper, Table 5: the shift with depth
 #
 # The runs of the stage `depth_runs` (one file per c* and noise level): per c* and level, the mean absolute
-# errors of a, b and c, the signed mean of c - c*, and the distances to (a*, b*) and (a*, b*, c*). The bar,
+# errors of a, b and c, the signed mean of c - c*, and the distances to (a*, b*) and (a*, b*, c*). The depth bar,
 # noise-free: a, b within 2e-3 m, c within 2e-2 m. Every expected (c*, level, run) must be there. Then why c is
 # biased under noise, measured at theta* (`sdm.experiments.depth_bias`).
 

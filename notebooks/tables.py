@@ -15,7 +15,7 @@
 #
 # Table 1: dev loss over the tuning grid. Table 2: per noise level, mean, std and quartiles of the distances
 # ||theta~ - theta*|| (1e-3 m), and "Avg. Dist.", the 3D displacement the pixel noise stands for at the Sky
-# data's mean target depth (`sdm.sky.noise_displacement`; docs/method.md, Experiments). Each table is written
+# data's mean target depth (`sdm.sky.noise_displacement`; docs/method/paper.md, Experiments). Each table is written
 # as CSV, Markdown and LaTeX with the paper's values beside ours.
 
 # %% tags=["parameters"]

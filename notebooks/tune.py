@@ -15,7 +15,7 @@
 #
 # Train theta~ = (a~, b~) from (0, 0) on the 512 training configurations with one (n_epoch, learning rate)
 # cell: plain SGD on mini-batches of 16, zoom levels s, s-1, ..., 0 with n_epoch passes each, the learning
-# rate halving after each level (paper, section 5.1; docs/method.md, Training and evaluation). The cell is scored by the
+# rate halving after each level (paper, section 5.1; docs/method/paper.md, Training and evaluation). The cell is scored by the
 # dev loss: the mean number of false-positive pixels of the zoom-0 output on the 256 dev configurations.
 
 # %% tags=["parameters"]

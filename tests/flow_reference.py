@@ -1,6 +1,6 @@
 """The gradient rules' 3x3 window written plainly, one point at a time: the reference the library's window is held to.
 
-Eq. 19 as docs/method.md states it ("Who is pulled"): a landed point whose landing block is active in
+Eq. 19 as docs/method/paper.md states it ("Who is pulled"): a landed point whose landing block is active in
 the target is matched and gets nothing; every other landed point gets, per axis, the sum of
 ``sign(p - T_q)`` over the blocks ``q`` of the 3x3 window around its window centre (the input block
 for the paper, the landing block for the centred rules) that are on the grid, active and not its

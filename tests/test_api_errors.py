@@ -1,7 +1,7 @@
 """Gaps in the library's API that once surfaced as torch errors naming no argument, or passed silently.
 
-Each call below gave a bare ``RuntimeError``/``IndexError``/``TypeError`` (or nothing at all) before
-issue 19; now it raises :class:`sdm.errors.SDMInputError` naming the argument.
+Each call below gave a bare ``RuntimeError``/``IndexError``/``TypeError`` (or nothing at all) once;
+now it raises :class:`sdm.errors.SDMInputError` naming the argument.
 """
 from __future__ import annotations
 

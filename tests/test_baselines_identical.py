@@ -1,4 +1,4 @@
-"""Speed-ups of the gradient baselines that must not change a bit (issue 18): each against the
+"""Speed-ups of the gradient baselines that must not change a bit: each against the
 formulation it replaced, values and gradients compared with ``torch.equal``."""
 import math
 

@@ -1,4 +1,4 @@
-"""Depth (issue 12): the depth flow on single points (as Fig. 3 for x and y), targets and training of (a, b, c)."""
+"""Depth: the depth flow on single points (as Fig. 3 for x and y), targets and training of (a, b, c)."""
 from __future__ import annotations
 
 import pytest

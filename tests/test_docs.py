@@ -5,14 +5,22 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_readme_library_example_runs():
+def test_readme_quick_start_runs():
+    """The README's quick start: about ten lines, and it recovers the shift."""
     readme = (ROOT / "README.md").read_text()
-    section = readme[readme.index("## Using SDM as a PyTorch layer"):]
-    blocks = re.findall(r"```python\n(.*?)```", section, flags=re.S)
+    blocks = re.findall(r"```python\n(.*?)```", readme, flags=re.S)
+    assert len(blocks) == 1 and len(blocks[0].splitlines()) <= 14
+    namespace: dict = {}
+    exec(compile(blocks[0], "README.md", "exec"), namespace)
+    assert namespace["distance"](namespace["history"].final_theta) < 2e-3
+
+
+def test_library_page_examples_run():
+    blocks = re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "library.md").read_text(), flags=re.S)
     assert len(blocks) == 2
     namespace: dict = {}
     for block in blocks:  # the second block continues the first one's session
-        exec(compile(block, "README.md", "exec"), namespace)
+        exec(compile(block, "docs/library.md", "exec"), namespace)
     assert namespace["theta"].grad is not None
 
 

@@ -1,4 +1,4 @@
-"""Issue 20 in the tables: the floor's rows and words (Tables 3 and 4), Table 4 against 2x CMA-ES, and where a
+"""The floor in the tables: the floor's rows and words (Tables 3 and 4), Table 4 against 2x CMA-ES, and where a
 rule's flow vanishes (``sdm.experiments.rule_bias``). The floor's search itself: test_floor.py."""
 from __future__ import annotations
 
@@ -42,8 +42,8 @@ def _floor_runs(levels, runs, seed=0):
 
 
 def test_table4_compares_every_row_with_cmaes_on_the_runs_both_have():
-    """Issue 20's bar: the rule's mean over the runs CMA-ES has (20 of its 60 by default), at most 2x CMA-ES's;
-    a rule at exactly 2x meets it, above it misses it, and the summary names the level and the factor."""
+    """The bar "within 2x of CMA-ES": the rule's mean over the runs CMA-ES has (20 of its 60 by default), at most
+    2x CMA-ES's; a rule at exactly 2x meets it, above it misses it, and the summary names the level and the factor."""
     table2 = _runs([1, 2], range(6), 1e-2, seed=1)
     cmaes = _runs([1, 2], range(3), 1e-3, seed=2, flow=CMAES_ROW)
     rule = cmaes[["level", "run"]].assign(flow="closed", distance=cmaes["distance"] * [2.0, 2.0, 2.0, 2.0, 2.0, 2.5])

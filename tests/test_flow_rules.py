@@ -1,4 +1,4 @@
-"""The alternative gradient rules (issue 12): registry, fixed point at theta*, bias under noise."""
+"""The alternative gradient rules: registry, fixed point at theta*, bias under noise."""
 from __future__ import annotations
 
 import pytest
@@ -140,7 +140,7 @@ def _mean_flow_at_true_shift(batch, level, rule, draws):
 @pytest.mark.parametrize("name", ["closed", "closed5", "closed_r1", "closed_centred_r1"])
 @pytest.mark.parametrize("level", [2, 4])
 def test_closing_the_target_removes_most_of_the_bias_at_the_true_shift(batch, name, level):
-    """No rule here is exactly unbiased (measured: docs/method.md, "Beyond the paper"); the closed ones cut the
+    """No rule here is exactly unbiased (measured: docs/method/rules.md; the closed ones cut the
     paper's pull at theta* under noise to a small fraction.
 
     On the same draws the paper's mean y pull is about -80 per configuration (the bias SGD follows), with a
@@ -157,9 +157,9 @@ def test_closing_the_target_removes_most_of_the_bias_at_the_true_shift(batch, na
 
 @pytest.mark.parametrize("level", [2, 4])
 def test_group_crossing_is_far_less_biased_at_the_true_shift_than_the_paper(batch, level):
-    """Issue 20's rule: its mean flow at theta* under noise (the bias SGD follows) measured on the same draws as
+    """group_crossing: its mean flow at theta* under noise (the bias SGD follows) measured on the same draws as
     the paper's. The paper's mean y pull is about -80 per configuration; this rule pulls only through the
-    crossings within CROSSING_WIDTH of theta, and its mean stays within a few units (docs/method.md measures it
+    crossings within CROSSING_WIDTH of theta, and its mean stays within a few units (docs/method/floor.md measures it
     on the default data). The bound, a tenth of the paper's, fails for every closed rule of the test above at
     level 4 as well as for the paper."""
     paper = _mean_flow_at_true_shift(batch, level, RULES["paper"], 12).mean(0)

@@ -355,7 +355,7 @@ def test_dynamic_flow_is_the_gradient_of_the_layer():
 
 @pytest.mark.parametrize("kernel", [True, False], ids=["kernel", "torch path"])
 def test_torch_compile_runs_the_layer(kernel):
-    """docs/method.md: Dynamo breaks the graph at the input checks and at the kernel's calls (or, on the torch
+    """docs/method/fast-path.md: Dynamo breaks the graph at the input checks and at the kernel's calls (or, on the torch
     path, at the pulled points' nonzero), and runs, bit for bit as eager, without warnings about sdm's code."""
     loss_of = zoom1_loss_of_theta()
     torch._dynamo.reset()

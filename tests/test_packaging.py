@@ -16,7 +16,7 @@ environment that already holds another torch 2.x release, with a newer torch on 
 - ``pip install --dry-run --report`` on a copy of the project (pyproject.toml, README.md, LICENSE, src/)
   must plan to install only spatial-domain-mapping, and the venv's torch must still read 2.5.1;
 - the negative control: the same resolution on a copy whose pyproject pins ``torch==2.13.0`` (what
-  the project declared before issue 9) plans to install torch 2.13.0 over it.
+  the project once declared) plans to install torch 2.13.0 over it.
 """
 from __future__ import annotations
 

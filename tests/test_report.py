@@ -110,6 +110,9 @@ def test_writers_produce_csv_markdown_and_latex(tmp_path):
     assert latex.count(r"\\") == 1 + len(table)
     assert r"\begin{tabular}{|" + "|".join("c" * len(TABLE2_FORMAT.columns)) + "|}" in latex
     assert "||theta\\textasciitilde{} - theta*||" in to_latex(table, TABLE2_FORMAT)
+    # the title renders bold as a whole, its theta~ and theta* as written (a bare * closed the bold early)
+    assert f"<strong>{TABLE2_FORMAT.caption}</strong>" in page
+    assert markdown.startswith("**Table 2: distance ||theta\\~ - theta\\*|| per noise level")
     assert not list(tmp_path.glob("tables/.*"))  # no temporary file left behind
 
 
@@ -122,7 +125,7 @@ def test_json_round_trip_is_atomic(tmp_path):
 # -- the reproduction report ---------------------------------------------------------------------
 
 
-def test_checks_apply_the_issue_criteria():
+def test_checks_apply_the_acceptance_criteria():
     table1 = table1_frame(grid())
     good = table2_frame(distances((0.6, 16.0, 25.0, 35.0, 40.0)), {})
     assert all(c.passed for c in checks(table1, good))

@@ -25,7 +25,7 @@ from sdm.sky import build_configuration
 
 SAMPLE = Path(__file__).resolve().parents[1] / "data" / "apollocar3d-sample"
 
-#: Tolerances of the calibration (issue 3): Avg. Dist. within 5% of Table 2, cars per image within 10% of 11.4.
+#: Tolerances of the calibration: Avg. Dist. within 5% of Table 2, cars per image within 10% of 11.4.
 AVG_DIST_TOLERANCE = 0.05
 CARS_TOLERANCE = 0.10
 

@@ -19,7 +19,8 @@ def sky768():
 
 
 def test_recovers_the_shift_without_noise(sky768):
-    """Issue criterion: 512 noise-free configurations, n_epoch = 1, lr = 3e-4 -> within 2e-3 m (paper: 0.68e-3)."""
+    """The acceptance criterion: 512 noise-free configurations, n_epoch = 1, lr = 3e-4 -> within 2e-3 m
+    (paper: 0.68e-3)."""
     train_set, dev_set = sky768
     history = train(train_set, TrainSettings(lr=3e-4, n_epoch=1), progress=False)
     assert distance(history.final_theta) < 2e-3
@@ -171,7 +172,7 @@ def test_non_finite_theta_names_the_run_and_the_step(sky768):
 
 
 def test_an_unusable_device_is_an_input_error(sky768):
-    """Issue 19: device="cuda" on a CPU-only torch names ``device`` (torch itself raises an AssertionError)."""
+    """device="cuda" on a CPU-only torch names ``device`` (torch itself raises an AssertionError)."""
     if torch.cuda.is_available():
         pytest.skip("CUDA is available here")
     train_set, _ = sky768
@@ -196,9 +197,9 @@ def test_bad_starts(sky768):
 
 @pytest.mark.parametrize("flow", ["paper", "closed_centred_r1", "normalised"])
 def test_noise_runs_equal_single_noise_runs(sky768, flow):
-    """Issues 10, 18: each batched run of Table 2 (the paper's rule) or Table 4 (another rule) is the run
+    """Each batched run of Table 2 (the paper's rule) or Table 4 (another rule) is the run
     trained alone (tests/run_reference.py), to the bit where the rule's flow is a sum of signs (or of
-    halves); normalised's weights are fractions, so packed sums may round otherwise: 1e-12 m (the issue's)."""
+    halves); normalised's weights are fractions, so packed sums may round otherwise: 1e-12 m."""
     from run_reference import noise_run
     from sdm.experiments import noise_runs, rule_noise_runs
 

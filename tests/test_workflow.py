@@ -247,18 +247,6 @@ def test_dry_run_works_with_torch_and_sdm_unimportable(tmp_path):
     assert "report" in result.stdout + result.stderr
 
 
-def test_no_reference_to_a_file_outside_the_repository():
-    """The library and the docs explain themselves: nothing points to ../shared or the design notes."""
-    offenders = []
-    for path in [*(ROOT / "src").rglob("*.py"), *(ROOT / "docs").glob("*.md"), ROOT / "README.md",
-                 *(ROOT / "notebooks").glob("*.py")]:
-        text = path.read_text()
-        for needle in ("shared/", "method-notes", "method notes", "notes, section"):
-            if needle in text:
-                offenders.append((str(path.relative_to(ROOT)), needle))
-    assert not offenders, offenders
-
-
 def test_dry_run_default_config_plans_every_stage(tmp_path):
     config = default_config()
     jobs = planned(snakemake("-n", "--quiet", "rules", cwd=workdir(tmp_path, config)))
@@ -473,6 +461,16 @@ def test_completed_run_has_every_output_and_nothing_left_to_do(completed_run):
     assert "Nothing to be done" in result.stdout + result.stderr, result.stdout + result.stderr
 
 
+def test_completed_run_outputs_speak_of_the_method_alone(completed_run):
+    """Tables, summaries, the report, the verdict and the rendered notebooks: no issue, stop or session
+    numbers and no document outside the repository (tests/wording.py; the tracked files: test_wording.py)."""
+    from wording import offences
+
+    outputs = [path for path in (completed_run / "results").rglob("*") if path.is_file()]
+    assert any(path.name == "table4_summary.md" for path in outputs)
+    assert offences(outputs, completed_run) == []
+
+
 def test_completed_run_has_the_research_tables_and_the_report_section(completed_run):
     """.test switches both research parts on: Tables 4 and 5, their figures, and "Beyond the paper" in the report."""
     tables = completed_run / "results" / "tables"
@@ -483,7 +481,7 @@ def test_completed_run_has_the_research_tables_and_the_report_section(completed_
     config = dot_test_config()["research"]
     table4 = pd_read_csv(tables / "table4.csv")
     levels = dot_test_config()["noise"]["levels"]
-    # the rules, then Table 3's CMA-ES and the floor beside them (issue 20), each compared with CMA-ES
+    # the rules, then Table 3's CMA-ES and the floor beside them, each compared with CMA-ES
     rows = [*config["rules"]["names"], "CMA-ES (Table 3)", "floor (exact-mismatch minimiser)"]
     assert sorted(set(zip(table4["flow"], table4["level"]))) == sorted((name, level) for name in rows for level in levels)
     rules = table4[table4["flow"].isin(config["rules"]["names"])]

@@ -12,7 +12,7 @@ the *lower half* of the image::
     row = v * 2H / image_height - H        col = u * W / image_width
 
 so with the default 128 x 256 screen, ``row = v * 256/2710 - 128`` and
-``col = u * 256/3384`` (docs/method.md, Geometry). A point is in screen pixel
+``col = u * 256/3384`` (docs/method/paper.md, Geometry). A point is in screen pixel
 ``(floor(row), floor(col))`` and on screen when ``0 <= row < H`` and
 ``0 <= col < W``. Pixels are not square.
 """

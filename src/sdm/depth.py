@@ -1,4 +1,4 @@
-"""Depth: the general shift ``theta = (a, b, c)`` (beyond the paper; docs/method.md, "Beyond the paper").
+"""Depth: the general shift ``theta = (a, b, c)`` (beyond the paper; docs/method/depth.md).
 
 The paper's flow pulls a point's ``x`` and ``y`` by the signs of its screen
 offsets to the target blocks pulling it; it gives ``z`` nothing. The same pixel

@@ -249,7 +249,7 @@ def noise_runs(train_set, level: int, runs: Sequence[int], settings: TrainSettin
         camera: default the set's.
         group_size: runs trained together (:data:`NOISE_GROUP_SIZE`: the trade-off).
         device: where to train; default the set's device.
-        refine: extra passes after the schedule (:class:`sdm.train.Refinement`; issue 20), or ``None``.
+        refine: extra passes after the schedule (:class:`sdm.train.Refinement`), or ``None``.
 
     Returns:
         Columns :data:`RUN_COLUMNS`, one row per run, in the order of ``runs`` (metres).
@@ -428,7 +428,7 @@ def single_thread(threads: int = 1) -> None:
     torch.set_num_threads(max(1, int(threads)))
 
 
-# -- beyond the paper (issue 12): Table 2 per gradient rule, and the shift with depth ----------------------
+# -- beyond the paper: Table 2 per gradient rule, and the shift with depth ----------------------------------
 
 #: Columns of a depth-run table (:func:`depth_noise_runs`); lengths in metres.
 DEPTH_RUN_COLUMNS = ["c_true", "level", "run", "seed", "a", "b", "c", "error_a", "error_b", "error_c",

@@ -1,4 +1,4 @@
-"""Accuracy and dev loss (paper, section 6.2; docs/method.md, Training and evaluation)."""
+"""Accuracy and dev loss (paper, section 6.2; docs/method/paper.md, Training and evaluation)."""
 from __future__ import annotations
 
 import math

@@ -1,4 +1,4 @@
-"""The paper's published numbers, in one place (docs/method.md, The paper's published numbers).
+"""The paper's published numbers, in one place (docs/method/paper.md, The paper's published numbers).
 
 Tables 1 and 2, the experiment's sizes and the data statistics the paper gives. The data layer
 (calibration of the synthetic default) and the report (our numbers beside the paper's) both read
@@ -8,7 +8,7 @@ from __future__ import annotations
 
 #: ApolloCar3D: over 60K cars on 5,277 images (paper, section 3).
 PAPER_CARS_PER_IMAGE = 11.4
-#: Mean depth (m) of the Sky target points that reproduces Table 2's "Avg. Dist." (docs/method.md, Experiments).
+#: Mean depth (m) of the Sky target points that reproduces Table 2's "Avg. Dist." (docs/method/paper.md, Experiments).
 PAPER_TARGET_DEPTH = 50.95
 #: Table 2's "Avg. Dist." column, millimetres, per noise level.
 PAPER_AVG_DIST_MM = {1: 283.4, 2: 494.6, 3: 699.8, 4: 904.8}

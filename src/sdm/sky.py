@@ -1,6 +1,6 @@
 """Sky configurations: from one image's car centres to the points ``Q`` and the target ``L``.
 
-Construction (paper, section 3 and appendix A; docs/method.md, Geometry):
+Construction (paper, section 3 and appendix A; docs/method/paper.md, Geometry):
 
 1. ``E``: fragments ``(car centre, r = z)`` rendered with ``rmin``; cars behind
    the camera or off screen are dropped.
@@ -324,7 +324,7 @@ def noise_displacement(level: int, mean_depth: float, camera: Camera = APOLLO_CA
 
     ``mean_depth * E[sqrt((X * dx)^2 + (Y * dy)^2)]`` with ``X, Y`` independent
     uniform integers on ``[-level, level]`` and ``dx, dy`` the metres per
-    screen column and row at unit depth (docs/method.md, Experiments).
+    screen column and row at unit depth (docs/method/paper.md, Experiments).
     """
     dy, dx = camera.metres_per_screen_pixel(1.0)
     steps = range(-level, level + 1)

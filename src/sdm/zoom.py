@@ -1,4 +1,4 @@
-"""Zoom levels: the space-to-depth reshape and zoomed-out targets (paper, section 6.1; docs/method.md, Forward pass).
+"""Zoom levels: the space-to-depth reshape and zoomed-out targets (paper, section 6.1; docs/method/paper.md, Forward pass).
 
 One reshape step turns an ``h x w`` representation into four ``(h/2) x (w/2)``
 ones, each holding the pixels of one parity of ``(row, col)`` (the paper's

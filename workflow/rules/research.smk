@@ -1,4 +1,4 @@
-# Beyond the paper (issue 12; config section research). Table 4: Table 2 again with other gradient
+# Beyond the paper (config section research). Table 4: Table 2 again with other gradient
 # rules, one job per rule (a file per noise level), on Table 2's noise draws (the same run seeds: paired),
 # and one job measuring where each rule's flow vanishes (rule_bias: it needs no run, so it runs beside them).
 # Table 5: the shift (a, b, c) with depth, one job per (c*, noise level). Each has its gathering stage;
@@ -58,7 +58,7 @@ notebook_stage(
 
 notebook_stage(
     "table4",
-    "Table 4: Table 2 per rule beside the paper's rule on the same draws, the paper and the issue's bar.",
+    "Table 4: Table 2 per rule beside the paper's rule on the same draws, the paper and its half (the bar).",
     jobs=[{}] if RESEARCH_RULES["enabled"] else [],
     input=dict(
         rule_files=each("rule_runs", "runs_files"),

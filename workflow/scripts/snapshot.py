@@ -7,13 +7,13 @@
 the files of ``results/tables/`` (CSV, Markdown and LaTeX tables, the ``*_summary.md`` texts),
 ``results/figures/`` (PNG) and ``results/report/`` (the reproduction report and the verdict), and
 writes ``docs/results/report/verdict.md`` into README.md between the verdict markers (figure paths
-made relative to the README). Nothing else in ``docs/results/`` is touched (``timing.md`` is measured
-by hand: see it).
+made relative to the README). Nothing else in ``docs/results/`` is touched (``timing.md`` is written
+by ``make timing``).
 
 ``check`` holds the README and docs to the snapshot: the verdict section must be the snapshot's verdict,
 and every results number they quote -- a distance in 1e-3 m (``5.76e-3 m``) or a ratio (``1.6x``,
-``1.6-1.9x``), in README.md, docs/workflow.md, or a paragraph of the other docs/*.md that says it speaks
-of the run (``the default run``, ``docs/results``, ``results/tables``, ...) -- must be a value the snapshot holds at the
+``1.6-1.9x``), in README.md, docs/workflow.md, or a paragraph of the other docs/*.md and docs/method/*.md that
+says it speaks of the run (``the default run``, ``docs/results``, ``results/tables``, ...) -- must be a value the snapshot holds at the
 quoted precision (``5.76`` matches a table's ``5.758``). A paragraph that
 names the command its numbers come from (``benchmarks/...``, ``make bench``) quotes that command's
 measurement, not the run's, and is not checked. The standard library only: no torch, no pandas.
@@ -38,8 +38,8 @@ END = "<!-- end of verdict -->"
 QUOTED = re.compile(r"(?<![\w.])(\d+(?:\.\d+)?)(?:\s*(?:-|to)\s*(\d+(?:\.\d+)?))?(e-3 m\b|e-3\b|x\b)")
 #: Where a paragraph says its numbers are a named command's measurement, not the run's.
 OWN_SOURCE = re.compile(r"benchmarks/|make bench")
-#: Where a paragraph of docs/method.md or docs/data.md (notes of experiments, each with its own command) says it
-#: quotes the workflow's run.
+#: Where a paragraph of docs/method/*.md or the other docs (notes of experiments, each with its own command) says
+#: it quotes the workflow's run.
 SPEAKS_OF_THE_RUN = re.compile(r"default run|the run's|docs/results|results/tables|make run")
 
 
@@ -153,7 +153,7 @@ def check(readme: Path = README, snapshot: Path = SNAPSHOT) -> list[str]:
     if readme_section(readme.read_text()) != readme_verdict(snapshot, readme).strip("\n") + "\n":
         problems.append(f"{readme.name}: the verdict section is not {snapshot / 'report' / 'verdict.md'} "
                         f"(run `make snapshot`)")
-    docs = sorted(path for path in (ROOT / "docs").glob("*.md"))
+    docs = sorted([*(ROOT / "docs").glob("*.md"), *(ROOT / "docs" / "method").glob("*.md")])
     values = snapshot_values(snapshot)
     problems += [f"{line} is not in {snapshot}/" for line in
                  unheld_numbers([readme, *docs], values, {readme, ROOT / "docs" / "workflow.md"})]

@@ -1,4 +1,4 @@
-"""Table 3: SDM against the losses a researcher would use instead (issue 11).
+"""Table 3: SDM against the losses a researcher would use instead.
 
 Every method estimates the shift ``theta = (a, b)`` (metres) from the same training configurations
 (points ``Q``, binary targets ``L``) through one interface::
@@ -24,7 +24,7 @@ defaults, while silhouette and sinkhorn cost 1.6 and 1.9 s, so config.yaml gives
 configurations a step and 27 / 16 steps per stage (0.54 and 0.65 s; their level-2 mean distance
 over 10 runs moves from 11.2 to 15.1 and from 16.9 to 18.1 e-3 m). The noise runs are fitted many at a time (``fit_runs``,
 :func:`noise_runs`), each run bit-identical to its single fit; on one CPU core that shares little,
-for SDM (about 1.2x, docs/method.md) as for the gradient baselines, whose steps are dominated by
+for SDM (about 1.2x, docs/method/fast-path.md) as for the gradient baselines, whose steps are dominated by
 arithmetic on their dense per-step tensors (nearest-neighbour matrices, splatted cells, Sinkhorn
 kernels) rather than by per-operation overhead (``benchmarks/bench_baselines.py`` measures both
 ways; the ``seconds_per_run`` of Table 3 is the batched cost).

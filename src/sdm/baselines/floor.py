@@ -385,7 +385,7 @@ def floor_search(objective: PixelMismatch, seed: int = 0, settings: FloorSetting
             half_state = (best_theta, best_value)
     # theta* is one more candidate, for both budgets: the floor is a measurement of the data (the experiment
     # knows theta*), not a method, and under noise theta* is often in the minimal region (a search that
-    # stops in a local minimum nearby would otherwise set a level's mean: issue 20's stability bar)
+    # stops in a local minimum nearby would otherwise set a level's mean)
     at_truth = count(truth)
     if at_truth < best_value:  # ties keep the incumbent
         best_theta, best_value = truth, at_truth

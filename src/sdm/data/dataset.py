@@ -1,4 +1,4 @@
-"""Sampling images and building the Sky dataset's configurations (paper, section 3; docs/method.md, Experiments)."""
+"""Sampling images and building the Sky dataset's configurations (paper, section 3; docs/method/paper.md, Experiments)."""
 from __future__ import annotations
 
 from collections.abc import Sequence

@@ -222,7 +222,7 @@ def summarize(
     return summary
 
 
-#: Targets of the synthetic default, by :func:`summarize` key (paper; docs/method.md).
+#: Targets of the synthetic default, by :func:`summarize` key (paper; docs/method/paper.md).
 TARGETS = {
     "cars_per_image": PAPER_CARS_PER_IMAGE,
     "target_mean_depth": PAPER_TARGET_DEPTH,

@@ -37,7 +37,7 @@ Scene model (one image; every number below is a field of :class:`SceneModel`)
 
 Calibration (``docs/data.md`` gives the measured numbers): ~11.4 labelled cars
 per image (ApolloCar3D: over 60K cars on 5,277 images) and a mean depth of the
-Sky target points of ~51 m (docs/method.md, Experiments; Real layouts and the synthetic default), which reproduces
+Sky target points of ~51 m (docs/method/paper.md, Experiments; Real layouts and the synthetic default), which reproduces
 Table 2's "Avg. Dist." column.
 
 Determinism: image ``i`` of seed ``s`` is drawn from

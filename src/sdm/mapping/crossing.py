@@ -1,6 +1,6 @@
-"""``group_crossing`` (issue 20): a gradient flow built from CMA-ES's objective, the exact zoom-0 pixel mismatch.
+"""``group_crossing``: a gradient flow built from CMA-ES's objective, the exact zoom-0 pixel mismatch.
 
-docs/method.md, "A rule aimed at the floor". Table 4 trains ``closed_centred_r1`` and then refines with this
+docs/method/floor.md, "A rule aimed at the floor". Table 4 trains ``closed_centred_r1`` and then refines with this
 rule at zoom 0 (:class:`sdm.train.Refinement`); :data:`sdm.FLOW_RULES` registers it as ``"group_crossing"``
 (eq. 19 at the levels ``>= CROSSING_FINEST_COARSE``, :func:`group_crossing_flow` below them). The compiled
 trainer runs the same arithmetic (``_native.c``, ``crossing_pull``), held to this module's to the bit by
@@ -19,7 +19,7 @@ from .flow import landing_matched
 #: The four one-pixel moves: ``(drow, dcol)`` for y+, y-, x+, x-.
 _MOVES = ((1, 0), (-1, 0), (0, 1), (0, -1))
 
-#: ``group_crossing``'s kernel half-width in metres of theta (docs/method.md, "A rule aimed at the floor").
+#: ``group_crossing``'s kernel half-width in metres of theta (docs/method/floor.md, "A rule aimed at the floor").
 CROSSING_WIDTH = 2e-3
 #: ``group_crossing``'s flow scale (a power of two: the scaled flow stays a multiple of ``1 / CROSSING_STEPS``).
 CROSSING_SCALE = 8.0

@@ -3,7 +3,7 @@
 Both implementations of the layer (:mod:`~sdm.mapping.fast` and the dense grid
 reference :mod:`~sdm.mapping.dense`) and the single-point explainer
 (:func:`~sdm.mapping.explain.explain_point`) decide *where* each point lands;
-what the backward pass does with that is decided here, once (docs/method.md,
+what the backward pass does with that is decided here, once (docs/method/paper.md,
 "Backward pass").
 """
 from __future__ import annotations

@@ -1,10 +1,10 @@
-"""Experimental gradient rules: the experiments of docs/method.md, "Beyond the paper"; no table uses them.
+"""Experimental gradient rules: the experiments of docs/method/rules.md; no table uses them.
 
-Issue 12 asked for a rule that is unbiased under noise: with noisy targets the
+The aim is a rule that is unbiased under noise. With noisy targets the
 paper's summed flow does not vanish at the true shift theta*, so SGD settles
 beyond it. The rules here change *which* points are pulled and *how much*, each
 keeping theta* an exact fixed point without noise (no point is unmatched there,
-so no rule pulls anything). They were measured (docs/method.md, its tables of
+so no rule pulls anything). They were measured (docs/method/rules.md, its tables of
 Table 2 per rule and of the flow at theta*); the one that met the bar,
 ``closed_centred_r1``, is in :data:`sdm.FLOW_RULES` with the paper's rule, and no
 configuration or table of the workflow uses the ones below.
@@ -111,7 +111,7 @@ def _closing_pixels(radius: int, at_least: int = 0):
     wider than the noise. A closing of a fixed number of *blocks* (``closed5``)
     over-fills the coarse levels (5 blocks of 16 pixels bridge whole gaps between
     cars, every point is matched, theta hardly moves until the fine levels, where
-    the 3x3 kernel can no longer reach). Measured in docs/method.md. ``at_least``
+    the 3x3 kernel can no longer reach). Measured in docs/method/rules.md. ``at_least``
     blocks of radius are closed at every level (``closed_m2``: 1, i.e. 3x3 at the
     coarse levels, as ``closed``).
     """
@@ -128,7 +128,7 @@ def _closing_pixels(radius: int, at_least: int = 0):
     return close
 
 
-#: The experimental rules by name (docs/method.md, "Beyond the paper"); none is used by a table.
+#: The experimental rules by name docs/method/rules.md; none is used by a table.
 RESEARCH_RULES: dict[str, FlowRule] = {
     "nearest": window_rule(weigh=_nearest),
     "normalised": window_rule(weigh=_normalised),

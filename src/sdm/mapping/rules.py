@@ -6,12 +6,12 @@ and plugs into the same autograd layer (``SpatialDomainMapping(flow=NAME)``,
 ``TrainSettings(flow=NAME)``). ``"paper"`` is the paper's eq. 19, unchanged.
 
 :data:`FLOW_RULES` holds the rules a configuration or table of this project uses.
-``"closed_centred_r1"`` (docs/method.md, "Beyond the paper") is eq. 19 at every
+``"closed_centred_r1"`` docs/method/rules.md is eq. 19 at every
 zoom >= 1 (the coarse levels, where blocks are wider than the noise's holes and
 the paper's strong pull brings theta near theta*), and at zoom 0 a 3x3 closing
 of the target with the window centred on the landing block: the one rule that
-meets issue 12's bar at every noise level on the default data. The other rules
-measured there are experiments, in :mod:`sdm.mapping.research_rules`
+meets the bar "half the paper's mean" at every noise level on the default data.
+The other rules measured there are experiments, in :mod:`sdm.mapping.research_rules`
 (:data:`~sdm.mapping.research_rules.RESEARCH_RULES`); :func:`flow_rule` finds a
 name in either registry. This module also holds the builders they share: one
 generic 3x3 window with hooks (:func:`window_rule`), :func:`by_zoom` and
@@ -147,7 +147,7 @@ FLOW_RULES: dict[str, FlowRule] = {
     # 3x3 closing and the window centred on the landing block at zoom 0, eq. 19 at the coarser levels.
     "closed_centred_r1": by_zoom(window_rule(prepare=_CLOSE_3, centred=True), dynamic_flow,
                                  finest_coarse=_R1_FINEST_COARSE),
-    # Issue 20: the kernel-weighted discrete derivative of CMA-ES's objective at zoom 0 (sdm.mapping.crossing),
+    # The kernel-weighted discrete derivative of CMA-ES's objective at zoom 0 (sdm.mapping.crossing),
     # eq. 19 at the coarser levels; Table 4 refines closed_centred_r1's runs with it (sdm.train.Refinement).
     "group_crossing": by_zoom(group_crossing_flow, dynamic_flow, finest_coarse=CROSSING_FINEST_COARSE),
 }

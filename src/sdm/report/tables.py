@@ -5,6 +5,7 @@ Units: dev loss in pixels; distances in 1e-3 m (the paper's Table 2 unit); "Avg.
 from __future__ import annotations
 
 import math
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -252,7 +253,7 @@ def to_markdown(frame: pd.DataFrame, style: TableFormat) -> str:
     """A GitHub-flavoured Markdown table (title line, table, notes)."""
     columns = [c for c in style.columns if c in frame]
     numeric = {c: pd.api.types.is_numeric_dtype(frame[c]) and not pd.api.types.is_bool_dtype(frame[c]) for c in columns}
-    lines = [f"**{style.caption}**", ""] if style.caption else []
+    lines = [f"**{_md_inline(style.caption)}**", ""] if style.caption else []
     lines.append("| " + " | ".join(_md_escape(style.headers.get(c, c)) for c in columns) + " |")
     lines.append("|" + "|".join("---:" if numeric[c] else ":---:" for c in columns) + "|")
     for row in _rows(frame, columns):
@@ -343,6 +344,16 @@ def _require(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
 
 def _md_escape(text: str) -> str:
     return str(text).replace("|", r"\|")
+
+
+#: Characters that open or close Markdown emphasis, code or links: in a bold title, ``theta*`` would close the
+#: bold early and ``theta~`` could open a strikethrough.
+_MD_INLINE = re.compile(r"([\\`*_~\[\]<>])")
+
+
+def _md_inline(text: str) -> str:
+    """``text`` as literal Markdown inline text: each emphasis, code or link character backslash-escaped."""
+    return _MD_INLINE.sub(r"\\\1", str(text))
 
 
 _TEX_SPECIAL = {"\\": r"\textbackslash{}", "&": r"\&", "%": r"\%", "$": r"\$", "#": r"\#", "_": r"\_",
