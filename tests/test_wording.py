@@ -7,19 +7,14 @@ import re
 
 import pytest
 
-from wording import PENDING_CLEANUP, ROOT, SELF, VERBATIM, forbidden_in, offences, tracked_files
+from wording import ROOT, SELF, VERBATIM, forbidden_in, offences, tracked_files
 
 
 def test_no_tracked_file_speaks_of_issues_stops_or_outside_documents():
-    names = [name for name in tracked_files() if name not in PENDING_CLEANUP | SELF and not VERBATIM.search(name)]
+    names = [name for name in tracked_files() if name not in SELF and not VERBATIM.search(name)]
     paths = [ROOT / name for name in names if (ROOT / name).is_file()]
     assert len(paths) > 100  # the listing worked
     assert offences(paths, ROOT) == []
-
-
-def test_the_pending_files_are_tracked_files():
-    """PENDING_CLEANUP names files that exist: a renamed or deleted file leaves the list."""
-    assert PENDING_CLEANUP <= set(tracked_files())
 
 
 @pytest.mark.parametrize("planted, found", [

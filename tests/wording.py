@@ -23,11 +23,6 @@ FORBIDDEN = re.compile(
     r"|\bmethod[- ]notes\b|\bnotes, section\b|\bshared/(?:paper|design)\b",  # documents outside the repository
     re.IGNORECASE)
 
-#: TEMPORARY allowlist: files being rewritten on another branch right now, whose wording is cleaned with that
-#: rewrite. Empty this set once src/sdm/train.py, src/sdm/mapping/native.py and src/sdm/mapping/_native.c say
-#: nothing of issues or stops; until then the test skips exactly these three files.
-PENDING_CLEANUP = {"src/sdm/train.py", "src/sdm/mapping/native.py", "src/sdm/mapping/_native.c"}
-
 #: Third-party texts kept verbatim (a licence may speak of "issue tracking systems").
 VERBATIM = re.compile(r"(^|/)LICEN[CS]E[^/]*$")
 

@@ -1,4 +1,4 @@
-"""Training: SGD on the shift theta = (a, b) through the SDM layer (paper, section 6; docs/method.md, Training and evaluation).
+"""Training: SGD on the shift theta = (a, b) through the SDM layer (paper, section 6; docs/method/paper.md, "Training and evaluation").
 
 theta starts at (0, 0). For zoom level ``s, s-1, ..., zoom``: ``n_epoch`` passes
 over the training set in shuffled mini-batches of 16 configurations (the
@@ -51,12 +51,12 @@ class TrainSettings:
         fit_depth: train the general shift ``(a, b, c)`` with the depth flow of :mod:`sdm.depth`
             (beyond the paper); theta, its history and ``final_theta`` then have three entries.
         depth_lr_scale: the learning rate of ``c`` relative to ``lr`` (with ``fit_depth``); 20 by a
-            measured sweep (1: c lags, 10-30: within 1e-2 m, 100: diverges; docs/method.md).
+            measured sweep (1: c lags, 10-30: within 1e-2 m, 100: diverges; docs/method/depth.md).
         depth_zoom: the finest zoom level at which ``c`` moves (with ``fit_depth``; at least the coarsest
             level ``s``): the finer levels train ``(a, b)`` with ``c`` held. Default 1: at full resolution
             the pull on ``c`` with ``depth_lr_scale`` 20 walks along the near-degenerate direction of
             ``(b, c)`` (every point lies below the principal point) and leaves ``b`` off by about 2e-3 m
-            at c = -1 m (measured; docs/method.md, "Beyond the paper").
+            at c = -1 m (measured; docs/method/depth.md).
     """
 
     lr: float = 3e-4
@@ -390,16 +390,16 @@ class Refinement:
 
     The passes are counted in SGD steps, not in epochs, so the refinement's strength does not depend on the size
     of the training set: 4 passes of 32 steps are 4 epochs of the default's 512 configurations (batches of 16),
-    and 64 epochs of a 41-configuration set (docs/method.md, "The schedule that reaches the floor").
+    and 64 epochs of a 41-configuration set (docs/method/floor.md, "The schedule that reaches the floor").
 
     ``closed_centred_r1`` brings theta within a few millimetres, where ``group_crossing`` (whose fixed point is
-    near the floor but whose pull far from it is weak) refines it (docs/method.md, "A rule aimed at the floor").
+    near the floor but whose pull far from it is weak) refines it (docs/method/floor.md, "A rule aimed at the floor").
 
     Attributes:
         flow: a rule name (:func:`sdm.mapping.rules.flow_rule`).
         passes: passes, a positive integer.
         rate_from: the first pass's rate is level ``zoom + rate_from``'s (a non-negative integer; 2 was chosen
-            on runs no table holds: docs/method.md, "The schedule that reaches the floor").
+            on runs no table holds: docs/method/floor.md, "The schedule that reaches the floor").
         moves_c: with ``fit_depth``, the passes move ``c`` too (at ``depth_lr_scale`` times their rate), whatever
             ``depth_zoom`` says: ``group_crossing``'s depth flow at theta* under noise is less biased at zoom 0 than
             the paper's rule's at zoom 1 (measured by ``sdm.experiments.depth_bias``: Table 5's ``table5_bias``).

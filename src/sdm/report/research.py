@@ -297,7 +297,7 @@ def _refinement_reading(flow: str, rows: pd.DataFrame, frame: pd.DataFrame) -> l
         return []
     return [f"  Why it misses, measured on the same runs (1e-3 m): the refinement (`{refine}`) starts where `{first}` "
             f"ends; per missed level: " + "; ".join(parts) + ". The refinement's rule pulls theta only "
-            "towards the pixel crossings within its kernel's reach, a few millimetres of theta (docs/method.md, "
+            "towards the pixel crossings within its kernel's reach, a few millimetres of theta (docs/method/floor.md, "
             "\"The refinement on the real sample\": more steps and other rates measured, and a wider kernel)."]
 
 
