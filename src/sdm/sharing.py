@@ -201,7 +201,8 @@ def per_configuration(data: ConfigurationSet) -> Sharing:
     return Sharing("configuration", index, rows, _no_hidden(data.device))
 
 
-def check_cars(data: ConfigurationSet, cars, n_cars=None, name: str = "cars") -> tuple[torch.Tensor, torch.Tensor | None]:
+def check_cars(data: ConfigurationSet, cars, n_cars=None,
+               name: str = "cars") -> tuple[torch.Tensor, torch.Tensor | None]:
     """The per-point car index (and the cars per configuration) checked.
 
     Args:
@@ -362,7 +363,8 @@ def draw_truth(sharing: Sharing, seed: int, distribution: TruthDistribution = Tr
     elif sharing.level == "car":
         truth = centre + distribution.car_sd * draw
     else:
-        truth = torch.where(is_car.unsqueeze(1), distribution.residual_sd * draw, centre + distribution.camera_sd * draw)
+        truth = torch.where(is_car.unsqueeze(1), distribution.residual_sd * draw,
+                            centre + distribution.camera_sd * draw)
     return truth.to(device)
 
 
