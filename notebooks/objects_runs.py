@@ -38,7 +38,7 @@ floor = {"evaluations_per_unknown": 50, "restarts": 2}
 silhouette = {"lr": 0.1, "sigma": 0.5, "batch_size": 8, "steps": 27}
 seed = 0  # noise.seed: run r at level n draws theta*, its noise and its seeds from (seed, n, r)
 s = 4
-batch_size = 16
+batch_size = 8
 lr_decay = 0.5
 threads = 1
 

@@ -28,7 +28,7 @@ notebook_stage(
         runs=OBJECTS.get("runs"),
         configurations=OBJECTS.get("configurations"),
         seed=config["noise"]["seed"],
-        batch_size=config["train"]["batch_size"],
+        batch_size=OBJECTS.get("batch_size"),
         lr_decay=config["train"]["lr_decay"],
         s=config["train"]["s"],
     ),

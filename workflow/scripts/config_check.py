@@ -237,6 +237,20 @@ def _check_research(config: Mapping[str, Any], noise_runs: int) -> None:
             raise ConfigError(f"config key 'research.depth.shifts_c': must be finite numbers (metres), got {shifts!r}")
         if len({float(v) for v in shifts}) != len(shifts):
             raise ConfigError(f"config key 'research.depth.shifts_c': each c* once, got {shifts!r}")
+    objects = research.get("objects") or {}
+    if objects.get("enabled"):
+        _check_schedule(objects.get("schedule", ""), "research.objects.schedule")
+        n_train = int(config["split"]["n_train"])
+        if int(objects.get("configurations", 1)) > n_train:
+            raise ConfigError(f"config key 'research.objects.configurations': at most split.n_train ({n_train}), "
+                              f"got {objects.get('configurations')}")
+        if int(objects.get("batch_size", 1)) > int(objects.get("configurations", 1)):
+            raise ConfigError(f"config key 'research.objects.batch_size': at most research.objects.configurations "
+                              f"({objects.get('configurations')}): a run's batch, got {objects.get('batch_size')}")
+        scaling = objects.get("scaling") or {}
+        if int(scaling.get("n_images", 16)) < int(objects.get("batch_size", 1)):
+            raise ConfigError(f"config key 'research.objects.scaling.n_images': at least research.objects.batch_size "
+                              f"({objects.get('batch_size')}), got {scaling.get('n_images')}")
 
 
 def check_against_annotations(config: Mapping[str, Any], n_annotated: int, where: str) -> None:
