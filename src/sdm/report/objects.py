@@ -30,7 +30,7 @@ TABLE6_FORMAT = TableFormat(
     headers={"sharing": "sharing", "level": "noise level", "method": "method", "units": "units scored",
              "hidden": "hidden cars", "mean": "mean", "median": "median", "q3": "Q3", "cpu_ms": "CPU ms / config"},
     formats={"mean": ".2f", "median": ".2f", "q3": ".2f", "cpu_ms": ".2f"},
-    caption="Table 6: parameters attached to points, distance per unit to theta\\* (1e-3 m) and CPU time",
+    caption="Table 6: parameters attached to points, distance per unit to theta* (1e-3 m) and CPU time",
     label="tab:table6",
     notes=(
         "A unit is what a configuration's pixels identify: its shift (a shift per configuration), a car's shift (per "
