@@ -73,27 +73,41 @@ def _cpu() -> float:
     return time.process_time()
 
 
+def shared_start(data: ConfigurationSet, targets: torch.Tensor, seed: int, settings: ObjectsSettings,
+                 flow: str = "paper") -> tuple[torch.Tensor, float]:
+    """SDM's shared start: the schedule ``settings.warm`` with rule ``flow`` on one shift for every point.
+
+    Returns:
+        ``(shared (2,), seconds)``: the shift (metres) and the CPU seconds it took.
+    """
+    began = _cpu()
+    shared = train_runs(data, [targets], [replace(settings.warm, flow=flow, seed=seed)]).theta[-1, 0]
+    return shared, _cpu() - began
+
+
 def sdm_rows(data: ConfigurationSet, targets: torch.Tensor, sharing: S.Sharing, seed: int, settings: ObjectsSettings,
-             schedule: str | None) -> tuple[torch.Tensor, torch.Tensor, float, float]:
+             schedule: str | None, start: tuple[torch.Tensor, float] | None = None
+             ) -> tuple[torch.Tensor, torch.Tensor, float, float]:
     """SDM on the rows of ``sharing``: the shared start, then the rows (``schedule``: ``None`` for the paper's rule).
+
+    ``start``: the shared start of the schedule's rule (:func:`shared_start`) where the caller has it already;
+    its seconds count in the fit's as if it were trained here.
 
     Returns:
         ``(theta (K, 2), shared (2,), seconds, shared_seconds)``: the rows' estimate, the shared start (metres),
         the CPU seconds of the whole fit and of its shared start.
     """
     flow, refine = parse_schedule(schedule) if schedule else ("paper", None)
-    warm = replace(settings.warm, flow=flow, seed=seed)
+    shared, shared_seconds = start if start is not None else shared_start(data, targets, seed, settings, flow)
     began = _cpu()
-    shared = train_runs(data, [targets], [warm]).theta[-1, 0]
-    shared_seconds = _cpu() - began
-    start = _start_table(sharing, shared)
     rows = [replace(settings.rows, flow=flow, seed=seed)]
     row_rate = rates_per_point(sharing.param_index)
-    history = train_runs(data, [targets], rows, theta0=[start], param_index=sharing.param_index, row_rate=row_rate)
+    history = train_runs(data, [targets], rows, theta0=[_start_table(sharing, shared)],
+                         param_index=sharing.param_index, row_rate=row_rate)
     if refine is not None:
         history = refine_runs(data, [targets], rows, history, refine, param_index=sharing.param_index,
                               row_rate=row_rate)
-    return history.theta[-1, 0], shared, _cpu() - began, shared_seconds
+    return history.theta[-1, 0], shared, _cpu() - began + shared_seconds, shared_seconds
 
 
 def _start_table(sharing: S.Sharing, shared: torch.Tensor) -> torch.Tensor:
@@ -153,21 +167,18 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
     for run in tqdm(list(runs), desc=f"{level}, noise {noise}", unit="run", disable=not progress, leave=False):
         own_seed, targets, true_totals = paired_targets(data, sharing, units, noise, run, seed, settings.truth)
         noisy = data.with_targets(targets)
-        estimates, shared = {}, None
+        estimates = {}
+        # the paper's rule's shared start: SDM's paper-rule rows and the per-configuration baselines start there
+        paper_start = (shared_start(data, targets, own_seed, settings)
+                       if {"sdm_paper", "cmaes", "silhouette"} & set(methods) else None)
         for method in methods:
             if method in ("sdm_paper", "sdm_schedule"):
-                theta, start, seconds, shared_seconds = sdm_rows(
-                    data, targets, sharing, own_seed, settings, settings.schedule if method == "sdm_schedule" else None)
-                if method == "sdm_paper":
-                    shared = (start, shared_seconds)
+                paper = method == "sdm_paper"
+                theta, _, seconds, _ = sdm_rows(data, targets, sharing, own_seed, settings,
+                                                None if paper else settings.schedule, paper_start if paper else None)
                 estimates[method] = (S.unit_totals(theta, units), seconds)
-        for method in methods:
-            if method in ("cmaes", "silhouette"):
-                if shared is None:  # the shared start alone, as SDM's paper rule makes it
-                    began = _cpu()
-                    start = train_runs(data, [targets], [replace(settings.warm, seed=own_seed)]).theta[-1, 0]
-                    shared = (start, _cpu() - began)
-                start, shared_seconds = shared
+            elif method in ("cmaes", "silhouette"):
+                start, shared_seconds = paper_start
                 table = _start_table(sharing, start)
                 began = _cpu()
                 if method == "cmaes":
@@ -229,15 +240,13 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
     records = []
     for run in tqdm(list(runs), desc=f"{n_cars} cars", unit="run", disable=not progress, leave=False):
         own_seed, targets, true_totals = paired_targets(data, sharing, units, noise, run, seed, settings.truth)
-        shared = None
+        start, shared_seconds = paper_start = shared_start(data, targets, own_seed, settings)
         for n_epoch in epochs:
-            theta, start, seconds, shared_seconds = sdm_rows(
+            theta, _, seconds, _ = sdm_rows(
                 data, targets, sharing, own_seed, replace(settings, rows=replace(settings.rows, n_epoch=int(n_epoch))),
-                None)
-            shared = shared or (start, shared_seconds)
+                None, paper_start)
             records.append(_scaling_record(n_cars, noise, run, "sdm_paper", n_epoch,
                                            S.unit_totals(theta, units) - true_totals, seconds / len(data)))
-        start, shared_seconds = shared
         for budget in budgets:
             began = _cpu()
             fit = fit_configurations(data.with_targets(targets), units,

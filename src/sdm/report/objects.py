@@ -80,23 +80,30 @@ def _row(sharing, level, method, distances: np.ndarray, hidden: int, cpu_ms: flo
             "q3_m": float(np.quantile(distances, 0.75)), "cpu_ms": cpu_ms}
 
 
+def against_cmaes(table: pd.DataFrame, sharing: str) -> list[tuple[int, str, float, float]]:
+    """Per noise level of ``sharing``: ``(level, rule, ratio, speed)``, SDM's closer rule (the lower mean of the two),
+    its mean over CMA-ES's and CMA-ES's CPU time over its own; levels without CMA-ES or SDM are left out."""
+    out = []
+    for level, group in table[table["sharing"] == sharing].groupby("level", sort=True):
+        by = group.set_index("method")
+        rules = [m for m in ("sdm_paper", "sdm_schedule") if m in by.index]
+        if "cmaes" not in by.index or not rules:
+            continue
+        best = min(rules, key=lambda m: by.loc[m, "mean_m"])
+        out.append((int(level), best, by.loc[best, "mean_m"] / by.loc["cmaes", "mean_m"],
+                    by.loc["cmaes", "cpu_ms"] / by.loc[best, "cpu_ms"]))
+    return out
+
+
 def verdict_sentence(table: pd.DataFrame) -> str:
     """Table 6 in one sentence for the verdict: per sharing level, SDM's best rule's mean against CMA-ES's over
     the noise levels (the range of the ratio) and how much less CPU time it takes per configuration."""
     parts = []
     for sharing in SHARING_ORDER[1:]:
-        rows = table[table["sharing"] == sharing]
-        ratios, speeds = [], []
-        for _, group in rows.groupby("level", sort=True):
-            by = group.set_index("method")
-            rules = [m for m in ("sdm_paper", "sdm_schedule") if m in by.index]
-            if "cmaes" not in by.index or not rules:
-                continue
-            best = min(rules, key=lambda m: by.loc[m, "mean_m"])
-            ratios.append(by.loc[best, "mean_m"] / by.loc["cmaes", "mean_m"])
-            speeds.append(by.loc["cmaes", "cpu_ms"] / by.loc[best, "cpu_ms"])
+        compared = against_cmaes(table, sharing)
+        ratios, speeds = [ratio for *_, ratio, _ in compared], [speed for *_, speed in compared]
         if ratios:
-            levels = sorted(set(rows["level"]))
+            levels = sorted(set(table.loc[table["sharing"] == sharing, "level"]))
             span = f"{min(ratios):.2f}-{max(ratios):.2f}x" if len(ratios) > 1 else f"{ratios[0]:.2f}x"
             parts.append(f"with {UNIT[sharing]} unknown, SDM's closer rule ends at {span} CMA-ES's mean distance "
                          f"(noise levels {levels[0]}-{levels[-1]}) at 1/{min(speeds):.0f} to 1/{max(speeds):.0f} of "
@@ -127,15 +134,8 @@ def table6_summary(table: pd.DataFrame, scaling: pd.DataFrame | None) -> str:
         rows = table[table["sharing"] == sharing]
         if not len(rows):
             continue
-        parts = []
-        for level, group in rows.groupby("level", sort=True):
-            by = group.set_index("method")
-            if "cmaes" not in by.index:
-                continue
-            best = min((m for m in ("sdm_paper", "sdm_schedule") if m in by.index), key=lambda m: by.loc[m, "mean_m"])
-            ratio = by.loc[best, "mean_m"] / by.loc["cmaes", "mean_m"]
-            speed = by.loc["cmaes", "cpu_ms"] / by.loc[best, "cpu_ms"]
-            parts.append(f"level {level}: {ratio:.2f}x CMA-ES's mean ({LABELS[best]}), at 1/{speed:.0f} of its CPU time")
+        parts = [f"level {level}: {ratio:.2f}x CMA-ES's mean ({LABELS[best]}), at 1/{speed:.0f} of its CPU time"
+                 for level, best, ratio, speed in against_cmaes(table, sharing)]
         hidden = int(rows["hidden"].max()) if len(rows) else 0
         lines.append(f"- **{UNIT[sharing].capitalize()}** ({hidden} hidden cars over the runs, left out): "
                      + "; ".join(parts) + ".")
