@@ -33,6 +33,7 @@ include: "workflow/rules/noise.smk"
 include: "workflow/rules/baselines.smk"
 include: "workflow/rules/research.smk"
 include: "workflow/rules/objects.smk"
+include: "workflow/rules/network.smk"
 include: "workflow/rules/report.smk"
 
 
@@ -46,6 +47,7 @@ wildcard_constraints:
     c=one_of(DEPTH_SHIFTS),
     sharing=one_of(OBJECT_SHARINGS),
     cars=r"\d+",
+    loss=one_of(NETWORK_LOSSES),
 
 
 # Small jobs run on the submitting node on a cluster (no queue wait for seconds of work).
@@ -59,6 +61,7 @@ localrules:
     table4,
     table5,
     table6,
+    table7,
 
 
 rule all:
@@ -67,7 +70,7 @@ rule all:
     input:
         [
             getattr(rules, stage).output
-            for stage in ("tables", "table3", "table4", "table5", "table6", "figures", "report")
+            for stage in ("tables", "table3", "table4", "table5", "table6", "table7", "figures", "report")
             if JOBS[stage]
         ],
         [each(stage, "html") for stage in JOBS],

@@ -46,6 +46,7 @@ table4_elsewhere = []  # optional input: Table 4 of other data (committed snapsh
 data = "this run's data"  # this run's data, in words
 elsewhere = []  # the data of each of table4_elsewhere, in words
 table6_csv = ""  # optional input: Table 6 (CSV), this run's or the committed snapshot's
+table7_csv = ""  # optional input: Table 7 (CSV), this run's or the committed snapshot's
 config = {}
 threads = 1
 
@@ -103,6 +104,7 @@ display(Markdown(text))
 answer = verdict_text(pd.read_csv(table1), pd.read_csv(table2), pd.read_csv(table3_csv) if table3_csv else None,
                       methods, pd.read_csv(table4_csv) if table4_csv else None, rules, data=data,
                       elsewhere={words: pd.read_csv(path) for words, path in zip(elsewhere, table4_elsewhere)},
-                      table6=pd.read_csv(table6_csv) if table6_csv else None)
+                      table6=pd.read_csv(table6_csv) if table6_csv else None,
+                      table7=pd.read_csv(table7_csv) if table7_csv else None)
 write_text(verdict, answer)
 display(Markdown(answer))

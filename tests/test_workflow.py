@@ -34,7 +34,8 @@ SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
 APOLLO_SAMPLE = ROOT / "data" / "apollocar3d-sample"
 STAGES = ["synthetic", "data", "sample", "sky", "split", "tune", "best", "noise", "tables", "baseline_tune",
           "baseline_runs", "floor_runs", "table3", "rule_runs", "rule_bias", "depth_runs", "objects_runs",
-          "objects_scaling", "table4", "table5", "table6", "figures", "report"]
+          "objects_scaling", "network_train", "network_test", "table4", "table5", "table6", "table7", "figures",
+          "report"]
 
 pytestmark = pytest.mark.workflow
 
@@ -271,6 +272,9 @@ def _research_jobs(config: dict) -> dict[str, int]:
     if objects.get("enabled"):
         jobs |= {"objects_runs": len(objects["sharings"]) * len(objects["levels"]),
                  "objects_scaling": len(objects["scaling"]["cars"]), "table6": 1}
+    network = config["research"].get("network", {})
+    if network.get("enabled"):
+        jobs |= {"network_train": len(network["losses"]), "network_test": len(network["levels"]), "table7": 1}
     return jobs
 
 
@@ -642,7 +646,38 @@ def _key_cases() -> dict[str, tuple[dict, str | None]]:
         "research.depth.flow": ({"research": {"depth": {"flow": "paper"}}}, "depth_runs"),
         "research.depth.lr_scale": ({"research": {"depth": {"lr_scale": 3}}}, "depth_runs"),
         **_objects_cases(),
+        **_network_cases(),
     }
+
+
+def _network_cases() -> dict[str, tuple[dict, str | None]]:
+    """The Table 7 keys' cases: (config change, first stage expected to rerun); the .test config runs Table 7."""
+    cases = {
+        "enabled": (False, "report"),  # the report no longer reads this run's Table 7
+        "sizes": ([40, 16, 16], "network_train"),
+        "seed": (1, "network_train"),
+        "levels": ([0, 1], "network_train"),
+        "camera_sd": (0.1, "network_train"),
+        "losses": (["supervised"], "network_test"),  # the trained networks stay; every test job reads fewer
+        "train.epochs": (1, "network_train"),
+        "train.batch_size": (4, "network_train"),
+        "train.lr": (1.0e-3, "network_train"),
+        "train.s": (1, "network_train"),
+        "train.sigma": (1.0, "network_train"),
+        "train.max_points": (32, "network_train"),
+        "refine.s": (2, "network_test"),
+        "refine.n_epoch": (2, "network_test"),
+        "refine.lr": (1.0e-3, "network_test"),
+        "refine.flow": ("paper", "network_test"),
+        "refine.batch_size": (2, "network_test"),
+    }
+    changes = {}
+    for key, (value, stage) in cases.items():
+        change = value
+        for part in reversed(["research", "network", *key.split(".")]):
+            change = {part: change}
+        changes[f"research.network.{key}"] = (change, stage)
+    return changes
 
 
 def _objects_cases() -> dict[str, tuple[dict, str | None]]:

@@ -52,6 +52,7 @@ notebook_stage(
         split=SPLIT_FILE,
         table4_elsewhere=list(table4_elsewhere()),
         **table6_read_by_report(),
+        **table7_read_by_report(),
     ),
     # a dict literal: a line that starts with the word report is Snakemake's report directive
     output={

@@ -53,7 +53,8 @@ def recommended_rule(table4: pd.DataFrame, rules: Sequence[str]) -> str | None:
 def verdict(table1: pd.DataFrame, table2: pd.DataFrame, table3: pd.DataFrame | None = None,
             methods: Sequence[str] = (), table4: pd.DataFrame | None = None, rules: Sequence[str] = (),
             figure: str = "../figures/distances.png", data: str = "this run's data",
-            elsewhere: Mapping[str, pd.DataFrame] | None = None, table6: pd.DataFrame | None = None) -> str:
+            elsewhere: Mapping[str, pd.DataFrame] | None = None, table6: pd.DataFrame | None = None,
+            table7: pd.DataFrame | None = None) -> str:
     """The verdict's Markdown.
 
     Args:
@@ -69,6 +70,8 @@ def verdict(table1: pd.DataFrame, table2: pd.DataFrame, table3: pd.DataFrame | N
             recommended-rule line names the rule's worst ratio to CMA-ES over this run's and each of these.
         table6: Table 6's CSV (:func:`sdm.report.objects.table6`: this run's, or the committed snapshot), or None:
             the line on parameters attached to points.
+        table7: Table 7's CSV (:func:`sdm.report.network.table7`: this run's, or the committed snapshot), or None:
+            the line on SDM inside a network.
     """
     by_level = table2.set_index("level").sort_index()
     best = best_methods(table3, methods) if table3 is not None else None
@@ -104,6 +107,10 @@ def verdict(table1: pd.DataFrame, table2: pd.DataFrame, table3: pd.DataFrame | N
         from .objects import verdict_sentence
 
         out.append(f"- **Parameters attached to points (Table 6):** {verdict_sentence(table6)}")
+    if table7 is not None and len(table7):
+        from .network import verdict_sentence as network_sentence
+
+        out.append(f"- **SDM inside a network (Table 7):** {network_sentence(table7)}")
     return "\n".join(out) + "\n"
 
 

@@ -1,0 +1,57 @@
+# ---
+# jupyter:
+#   jupytext:
+#     text_representation:
+#       extension: .py
+#       format_name: percent
+#   kernelspec:
+#     display_name: Python 3
+#     language: python
+#     name: python3
+# ---
+
+# %% [markdown]
+# # Table 7: SDM inside a network
+#
+# Gathers `network_test` (one file per noise level) and `network_train`'s learning curves: per noise level and
+# method, the distance to theta* on the test set (mean, median, Q3) and the CPU time per configuration; the
+# learning curves; the summary in plain words (`sdm.report.network`; docs/method/network.md).
+
+# %% tags=["parameters"]
+test_files = []  # input: network_test's files
+curves = []  # input: network_train's learning curves
+table7_csv = "results/tables/table7.csv"  # output
+table7_md = "results/tables/table7.md"  # output
+table7_tex = "results/tables/table7.tex"  # output
+table7_html = "results/tables/table7.html"  # output
+table7_summary = "results/tables/table7_summary.md"  # output
+figure = "results/figures/network_curves.png"  # output
+refine = {"s": 3, "n_epoch": 1}
+train = {"epochs": 8}
+sizes = [3000, 500, 748]
+threads = 1
+
+# %%
+from pathlib import Path
+
+import pandas as pd
+from IPython.display import Image, Markdown, display
+
+from sdm.io import write_text
+from sdm.report import network as report
+
+frames = [pd.read_csv(path) for path in test_files]
+curve_frames = [pd.read_csv(path) for path in curves]
+table = report.table7(frames, curve_frames)
+report.write_table7(table, Path(table7_csv).with_suffix(""))
+display(Markdown(Path(table7_md).read_text()))
+
+# %%
+summary = report.table7_summary(table, (int(refine["s"]) + 1) * int(refine["n_epoch"]), int(train["epochs"]),
+                                int(sizes[0]))
+write_text(table7_summary, summary)
+display(Markdown(summary))
+
+# %%
+report.plot_curves(curve_frames, figure)
+display(Image(figure))

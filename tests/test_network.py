@@ -1,0 +1,136 @@
+"""SDM inside a network (sdm.network): the gradient that reaches the weights, training, determinism, bad input."""
+from __future__ import annotations
+
+import pytest
+import torch
+
+from sdm import network as N
+from sdm.batch import ConfigurationSet
+from sdm.errors import SDMInputError
+from sdm.mapping.layer import SpatialDomainMapping
+from sdm.sky import shift_vector
+
+from scenes import configurations
+
+TINY = N.NetworkSettings(epochs=3, batch_size=8, lr=(("default", 3e-3),), s=2, seed=5)
+
+
+@pytest.fixture(scope="module")
+def sets():
+    """48 training and 16 dev configurations of synthetic scenes, each with its own shift and mixed noise."""
+    data = ConfigurationSet.from_configurations(configurations(64, seed=43, mean_cars=3))
+    train = N.shift_set(data.subset(range(48)), 1, N.mixed_levels(48, [0, 1], 2))
+    dev = N.shift_set(data.subset(range(48, 64)), 3, torch.zeros(16, dtype=torch.int64))
+    return train, dev
+
+
+@pytest.mark.parametrize("kind", N.SDM_RULES)
+def test_the_weights_gradient_is_the_networks_vjp_of_the_layers_flow(sets, kind):
+    """Autograd through the SDM loss gives the weights exactly the network's VJP of each configuration's summed
+    point flows (the layer's own output, summed by hand), over its points (the mean pull per point)."""
+    train, _ = sets
+    torch.manual_seed(0)
+    net = N.ShiftNet(train.data.camera.screen_shape).double()
+    indices = torch.arange(8)
+    level = 1
+    loss = N.BatchLoss(kind, train, TINY, torch.Generator().manual_seed(0))
+    theta = net(N.network_images(train.data, indices).double())
+    net.zero_grad()
+    loss(theta, indices, level).backward()
+    through_autograd = [p.grad.clone() for p in net.parameters()]
+
+    batch = train.data.batch(indices)
+    layer = SpatialDomainMapping(train.data.camera, s=TINY.s, zoom=level, flow=N.SDM_RULES[kind])
+    points = batch.points + shift_vector(theta.detach().index_select(0, batch.config), batch.points)
+    out = layer(points, batch.pixels, batch.targets, batch.config, batch.rank)
+    flow = torch.zeros(len(indices), 2, dtype=torch.float64).index_add(0, batch.config, out.result.flow)
+    assert bool(flow.abs().sum() > 0)  # the batch is pulled: the comparison means something
+    flow = flow / train.data.counts.index_select(0, indices).double().unsqueeze(1)
+    theta = net(N.network_images(train.data, indices).double())
+    by_hand = torch.autograd.grad(theta, list(net.parameters()), grad_outputs=flow)
+    for mine, reference in zip(through_autograd, by_hand):
+        torch.testing.assert_close(mine, reference, rtol=1e-12, atol=1e-15)
+
+
+def test_training_through_sdm_moves_the_dev_distance_down(sets):
+    train, dev = sets
+    start = N.distances(N.predict(_fresh(train), dev.data), dev.truth).mean()
+    trained = N.train_network("sdm_paper", train, dev, TINY)
+    assert float(trained.curve["dev_mean_m"].iloc[-1]) < 0.5 * float(start)
+    assert list(trained.curve["level"]) == N.epoch_levels(TINY.epochs, TINY.s) == [2, 1, 0]
+
+
+def _fresh(train) -> N.ShiftNet:
+    torch.manual_seed(TINY.seed)
+    return N.ShiftNet(train.data.camera.screen_shape)
+
+
+@pytest.mark.parametrize("kind", ["sdm_recommended", "chamfer"])
+def test_the_same_settings_train_the_same_network(sets, kind):
+    train, dev = sets
+    first = N.train_network(kind, train, dev, TINY)
+    second = N.train_network(kind, train, dev, TINY)
+    assert first.curve.drop(columns="train_cpu_s").equals(second.curve.drop(columns="train_cpu_s"))
+    for mine, other in zip(first.net.state_dict().values(), second.net.state_dict().values()):
+        assert torch.equal(mine, other)
+
+
+def test_every_loss_trains(sets):
+    train, dev = sets
+    short = N.NetworkSettings(epochs=1, batch_size=8, s=1, seed=1)
+    for kind in N.LOSSES:
+        curve = N.train_network(kind, train, dev, short).curve
+        assert curve["dev_mean_m"].notna().all() and (curve["loss"] == kind).all()
+
+
+def test_weights_round_trip(sets, tmp_path):
+    train, dev = sets
+    net = _fresh(train)
+    path = N.save_weights(net, tmp_path / "net.pt")
+    loaded = N.load_weights(path, train.data.camera.screen_shape)
+    assert torch.equal(N.predict(net, dev.data), N.predict(loaded, dev.data))
+    (tmp_path / "bad.pt").write_bytes(b"not a weights file")
+    with pytest.raises(SDMInputError, match="bad.pt"):
+        N.load_weights(tmp_path / "bad.pt", train.data.camera.screen_shape)
+    with pytest.raises(SDMInputError, match="screen"):
+        N.load_weights(path, (64, 128))
+
+
+def test_bad_input_is_named(sets):
+    train, dev = sets
+    net = _fresh(train)
+    with pytest.raises(SDMInputError, match="images must have shape"):
+        net(torch.zeros(2, 2, 64, 256))
+    with pytest.raises(SDMInputError, match="images must have shape"):
+        net(torch.zeros(2, 3, 128, 256))
+    loss = N.BatchLoss("sdm_paper", train, TINY, torch.Generator())
+    with pytest.raises(SDMInputError, match="theta must have shape \\(4, 2\\)"):
+        loss(torch.zeros(4, 3, dtype=torch.float64), torch.arange(4), 0)
+    with pytest.raises(SDMInputError, match="theta must have shape \\(4, 2\\)"):
+        loss(torch.zeros(3, 2, dtype=torch.float64), torch.arange(4), 0)
+    with pytest.raises(SDMInputError, match="loss must be one of"):
+        N.BatchLoss("l1", train, TINY, torch.Generator())
+    empty = ConfigurationSet(train.data.points[:0], train.data.pixels[:0], torch.zeros(2, dtype=torch.int64),
+                             train.data.targets[:1], train.data.camera)
+    with pytest.raises(SDMInputError, match="configuration 0 is empty"):
+        N.shift_set(empty, 0, [0])
+    with pytest.raises(SDMInputError, match="levels must hold one noise level per configuration"):
+        N.shift_set(train.data, 0, [0, 1])
+    with pytest.raises(SDMInputError, match="sizes"):
+        N.split_three(100, (50, 50, 50), 0)
+    with pytest.raises(SDMInputError, match="epochs"):
+        N.NetworkSettings(epochs=0)
+    with pytest.raises(SDMInputError, match="one batch"):
+        N.train_network("supervised", dev, dev, N.NetworkSettings(batch_size=32))
+
+
+def test_split_is_seeded_and_disjoint():
+    split = N.split_three(100, (60, 20, 20), 7)
+    assert split == N.split_three(100, (60, 20, 20), 7) != N.split_three(100, (60, 20, 20), 8)
+    assert sorted(split["train"] + split["dev"] + split["test"]) == list(range(100))
+
+
+def test_epoch_levels_go_coarse_to_fine():
+    assert N.epoch_levels(8, 2) == [2, 1, 0, 0, 0, 0, 0, 0]
+    assert N.epoch_levels(2, 4) == [1, 0]
+    assert N.epoch_levels(5, 0) == [0] * 5
