@@ -28,7 +28,7 @@ seed = 0  # the split, theta*, the noise, the weights and the shuffles
 levels = [0, 1, 2, 3, 4]  # noise levels mixed over train and dev
 camera_sd = 0.15  # theta*'s spread per axis around the paper's shift, metres
 loss = "sdm_paper"  # the training loss (sdm.network.LOSSES)
-train = {"epochs": 8, "batch_size": 16, "lr": 1.0e-3, "s": 2, "sigma": 0.5, "max_points": 256}
+train = {"epochs": 16, "batch_size": 16, "lr": 1.0e-3, "s": 2, "sigma": 0.5, "max_points": 256}
 threads = 1
 
 # %%

@@ -27,7 +27,7 @@ table7_html = "results/tables/table7.html"  # output
 table7_summary = "results/tables/table7_summary.md"  # output
 figure = "results/figures/network_curves.png"  # output
 refine = {"s": 3, "n_epoch": 1}
-train = {"epochs": 8}
+train = {"epochs": 16}
 sizes = [3000, 500, 748]
 threads = 1
 
