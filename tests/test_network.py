@@ -134,3 +134,34 @@ def test_epoch_levels_go_coarse_to_fine():
     assert N.epoch_levels(8, 2) == [2, 1, 0, 0, 0, 0, 0, 0]
     assert N.epoch_levels(2, 4) == [1, 0]
     assert N.epoch_levels(5, 0) == [0] * 5
+
+
+def _frame(means: dict[str, float], level: int, cpu: dict[str, float]) -> "pd.DataFrame":
+    import pandas as pd
+
+    return pd.concat([pd.DataFrame({"level": level, "method": method, "config": range(4),
+                                    "distance": [mean] * 4, "cpu_s": cpu.get(method, 1e-4)})
+                      for method, mean in means.items()], ignore_index=True)
+
+
+def test_table7_words_follow_the_numbers():
+    """The summary's bars read the table: met where the numbers meet them, missed where they do not."""
+    import pandas as pd
+
+    from sdm.report.network import table7, table7_summary, verdict_sentence
+
+    nets = {"net:sdm_paper": 0.05, "net:silhouette": 0.08, "net:chamfer": 0.09, "net:supervised": 0.03,
+            "net+k:sdm_paper": 0.02, "cmaes": 0.015, "sdm_zero": 0.04}
+    worse = dict(nets, **{"net:sdm_paper": 0.07})  # level 2: 2.33x supervised, still closer than the image losses
+    cpu = {"cmaes": 0.05, "net+k:sdm_paper": 1e-4}
+    curves = [pd.DataFrame({"loss": [loss], "epoch": [1], "train_cpu_s": [10.0]})
+              for loss in ("sdm_paper", "silhouette", "chamfer", "supervised")]
+    table = table7([_frame(nets, 0, cpu), _frame(worse, 2, cpu)], curves)
+    assert list(table["method"][:4]) == ["net:sdm_paper", "net:silhouette", "net:chamfer", "net:supervised"]
+    words = table7_summary(table, 4, 16, 3000)
+    assert "level 0: 1.67x supervised's mean; level 2: 2.33x supervised's mean" in words
+    assert "within 2x of supervised regression at levels 0 and 2: missed" in words
+    assert "closer than both at every level: met" in words
+    assert "level 0: 1.33x CMA-ES's mean at 1/500 of its CPU time" in words
+    assert "100x less CPU time: met" in words
+    assert "1.67-2.33x supervised regression's test mean" in verdict_sentence(table)
