@@ -20,6 +20,7 @@
 # %% tags=["parameters"]
 test_files = []  # input: network_test's files
 curves = []  # input: network_train's learning curves
+bias_files = []  # input: network_bias's file (none when no SDM loss was trained)
 table7_csv = "results/tables/table7.csv"  # output
 table7_md = "results/tables/table7.md"  # output
 table7_tex = "results/tables/table7.tex"  # output
@@ -47,8 +48,9 @@ report.write_table7(table, Path(table7_csv).with_suffix(""))
 display(Markdown(Path(table7_md).read_text()))
 
 # %%
+bias = pd.read_csv(bias_files[0]) if bias_files else None
 summary = report.table7_summary(table, (int(refine["s"]) + 1) * int(refine["n_epoch"]), int(train["epochs"]),
-                                int(sizes[0]))
+                                int(sizes[0]), bias)
 write_text(table7_summary, summary)
 display(Markdown(summary))
 

@@ -34,7 +34,7 @@ SCHEMA = ROOT / "workflow" / "schemas" / "config.schema.yaml"
 APOLLO_SAMPLE = ROOT / "data" / "apollocar3d-sample"
 STAGES = ["synthetic", "data", "sample", "sky", "split", "tune", "best", "noise", "tables", "baseline_tune",
           "baseline_runs", "floor_runs", "table3", "rule_runs", "rule_bias", "depth_runs", "objects_runs",
-          "objects_scaling", "network_train", "network_test", "table4", "table5", "table6", "table7", "figures",
+          "objects_scaling", "network_train", "network_test", "network_bias", "table4", "table5", "table6", "table7", "figures",
           "report"]
 
 pytestmark = pytest.mark.workflow
@@ -274,7 +274,8 @@ def _research_jobs(config: dict) -> dict[str, int]:
                  "objects_scaling": len(objects["scaling"]["cars"]), "table6": 1}
     network = config["research"].get("network", {})
     if network.get("enabled"):
-        jobs |= {"network_train": len(network["losses"]), "network_test": len(network["levels"]), "table7": 1}
+        jobs |= {"network_train": len(network["losses"]), "network_test": len(network["levels"]), "table7": 1,
+                 "network_bias": int(any(loss.startswith("sdm_") for loss in network["losses"]))}
     return jobs
 
 

@@ -596,3 +596,40 @@ def load_weights(path: str | Path, screen: tuple[int, int]) -> ShiftNet:
     if net.screen != tuple(screen):
         raise SDMInputError(f"{path}: weights for a {net.screen} screen, the data's is {tuple(screen)}")
     return net.eval()
+
+
+def flow_bias(test: ShiftSet, level: int, rule: str, s: int, step: float = 1e-3, batch_size: int = 64) -> dict:
+    """Where a rule's flow vanishes on the test configurations, measured as :func:`sdm.experiments.rule_bias` does.
+
+    At zoom 0 (chain from ``s``), each configuration's flow per point is evaluated at its own theta*_i (its *bias*)
+    and at ``theta*_i +- step`` per axis (its *stiffness*, per metre). A network trained through the rule settles,
+    on average, where the mean flow vanishes: about ``-mean bias / mean stiffness`` from theta* per axis.
+
+    Returns:
+        ``{"level", "rule", "bias_a", "bias_b", "stiffness_a", "stiffness_b", "offset_m"}``: the means over the
+        configurations (flow per point; per point per metre) and the predicted offset's norm (metres).
+    """
+    layer = SpatialDomainMapping(test.data.camera, s=s, zoom=0, flow=rule)
+    counts = test.data.counts.to(torch.float64).unsqueeze(1)
+
+    def mean_flow(at: torch.Tensor) -> torch.Tensor:
+        total = torch.zeros(len(test), 2, dtype=torch.float64, device=test.data.device)
+        for first in range(0, len(test), batch_size):
+            indices = torch.arange(first, min(first + batch_size, len(test)), device=test.data.device)
+            batch = test.data.batch(indices)
+            points = batch.points + shift_vector(at.index_select(0, indices).index_select(0, batch.config),
+                                                 batch.points)
+            out = layer(points, batch.pixels, batch.targets, batch.config, batch.rank)
+            total.index_add_(0, indices.index_select(0, batch.config), out.result.flow.double())
+        return (total / counts).mean(0)
+
+    bias = mean_flow(test.truth)
+    row = {"level": int(level), "rule": rule, "bias_a": float(bias[0]), "bias_b": float(bias[1])}
+    offsets = []
+    for axis, name in enumerate("ab"):
+        move = torch.zeros(2, dtype=torch.float64)
+        move[axis] = step
+        stiffness = float((mean_flow(test.truth + move) - mean_flow(test.truth - move))[axis]) / (2 * step)
+        row[f"stiffness_{name}"] = stiffness
+        offsets.append(-row[f"bias_{name}"] / stiffness if stiffness else math.nan)
+    return row | {"offset_m": math.hypot(*offsets)}

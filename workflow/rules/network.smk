@@ -44,10 +44,20 @@ notebook_stage(
 )
 
 notebook_stage(
+    "network_bias",
+    "Table 7: where each SDM rule's flow vanishes on the test set, per noise level (the bias a trained network inherits).",
+    jobs=[{}] if NETWORK_ON and any(loss.startswith("sdm_") for loss in NETWORK_LOSSES) else [],
+    input=dict(sky=SKY_FILE),
+    output=dict(bias_file=result("research/network/bias.csv")),
+    params=dict(**network_data(), s=NETWORK.get("train", {}).get("s")),
+)
+
+notebook_stage(
     "table7",
     "Table 7: per noise level, each method's distance to theta* on the test set and CPU time; the learning curves.",
     jobs=[{}] if NETWORK_ON else [],
-    input=dict(test_files=each("network_test", "test_file"), curves=each("network_train", "curve")),
+    input=dict(test_files=each("network_test", "test_file"), curves=each("network_train", "curve"),
+               bias_files=each("network_bias", "bias_file")),
     output=dict(
         **table_files("table7"),
         table7_summary=result("tables/table7_summary.md"),

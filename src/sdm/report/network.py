@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 
 from ..network import LOSSES
+from ..network import SDM_RULES as SDM_RULE_NAMES
 from .tables import TableFormat, write_table
 
 #: How the table and the figure name each training loss.
@@ -91,8 +92,10 @@ def _at(table: pd.DataFrame, level: int, method: str) -> pd.Series | None:
     return rows.iloc[0] if len(rows) else None
 
 
-def table7_summary(table: pd.DataFrame, steps: int, train_epochs: int, n_train: int) -> str:
-    """Table 7 in plain words: the bars, met or missed with their numbers, and each loss's training time."""
+def table7_summary(table: pd.DataFrame, steps: int, train_epochs: int, n_train: int,
+                   bias: pd.DataFrame | None = None) -> str:
+    """Table 7 in plain words: the bars, met or missed with their numbers, each loss's training time, and (``bias``:
+    :func:`sdm.network.flow_bias`'s rows) where each SDM rule's flow vanishes on the test set."""
     levels = sorted(set(table["level"]))
     trained = [loss for loss in LOSSES if _at(table, levels[0], f"net:{loss}") is not None]
     lines = ["## Table 7 in words", ""]
@@ -109,10 +112,25 @@ def table7_summary(table: pd.DataFrame, steps: int, train_epochs: int, n_train: 
         lines.append(f"- **{LOSS_LABELS[loss]} + k SDM steps against CMA-ES**: " + _moonshot(table, loss, levels))
     best = {level: min(((row["mean_m"], row["method"]) for _, row in table[table["level"] == level].iterrows()))
             for level in levels}
+    if bias is not None and len(bias):
+        lines.append(_bias_words(bias))
     lines.append("- **Closest at each level**: " + "; ".join(
         f"level {level}: {method_label(method)} ({1e3 * mean:.1f}e-3 m)" for level, (mean, method) in best.items())
         + ".")
     return "\n".join(lines) + "\n"
+
+
+def _bias_words(bias: pd.DataFrame) -> str:
+    """Where each rule's mean flow vanishes, per level: the offset a network trained through it settles at."""
+    names = {rule: label for loss, rule in SDM_RULE_NAMES.items() for label in [LOSS_LABELS[loss]]}
+    parts = []
+    for rule, rows in bias.groupby("rule", sort=False):
+        offsets = ", ".join(f"{1e3 * row.offset_m:.1f}" for row in rows.sort_values("level").itertuples())
+        levels = ", ".join(str(level) for level in sorted(rows["level"]))
+        parts.append(f"{names.get(rule, rule)}: {offsets}e-3 m at levels {levels}")
+    return ("- **Where the SDM flow vanishes** (its mean over the test configurations, per point, at zoom 0: "
+            "-bias / stiffness from theta*, as `rule_bias` measures it; a network trained through the rule settles "
+            "about there): " + "; ".join(parts) + ".")
 
 
 def _ratio(table, level, method, reference) -> tuple[float, pd.Series, pd.Series] | None:
