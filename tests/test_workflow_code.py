@@ -233,11 +233,13 @@ def test_cmaes_and_flow_edits_rerun_what_docs_workflow_md_says(touched_project, 
     """The two edits docs/workflow.md spells out: sdm/baselines/cmaes.py reruns Table 3's stages (every method's
     jobs: the notebook imports sdm.baselines, which imports every method), the floor (its search is CMA-ES's)
     and what reads them (Table 4, the report), Table 6's stages (their baselines per configuration search as
-    CMA-ES does), never Tables 1-2; sdm/mapping/flow.py reruns every stage (sdm/__init__.py imports the layer)."""
+    CMA-ES does), Table 7's (sdm.network runs CMA-ES per configuration and the image losses), never Tables 1-2;
+    sdm/mapping/flow.py reruns every stage (sdm/__init__.py imports the layer)."""
     project, _ = touched_project
     cmaes = expected_plans("src/sdm/baselines/cmaes.py")
     assert set(cmaes) == {"baseline_tune", "baseline_runs", "floor_runs", "table3", "table4", "objects_runs",
-                          "objects_scaling", "table6", "report"}, cmaes
+                          "objects_scaling", "table6", "network_train", "network_test", "network_bias", "table7",
+                          "report"}, cmaes
     assert cmaes["baseline_tune"] == len(dot_test_config()["baselines"]["methods"])
     assert set(expected_plans("src/sdm/mapping/flow.py")) == set(STAGES)  # .test switches every stage on
 
