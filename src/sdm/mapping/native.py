@@ -43,7 +43,7 @@ It serves two callers. The layer (:func:`~sdm.mapping.fast.fast_mapping`) calls
 :func:`chain` and :func:`paper_flow` once per forward pass. The trainer
 (:func:`sdm.train.train_runs`) calls :func:`train_program` once per program of
 ``R`` runs: every level, epoch, mini-batch, projection, chain, flow (the paper's,
-``closed_centred_r1``'s or ``group_crossing``'s: :func:`sdm.mapping.rules.kernel_form`), loss and SGD step in C, the
+``closed_centred_r1``'s or ``group_crossing``'s: :meth:`sdm.mapping.rules.Rule.kernel_flows`), loss and SGD step in C, the
 per-step Python work gone; theta histories equal the torch path's to the bit
 (the loss to 1e-12 relative: its sum is compensated, not in torch's order). The
 paper's flow and the centred closed rule share one window function in C. Its
@@ -75,6 +75,7 @@ import torch
 
 from ..io import cache_dir, write_atomic, write_text
 from ..representation import NO_RANK
+from .rules import KernelFlow
 
 SOURCE = Path(__file__).with_name("_native.c")
 #: ``-ffp-contract=off``: no fused multiply-add, so every float operation rounds as torch's does. ``-O3``
@@ -416,7 +417,7 @@ def trains_screen(screen_shape) -> bool:
 
 def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor, offsets: torch.Tensor,
                   camera, steps: int, levels: list[int], n_epoch: int, batch_size: int, rates: list[float],
-                  windows: list[str], orders: torch.Tensor, targets: list[list[torch.Tensor | None]],
+                  windows: list[KernelFlow], orders: torch.Tensor, targets: list[list[torch.Tensor | None]],
                   theta0: torch.Tensor, bases: list[torch.Tensor] | None = None,
                   param_index: torch.Tensor | None = None, record_every: int = 1,
                   row_rate: torch.Tensor | None = None):
@@ -430,10 +431,11 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
             another (the paper's ``s, s - 1, ...``; a refinement's ``0, 0, ...``).
         n_epoch, batch_size: epochs per level, configurations per mini-batch (the last incomplete one dropped).
         rates: the learning rate at each of ``levels``.
-        windows: per level, the flow (:func:`sdm.mapping.rules.kernel_form`): ``"paper"``; ``"centred"``,
-            ``closed_centred_r1``'s window (centred on the landing block, on the level's target closed 3 x 3
-            by the kernel, as :func:`sdm.mapping.rules.closing` ``(3)``);
-            ``"crossing"``, ``group_crossing``'s flow (level 0 only; the loss is then the mismatch count).
+        windows: per level, the flow (:meth:`sdm.mapping.rules.Rule.kernel_flows`), a
+            :class:`~sdm.mapping.rules.KernelFlow`: ``PAPER``; ``CENTRED``, ``closed_centred_r1``'s window
+            (centred on the landing block, on the level's target closed 3 x 3 by the kernel, as
+            :func:`sdm.mapping.rules.closing` ``(3)``); ``CROSSING``, ``group_crossing``'s flow (level 0 only;
+            the loss is then the mismatch count).
         orders: ``(len(levels) * n_epoch, R, N)`` int64, each epoch's shuffling of each run.
         targets: ``R`` lists, one ``(N, H >> level, W >> level)`` bool target per level of ``levels``, or
             ``None``: the kernel zooms ``bases[r]`` out to that level itself (as
@@ -480,10 +482,10 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
                               camera.fx * camera.cols_per_image_pixel], dtype=torch.float64, device=device)
     rates_t = torch.tensor(rates, dtype=torch.float64, device=device)
     levels_t = torch.tensor(levels, dtype=torch.int64, device=device)
-    if any(window not in _WINDOWS for window in windows):  # sdm_train refuses a level it cannot run (-3)
-        raise ValueError(f"train_program: windows must be of {sorted(_WINDOWS)}, got {windows}")
-    modes_t = torch.tensor([_WINDOWS[window] for window in windows], dtype=torch.uint8, device=device)
-    groups = (_crossing_groups(points, offsets, param_index) if "crossing" in windows
+    if not all(isinstance(window, KernelFlow) for window in windows):  # sdm_train refuses an unknown mode (-3)
+        raise ValueError(f"train_program: windows must be sdm.mapping.rules.KernelFlow, got {windows}")
+    modes_t = torch.tensor([int(window) for window in windows], dtype=torch.uint8, device=device)
+    groups = (_crossing_groups(points, offsets, param_index) if KernelFlow.CROSSING in windows
               else (torch.zeros(1, dtype=torch.int64),) * 3)
     crossing = _crossing_constants(device)
     addresses = torch.tensor([[level.data_ptr() if level is not None else 0 for level in run] for run in targets],
@@ -492,7 +494,7 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     # as sdm_train lays it out: the zoomed-out levels where it zooms any out, then the closed targets
     zooms = any(target is None and level > 0 for run in targets for target, level in zip(run, levels))
     pyramid = _pyramid_scratch(n_configs * sum((height >> k) * (width >> k) for k in range(1, steps + 1)) * zooms
-                               + n_configs * height * width * ("centred" in windows), device)
+                               + n_configs * height * width * (KernelFlow.CENTRED in windows), device)
     base_addresses = torch.tensor([base.data_ptr() for base in bases] if bases is not None else [0] * n_runs,
                                   dtype=torch.int64, device=device)
     thetas = torch.empty(total // record_every + 1, n_runs, *row_shape, dtype=torch.float64, device=device)
@@ -510,15 +512,11 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     if code == -2:
         raise ValueError(f"sdm_train: a {height} x {width} screen is beyond its int32 chain (trains_screen)")
     if code == -3:
-        raise ValueError(f"sdm_train: levels {levels} outside 0..{steps}, or 'crossing' above level 0: "
-                         f"{list(zip(windows, levels))}")
+        raise ValueError(f"sdm_train: levels {levels} outside 0..{steps}, or CROSSING above level 0: "
+                         f"{[(window.name, level) for window, level in zip(windows, levels)]}")
     if code != 0:
         raise MemoryError("sdm_train: no memory for one configuration's working rows")
     return thetas, losses, failed
-
-
-#: train_program's flows, by kernel_form's name, as sdm_train's modes.
-_WINDOWS = {"paper": 0, "centred": 1, "crossing": 2}
 
 
 #: _crossing_groups' last layout: (weak references to points and offsets, their versions, the layout). A set's
