@@ -316,10 +316,10 @@ def check_arrays(function: str, **arrays: tuple[torch.Tensor, torch.dtype, tuple
         The bound sizes by name.
 
     >>> import torch
-    >>> check_arrays("demo", gain=(torch.zeros(3, 2), torch.float64, ("G", 2)),
+    >>> check_arrays("demo", gain=(torch.zeros(3, 2, dtype=torch.float64), torch.float64, ("G", 2)),
     ...              start=(torch.zeros(4, dtype=torch.int64), torch.int64, ("G+1",)))
     {'G': 3}
-    >>> check_arrays("demo", gain=(torch.zeros(3, 2), torch.float64, ("G", 2)),
+    >>> check_arrays("demo", gain=(torch.zeros(3, 2, dtype=torch.float64), torch.float64, ("G", 2)),
     ...              start=(torch.zeros(3, dtype=torch.int64), torch.int64, ("G+1",)))
     Traceback (most recent call last):
     ...

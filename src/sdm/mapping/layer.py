@@ -118,6 +118,19 @@ class SpatialDomainMapping(nn.Module):
             signature; only ``"paper"`` with ``method="dense"``.
         fit_depth: also give ``z`` a gradient, the depth flow of :mod:`sdm.depth`
             (beyond the paper; default off: ``z`` gets none, as in the paper).
+
+    >>> import torch
+    >>> from sdm import SKY_SHIFT, ConfigurationSet, build_configuration
+    >>> centres = torch.tensor([[-3.0, 2.5, 20.0], [2.0, 3.0, 35.0], [6.0, 4.5, 60.0]], dtype=torch.float64)
+    >>> batch = ConfigurationSet.from_configurations([build_configuration(centres, shift=SKY_SHIFT)]).batch([0])
+    >>> theta = torch.zeros(2, dtype=torch.float64, requires_grad=True)  # the shift (a, b), metres
+    >>> layer = SpatialDomainMapping(s=4, zoom=0)
+    >>> out = layer(batch.points + torch.nn.functional.pad(theta, (0, 1)), batch.pixels, batch.targets, batch.config)
+    >>> out.loss.backward()
+    >>> theta.grad  # the summed pulls: a step against them moves theta towards SKY_SHIFT = (0.517, 0.303)
+    tensor([-46., -38.], dtype=torch.float64)
+    >>> SpatialDomainMapping(flow="closed_centred_r1").rule
+    Rule('closed_centred_r1', compiled=CENTRED)
     """
 
     def __init__(self, camera: Camera = APOLLO_CAMERA_5, s: int = 4, zoom: int = 0, method: str = "fast", c: float = 1e9,
