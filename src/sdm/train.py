@@ -179,18 +179,15 @@ def train(
     Returns:
         :class:`History` (on the CPU).
 
-    >>> import torch
-    >>> from sdm import SKY_SHIFT, ConfigurationSet, build_configuration, distance
-    >>> g = torch.Generator().manual_seed(0)  # 32 configurations of 11 cars along a road, metres, camera frame
-    >>> z = 8 + 80 * torch.rand(32, 11, generator=g, dtype=torch.float64)
-    >>> x = (torch.rand(32, 11, generator=g, dtype=torch.float64) - 0.5) * 0.5 * z
-    >>> data = ConfigurationSet.from_configurations(
-    ...     [build_configuration(torch.stack((x[i], 1.5 + 0.07 * z[i], z[i]), 1), shift=SKY_SHIFT) for i in range(32)])
+    >>> from sdm import ConfigurationSet, build_configuration, distance
+    >>> from sdm.data.synthetic import synthetic_images
+    >>> images = synthetic_images(32)  # the default synthetic data's first 32 images: car centres, metres
+    >>> data = ConfigurationSet.from_configurations([build_configuration(image.centres) for image in images])
     >>> history = train(data, TrainSettings(n_epoch=2), progress=False)
     >>> history.theta.shape  # (steps + 1, 2): 5 levels of 2 epochs of 2 batches of 16
     torch.Size([21, 2])
     >>> round(distance(history.final_theta), 2)  # metres from SKY_SHIFT
-    0.03
+    0.02
     """
     runs = train_runs(train_set, [train_set.targets], [settings], camera, device, theta0=[theta0], method=method,
                       progress=progress)
@@ -308,18 +305,16 @@ def train_runs(
             with no point, or comes with ``fit_depth`` or ``method="dense"``.
 
     >>> import torch
-    >>> from sdm import SKY_SHIFT, ConfigurationSet, add_target_noise, build_configuration, distance
-    >>> g = torch.Generator().manual_seed(0)  # 32 configurations of 11 cars along a road, metres, camera frame
-    >>> z = 8 + 80 * torch.rand(32, 11, generator=g, dtype=torch.float64)
-    >>> x = (torch.rand(32, 11, generator=g, dtype=torch.float64) - 0.5) * 0.5 * z
-    >>> data = ConfigurationSet.from_configurations(
-    ...     [build_configuration(torch.stack((x[i], 1.5 + 0.07 * z[i], z[i]), 1), shift=SKY_SHIFT) for i in range(32)])
+    >>> from sdm import ConfigurationSet, add_target_noise, build_configuration, distance
+    >>> from sdm.data.synthetic import synthetic_images
+    >>> images = synthetic_images(32)  # the default synthetic data's first 32 images: car centres, metres
+    >>> data = ConfigurationSet.from_configurations([build_configuration(image.centres) for image in images])
     >>> noisy = add_target_noise(data.targets, 2, torch.Generator().manual_seed(1))  # Table 2's noise, level 2
     >>> runs = train_runs(data, [data.targets, noisy], [TrainSettings(n_epoch=2, seed=0), TrainSettings(n_epoch=2, seed=1)])
     >>> runs.theta.shape  # (steps + 1, R, 2)
     torch.Size([21, 2, 2])
     >>> [round(distance(theta), 2) for theta in runs.final_theta]  # noise-free, noisy: metres from SKY_SHIFT
-    [0.03, 0.07]
+    [0.02, 0.03]
     """
     settings = list(settings)
     n_runs = len(settings)

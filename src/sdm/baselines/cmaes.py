@@ -508,16 +508,13 @@ def fit(train_set: ConfigurationSet, settings: CMAESSettings = CMAESSettings(), 
         generation, ``loss`` = its best count, ``a, b`` = the best candidate so far); ``seconds``
         includes building the objective.
 
-    >>> import torch
-    >>> from sdm import SKY_SHIFT, ConfigurationSet, build_configuration, distance
-    >>> g = torch.Generator().manual_seed(0)  # 32 configurations of 11 cars along a road, metres, camera frame
-    >>> z = 8 + 80 * torch.rand(32, 11, generator=g, dtype=torch.float64)
-    >>> x = (torch.rand(32, 11, generator=g, dtype=torch.float64) - 0.5) * 0.5 * z
-    >>> data = ConfigurationSet.from_configurations(
-    ...     [build_configuration(torch.stack((x[i], 1.5 + 0.07 * z[i], z[i]), 1), shift=SKY_SHIFT) for i in range(32)])
+    >>> from sdm import ConfigurationSet, build_configuration, distance
+    >>> from sdm.data.synthetic import synthetic_images
+    >>> images = synthetic_images(32)  # the default synthetic data's first 32 images: car centres, metres
+    >>> data = ConfigurationSet.from_configurations([build_configuration(image.centres) for image in images])
     >>> result = fit(data, CMAESSettings(budget=120), seed=0)
     >>> result.evaluations, round(distance(result.theta), 3)  # objective calls; metres from SKY_SHIFT
-    (127, 0.003)
+    (127, 0.006)
     """
     return timed(lambda: _search(PixelMismatch(train_set, camera), settings, seed, theta0))
 
