@@ -122,3 +122,23 @@ def test_the_noise_fill_binding_fills_as_the_torch_path_and_names_a_swapped_argu
         noise_fill(active=active, moves=moves, out=written, written=out, n_written=count)
     with pytest.raises(SDMInputError, match="^noise_fill: written must hold at least"):
         noise_fill(active=active, moves=moves, out=out, written=written[:3], n_written=0)
+
+
+@needs_kernel
+def test_the_bindings_make_nothing_on_the_default_device(count_inputs):
+    """Under torch.set_default_device (meta: no memory) the bindings still write CPU memory: every tensor they make
+    is on their inputs' device (a device-less one would hand the kernel a null pointer)."""
+    arguments, _ = count_inputs
+    expected = pixel_mismatch(**arguments)
+    target = configuration_set(2, seed=4).targets
+    active = target.nonzero().contiguous()
+    moves = torch.ones(active.shape[0], 2, dtype=torch.int64)
+    out, written = torch.zeros_like(target), torch.empty(active.shape[0], dtype=torch.int64)
+    torch.set_default_device("meta")
+    try:
+        counts = pixel_mismatch(**arguments)
+        count = noise_fill(active=active, moves=moves, out=out, written=written, n_written=0)
+    finally:
+        torch.set_default_device(None)
+    assert counts.device.type == "cpu" and torch.equal(counts, expected)
+    assert count > 0 and bool(out.any())

@@ -38,7 +38,8 @@ def noise_fill(*, active: torch.Tensor, moves: torch.Tensor, out: torch.Tensor, 
         raise SDMInputError(f"noise_fill: written must hold at least the {sizes['K']} active pixels and n_written "
                             f"({n_written}) of them, got {sizes['W']}")
     height, width = out.shape[-2:]
-    lead_strides = torch.tensor(out.stride()[:-2] or (0,), dtype=torch.int64)
+    # on out's device (the CPU), never device-less: under torch.set_default_device that would not be memory
+    lead_strides = torch.tensor(out.stride()[:-2] or (0,), dtype=torch.int64, device=out.device)
     return int(library().sdm_noise_fill(sizes["K"], active.data_ptr(), sizes["d"] - 2, lead_strides.data_ptr(),
                                         moves.data_ptr(), height, width, out.data_ptr(), written.data_ptr(),
                                         int(n_written)))

@@ -62,7 +62,7 @@ def pixel_mismatch(*, thetas: torch.Tensor, gain: torch.Tensor, frac_bounds: tor
     if n_slots < n_candidates:
         raise SDMInputError(f"pixel_mismatch: memo_state holds {n_slots} slots, fewer than the {n_candidates} "
                             "candidates")
-    counts = torch.empty(n_candidates, dtype=torch.int64)
+    counts = torch.empty(n_candidates, dtype=torch.int64, device=thetas.device)  # never device-less
     library().sdm_pixel_mismatch(
         n_candidates, thetas.data_ptr(), sizes["G"], sizes["N"], gain.data_ptr(), frac_bounds.data_ptr(),
         shift_low.data_ptr(), shift_high.data_ptr(), group_start.data_ptr(), config_group.data_ptr(),
