@@ -21,6 +21,7 @@ $(VENV)/.installed: pyproject.toml constraints.txt
 run: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/snakemake --profile profiles/default --cores $(CORES)
 
+# The tests and the library's `>>>` docstring examples (pyproject.toml: testpaths, --doctest-modules).
 # The workflow tests run Snakemake in temporary directories: whatever results/ holds, they see none of it.
 # On $(CORES) pytest-xdist workers, a test file to a worker (its fixtures, a workflow run among them, are built
 # once), the files of the longest fixtures first (tests/conftest.py). Plain `pytest` runs the same in one process.

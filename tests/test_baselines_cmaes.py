@@ -4,7 +4,7 @@ The fast count moves groups of points rigidly (same configuration, depth and sub
 and must give exactly the straightforward count: every point projected, floored, the rendered
 image compared with the target, pixel by pixel. These tests hold it to that on random, far and
 border thetas, with noise-free and noisy targets, on both of its paths (the compiled count of
-``sdm.mapping.native`` and the torch count it falls back to), and hold :func:`fit_runs` to :func:`fit`.
+``sdm.baselines.cmaes_native`` and the torch count it falls back to), and hold :func:`fit_runs` to :func:`fit`.
 """
 import contextlib
 import math

@@ -14,12 +14,11 @@ from sdm.mapping import SpatialDomainMapping, dynamic_flow
 from sdm.mapping.fast import fast_mapping
 from sdm.mapping.crossing import CROSSING_SCALE, CROSSING_STEPS, CROSSING_WIDTH, group_move_changes, rigid_groups
 from sdm.mapping.research_rules import RESEARCH_RULES
-from sdm.mapping.rules import closing, flow_rule, window_rule
+from sdm.mapping.rules import RULES, KernelFlow, Rule, closing, window_rule
 from sdm.sky import SKY_SHIFT, add_target_noise, shift_vector
 from sdm.zoom import zoom_out
 
 CAM = APOLLO_CAMERA_5
-RULES = FLOW_RULES | RESEARCH_RULES  # every rule, product and experiment
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +33,7 @@ def _map(batch, theta, target, zoom, rule):
 
 
 def test_paper_is_the_default_and_unknown_names_are_refused():
-    assert FLOW_RULES["paper"] is dynamic_flow
+    assert FLOW_RULES["paper"].flow is dynamic_flow
     assert TrainSettings().flow == "paper"
     assert SpatialDomainMapping().flow_rule is dynamic_flow
     with pytest.raises(SDMInputError, match="flow"):
@@ -45,19 +44,53 @@ def test_paper_is_the_default_and_unknown_names_are_refused():
         SpatialDomainMapping(method="dense", flow="nearest")
 
 
-
-def test_experiments_are_chosen_by_name_or_as_functions():
-    """An experiment is outside sdm.FLOW_RULES but still selectable: by name (the lookup searches RESEARCH_RULES
-    after FLOW_RULES) and as the function itself; an unknown name's error lists both registries."""
+def test_experiments_are_chosen_by_name_as_rules_or_as_functions():
+    """An experiment is outside sdm.FLOW_RULES but in the one registry, RULES: selectable by name, as its Rule and
+    as its bare function; an unknown name's error lists the registry."""
     nearest = RESEARCH_RULES["nearest"]
-    assert "nearest" not in FLOW_RULES
-    assert flow_rule("nearest") is nearest and flow_rule(nearest) is nearest and flow_rule("paper") is dynamic_flow
-    assert SpatialDomainMapping(flow="nearest").flow_rule is nearest
-    assert SpatialDomainMapping(flow=nearest).flow_rule is nearest
+    assert "nearest" not in FLOW_RULES and RULES["nearest"] is nearest and nearest.experiment
+    assert RULES.resolve("nearest") is nearest and RULES.resolve(nearest) is nearest
+    assert RULES.resolve("paper") is FLOW_RULES["paper"]
+    assert RULES.resolve(nearest.flow).flow is nearest.flow and RULES.resolve(nearest.flow).compiled is None
+    assert SpatialDomainMapping(flow="nearest").flow_rule is nearest.flow
+    assert SpatialDomainMapping(flow=nearest).flow_rule is nearest.flow
+    assert SpatialDomainMapping(flow=nearest.flow).flow_rule is nearest.flow
     assert TrainSettings(flow="nearest").flow == "nearest"
-    with pytest.raises(SDMInputError, match=r"^flow must be a rule of sdm\.FLOW_RULES \['closed_centred_r1', 'group_crossing', 'paper'\] "
-                                            r"or an experiment of .*RESEARCH_RULES \[.*'nearest'.*\], got 'no-such'"):
-        flow_rule("no-such")
+    with pytest.raises(SDMInputError, match=r"^flow must be a rule of sdm\.mapping\.rules\.RULES \[.*'closed_centred_r1'"
+                                            r".*'nearest'.*'paper'.*\], a Rule or a flow function, got 'no-such'"):
+        RULES.resolve("no-such")
+
+
+def test_the_registry_holds_each_rule_once_and_its_views_split_it():
+    """FLOW_RULES and RESEARCH_RULES are live views of RULES: disjoint, together all of it; a name is registered once
+    (again with the same rule is a no-op, with another an error); a Rule's fields are checked."""
+    assert sorted(FLOW_RULES | RESEARCH_RULES) == sorted(RULES) and not set(FLOW_RULES) & set(RESEARCH_RULES)
+    assert RULES.register(RULES["paper"]) is RULES["paper"]
+    with pytest.raises(SDMInputError, match="'paper' is already registered"):
+        RULES.register(Rule("paper", window_rule()))
+    toy = RULES.register(Rule("toy_experiment", window_rule(), experiment=True))
+    try:
+        assert RESEARCH_RULES["toy_experiment"] is toy and "toy_experiment" not in FLOW_RULES
+    finally:
+        RULES.unregister("toy_experiment")
+    assert "toy_experiment" not in RESEARCH_RULES
+    with pytest.raises(SDMInputError, match="compiled must be a KernelFlow"):
+        Rule("x", dynamic_flow, compiled="paper")
+    with pytest.raises(SDMInputError, match="flow must be a function"):
+        Rule("x", "paper")
+    with pytest.raises(SDMInputError, match="finest_coarse"):
+        Rule("x", dynamic_flow, KernelFlow.CENTRED, finest_coarse=-1)
+
+
+def test_the_compiled_forms_switch_to_eq19_where_the_torch_flows_do():
+    """A product rule's compiled form per level: its own kernel flow below finest_coarse, eq. 19's from it on;
+    experiments have none."""
+    assert RULES["paper"].kernel_flows([4, 1, 0]) == [KernelFlow.PAPER] * 3
+    assert RULES["closed_centred_r1"].kernel_flows([2, 1, 0]) == [KernelFlow.PAPER] * 2 + [KernelFlow.CENTRED]
+    assert RULES["group_crossing"].kernel_flows([1, 0, 0]) == [KernelFlow.PAPER, KernelFlow.CROSSING,
+                                                               KernelFlow.CROSSING]
+    assert all(rule.kernel_flows([0]) is None for rule in RESEARCH_RULES.values())
+
 
 def _rule_inputs(batch, theta, target, zoom):
     """The arguments the layer's chain hands a rule at loss level ``zoom`` (torch path, s = 4)."""

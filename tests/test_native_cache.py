@@ -1,6 +1,6 @@
-"""The compiled kernel's cache (sdm.mapping.native): a damaged cache or a bad compiler is never fatal, never silent.
+"""The compiled kernel's cache (sdm.mapping.build): a damaged cache or a bad compiler is never fatal, never silent.
 
-Each test points ``SDM_CACHE_DIR`` at a folder of its own and clears ``native._library``'s cache before and
+Each test points ``SDM_CACHE_DIR`` at a folder of its own and clears ``build.library``'s cache before and
 after, so every ``load()`` behaves as a fresh process would; the truncated library runs in a real
 subprocess, because loading it (as the code before these checks did) kills the process with SIGBUS.
 Damaged files are planted by atomic replacement, never rewritten in place: this process may have the
@@ -25,7 +25,7 @@ import torch
 
 from sdm.camera import APOLLO_CAMERA_5 as CAM
 from sdm.io import write_bytes, write_text
-from sdm.mapping import native
+from sdm.mapping import build
 from sdm.mapping.fast import fast_mapping
 from sdm.sky import shift_vector
 
@@ -47,15 +47,15 @@ def load(monkeypatch, tmp_path):
     def load(**env):
         for name, value in env.items():
             monkeypatch.setenv(name, value)
-        native._library.cache_clear()
+        build.library.cache_clear()
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            library = native._library()
+            library = build.library()
         return library, [str(w.message) for w in caught if issubclass(w.category, RuntimeWarning)]
 
-    native._library.cache_clear()
+    build.library.cache_clear()
     yield load
-    native._library.cache_clear()  # later tests get the usual cache again
+    build.library.cache_clear()  # later tests get the usual cache again
 
 
 def layer_call():
@@ -111,9 +111,9 @@ def test_a_truncated_cached_kernel_is_rebuilt_not_loaded(load, tmp_path):
         """
         import warnings
         warnings.simplefilter("error")  # any warning fails the run
-        from sdm.mapping import native
+        from sdm.mapping import build
         import test_native_cache as t
-        assert native.enabled()
+        assert build.enabled()
         t.assert_same(*t.layer_call())
         print("ok")
         """
@@ -204,7 +204,7 @@ def test_a_library_without_the_kernels_functions_is_reported_not_raised(load, tm
     assert "lacks the function(s) sdm_chain, sdm_paper_flow" in messages[0], messages
     assert cached(tmp_path, ".so") == [] and cached(tmp_path, ".sha256") == []
     assert len(cached(tmp_path, ".failed")) == 1
-    assert not native.enabled()  # and the layer runs its torch path
+    assert not build.enabled()  # and the layer runs its torch path
     kernel, reference = layer_call()
     assert_same(kernel, reference)
 
@@ -217,7 +217,7 @@ def _gone(pid: int) -> bool:
 
 
 def test_a_hanging_compiler_is_killed_with_its_children(load, tmp_path, monkeypatch):
-    monkeypatch.setattr(native, "BUILD_TIMEOUT_S", 2.0)
+    monkeypatch.setattr(build, "BUILD_TIMEOUT_S", 2.0)
     pid_file = tmp_path / "child.pid"
     compiler = script(tmp_path / "hanging-cc", f"sleep 900 &\necho $! > {shlex.quote(str(pid_file))}\nsleep 300\n")
     try:
@@ -253,7 +253,7 @@ def test_an_empty_cc_is_reported(load):
 
 def test_without_a_compiler_the_layer_gives_the_kernels_numbers(load, tmp_path, monkeypatch):
     kernel, _ = layer_call()
-    assert native.enabled()
+    assert build.enabled()
     path = os.environ["PATH"]
     monkeypatch.setenv("PATH", str(tmp_path / "empty-bin"))
     monkeypatch.delenv("CC")

@@ -157,6 +157,47 @@ def test_report_is_written_from_the_measured_numbers():
     assert text.count("| FAIL |") == 2
 
 
+def _rendered_reports() -> list[str]:
+    """The report rendered through build_report on every branch of its text: criteria met and missed (noise-free
+    too far, noisy means above and below the paper's), Table 1's pick the paper's or another."""
+    stats = {"target_mean_depth": 48.76, "configurations": 4248, "circle_overlap_rate": 0.3}
+    summary = {"images": 5277, "cars_per_image": 11.37}
+    texts = []
+    for means, losses in [((0.6, 16.0, 25.0, 35.0, 40.0), None), ((0.77, 41.0, 25.0, 35.0, 40.0),
+                                                                   {(1, 3e-4): 2.5, (1, 1e-3): 1.25}),
+                          ((1.5, 40.0, 12.0, 10.0, 90.0), {(1, 3e-4): 2.0, (1, 1e-3): 1.0})]:
+        runs = distances(means)
+        table2 = table2_frame(runs, {1: 271.1, 2: 473.2, 3: 669.5, 4: 865.6})
+        texts.append(build_report(table1_frame(grid(losses)), table2, runs, stats, summary, CONFIG))
+    return texts
+
+
+def test_the_rendered_report_speaks_of_the_method_alone():
+    """The guard reads the report as rendered (tests/wording.py's phrases), not reproduction.py's source: a phrase
+    split across string literals is in the text a reader gets, and only the rendered text shows it."""
+    from wording import forbidden_in
+
+    texts = _rendered_reports()
+    assert len({text.count("| FAIL |") for text in texts}) == 3  # three different branches rendered
+    assert [forbidden_in(text) for text in texts] == [[], [], []]
+
+
+def test_a_phrase_split_across_literals_is_caught_in_the_rendered_text_only(tmp_path, monkeypatch):
+    """The negative control: a forbidden phrase written as two literals passes a scan of the source and is found in
+    the rendered report."""
+    from sdm.report import reproduction
+    from wording import forbidden_in, offences
+
+    source = tmp_path / "split.py"
+    source.write_text('def contrast(*_):\n    return ("as the issue"\n            " 12 bar set.")\n')
+    assert offences([source], tmp_path) == []  # the source scan misses it
+    namespace = {}
+    exec(source.read_text(), namespace)
+    monkeypatch.setattr(reproduction, "_data_contrast", namespace["contrast"])
+    found = [forbidden_in(text) for text in _rendered_reports()]
+    assert any(phrases and phrases[0][1].startswith("issue") for phrases in found), found
+
+
 # -- experiments -----------------------------------------------------------------------------------
 
 

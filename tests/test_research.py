@@ -18,7 +18,7 @@ import torch
 import yaml
 
 from scenes import configuration_set
-from sdm import FLOW_RULES, TrainSettings
+from sdm import FLOW_RULES, RULES, TrainSettings
 from sdm.errors import SDMInputError
 from sdm.train import parse_schedule
 from sdm.mapping.research_rules import RESEARCH_RULES
@@ -252,10 +252,10 @@ def _config() -> dict:
 
 def test_the_schema_lists_the_library_rules():
     """The workflow does not import sdm at parse time: its rule names are the schema's, held here to the names
-    the library accepts (TrainSettings(flow=NAME): sdm.FLOW_RULES, then the experiments' RESEARCH_RULES)."""
+    the library accepts: the one registry, sdm.RULES (the product's rules and the experiments)."""
     schema = yaml.safe_load((ROOT / "workflow" / "schemas" / "config.schema.yaml").read_text())
     research = schema["properties"]["research"]["properties"]
-    accepted = sorted(FLOW_RULES | RESEARCH_RULES)
+    accepted = sorted(RULES)
     assert sorted(research["rules"]["properties"]["names"]["items"]["anyOf"][0]["enum"]) == accepted
     assert research["depth"]["properties"]["flow"]["allOf"] == [research["rules"]["properties"]["names"]["items"]]
     for name in accepted:

@@ -134,6 +134,12 @@ def point_shifts(theta: torch.Tensor, param_index: torch.Tensor, runs: torch.Ten
     Returns:
         ``(P, 2)`` in ``theta``'s dtype and device, differentiable in ``theta``. ``G = 1`` gathers the row
         unchanged (no addition), so the shared case moves every point by exactly ``theta[0]``.
+
+    >>> theta = torch.tensor([[0.5, 0.3], [0.01, 0.0], [0.0, -0.02]], dtype=torch.float64)  # camera, two cars
+    >>> point_shifts(theta, torch.tensor([[0, 1], [0, 1], [0, 2]]))  # (P, 2): each point's camera row + car row
+    tensor([[0.5100, 0.3000],
+            [0.5100, 0.3000],
+            [0.5000, 0.2800]], dtype=torch.float64)
     """
     index = param_index if param_index.ndim == 2 else param_index.unsqueeze(1)
     if runs is not None:
@@ -192,7 +198,15 @@ def shared(data: ConfigurationSet) -> Sharing:
 
 
 def per_configuration(data: ConfigurationSet) -> Sharing:
-    """One row per configuration that owns points, in configuration order (empty configurations get none)."""
+    """One row per configuration that owns points, in configuration order (empty configurations get none).
+
+    >>> from sdm import build_configuration
+    >>> car = build_configuration(torch.tensor([[-3.0, 2.5, 20.0]], dtype=torch.float64))
+    >>> empty = build_configuration(torch.zeros(0, 3, dtype=torch.float64))
+    >>> rows = per_configuration(ConfigurationSet.from_configurations([car, empty, car]))
+    >>> rows.n_rows, rows.rows[:, 0].tolist()  # configurations 0 and 2 own points, each its own row
+    (2, [0, 2])
+    """
     owners = (data.counts > 0).nonzero().squeeze(1)
     row_of_config = torch.full((len(data),), NO_INDEX, dtype=torch.int64, device=data.device)
     row_of_config[owners] = torch.arange(owners.numel(), device=data.device)

@@ -293,7 +293,8 @@ class NoiseBuffer:
     def fill(self, active: torch.Tensor, moves: torch.Tensor) -> torch.Tensor:
         """:attr:`targets` set to the pixels ``active`` (``(K, d)`` int64: leading indices, then ``(row, col)``)
         moved by ``moves`` (``(K, 2)`` int64), those off the grid dropped; returns it."""
-        from .mapping import native
+        from .mapping.build import serves
+        from .sky_native import noise_fill
 
         targets = self.targets
         height, width = targets.shape[-2:]
@@ -303,8 +304,9 @@ class NoiseBuffer:
         if self._written.shape[0] < active.shape[0]:  # clear with the old list before it is replaced
             targets.view(-1).index_fill_(0, self._written[: self._count], False)
             self._written, self._count = torch.empty(active.shape[0], dtype=torch.int64, device=targets.device), 0
-        if native.serves(targets, active, moves):  # one pass in C: clear the last draw, set this one's
-            self._count = native.noise_fill(active, moves, height, width, targets, self._written, self._count)
+        if serves(targets, active, moves):  # one pass in C: clear the last draw, set this one's
+            self._count = noise_fill(active=active.contiguous(), moves=moves.contiguous(), out=targets,
+                                     written=self._written, n_written=self._count)
             return targets
         targets.view(-1).index_fill_(0, self._written[: self._count], False)
         moved = active[:, -2:] + moves

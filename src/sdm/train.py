@@ -7,9 +7,9 @@ rate halves after each level. The loss is the *sum* over all points of the
 batch, which is what the paper's learning rates assume.
 
 One engine, :func:`train_runs`, trains ``R`` independent runs (own targets, seed
-and start each); :func:`train` is it with ``R = 1``. On the CPU, for the paper's
-rule, ``"closed_centred_r1"`` and ``"group_crossing"`` on float64 points, the whole run (every level,
-epoch, mini-batch, chain, flow and SGD step) is one call of the compiled kernel
+and start each); :func:`train` is it with ``R = 1``. On the CPU, for a rule with a compiled form
+(:attr:`sdm.mapping.rules.Rule.compiled`: ``"paper"``, ``"closed_centred_r1"``, ``"group_crossing"``) on
+float64 points, the whole run (every level, epoch, mini-batch, chain, flow and SGD step) is one call of the compiled kernel
 (:func:`sdm.mapping.native.train_program`); everything else, and every device,
 runs the torch path, one layer call per step with autograd. Both give the theta
 history of the single-run loop kept in ``tests/train_reference.py`` to the bit.
@@ -29,7 +29,7 @@ from .camera import Camera
 from .errors import SDMInputError
 from .mapping import SpatialDomainMapping, native
 from .mapping.layer import METHODS
-from .mapping.rules import flow_rule, kernel_form, rule_by_name
+from .mapping.rules import RULES, KernelFlow, Rule
 from .sharing import check_param_index, point_shifts
 from .sky import shift_vector
 from .zoom import check_divisible, target_pyramid
@@ -47,7 +47,8 @@ class TrainSettings:
         zoom: finest level trained (0 = full resolution).
         lr_decay: factor applied to the learning rate after each level.
         seed: seeds the shuffling.
-        flow: the gradient rule, a name of :data:`sdm.FLOW_RULES` (default ``"paper"``, eq. 19).
+        flow: the gradient rule: a name of :data:`sdm.RULES` (default ``"paper"``, eq. 19), a :class:`sdm.Rule`
+            (trained by the compiled kernel where it has a compiled form) or a flow function (the torch path).
         fit_depth: train the general shift ``(a, b, c)`` with the depth flow of :mod:`sdm.depth`
             (beyond the paper); theta, its history and ``final_theta`` then have three entries.
         depth_lr_scale: the learning rate of ``c`` relative to ``lr`` (with ``fit_depth``); 20 by a
@@ -66,7 +67,7 @@ class TrainSettings:
     zoom: int = 0
     lr_decay: float = 0.5
     seed: int = 0
-    flow: str = "paper"
+    flow: str | Rule = "paper"
     fit_depth: bool = False
     depth_lr_scale: float = 20.0
     depth_zoom: int = 1
@@ -98,7 +99,7 @@ class TrainSettings:
             raise SDMInputError(f"zoom must be an integer in [0, s] = [0, {self.s}], got {self.zoom!r}")
         if not (math.isfinite(self.lr_decay) and self.lr_decay > 0):
             raise SDMInputError(f"lr_decay must be a positive finite number, got {self.lr_decay!r}")
-        rule_by_name(self.flow)  # SDMInputError naming flow: a name of sdm.FLOW_RULES or of RESEARCH_RULES
+        RULES.resolve(self.flow)  # SDMInputError naming flow: not a registered name, a Rule or a flow function
         if not (math.isfinite(self.depth_lr_scale) and self.depth_lr_scale > 0):
             raise SDMInputError(f"depth_lr_scale must be a positive finite number, got {self.depth_lr_scale!r}")
         if isinstance(self.depth_zoom, bool) or int(self.depth_zoom) != self.depth_zoom or self.depth_zoom < 0:
@@ -177,6 +178,16 @@ def train(
 
     Returns:
         :class:`History` (on the CPU).
+
+    >>> from sdm import ConfigurationSet, build_configuration, distance
+    >>> from sdm.data.synthetic import synthetic_images
+    >>> images = synthetic_images(32)  # the default synthetic data's first 32 images: car centres, metres
+    >>> data = ConfigurationSet.from_configurations([build_configuration(image.centres) for image in images])
+    >>> history = train(data, TrainSettings(n_epoch=2), progress=False)
+    >>> history.theta.shape  # (steps + 1, 2): 5 levels of 2 epochs of 2 batches of 16
+    torch.Size([21, 2])
+    >>> round(distance(history.final_theta), 2)  # metres from SKY_SHIFT
+    0.02
     """
     runs = train_runs(train_set, [train_set.targets], [settings], camera, device, theta0=[theta0], method=method,
                       progress=progress)
@@ -237,8 +248,8 @@ def train_runs(
     its own shuffling (``settings[r].seed``) and its own start ``theta0[r]``; runs never
     interact. :func:`train` is this with ``R = 1``. Two paths, the same theta histories:
 
-    * **compiled** (CPU, float64 points, ``method="fast"``, flow ``"paper"``,
-      ``"closed_centred_r1"`` or ``"group_crossing"``, no ``fit_depth``, the kernel of :mod:`sdm.mapping.native`
+    * **compiled** (CPU, float64 points, ``method="fast"``, a flow with a compiled form
+      (:meth:`sdm.mapping.rules.Rule.kernel_flows`), no ``fit_depth``, the kernel of :mod:`sdm.mapping.native`
       available): Python draws every epoch's shuffling and zooms out every run's targets
       once, and one C call (``sdm_train``) does every level, epoch, mini-batch, chain,
       flow, loss and SGD step, with the torch path's float operations in its order:
@@ -292,6 +303,18 @@ def train_runs(
             batch, an unusable ``device``, a theta that became non-finite (naming the run and the step), or a
             ``param_index`` that is not an integer tensor of ``P`` rows, holds a negative entry, leaves a row
             with no point, or comes with ``fit_depth`` or ``method="dense"``.
+
+    >>> import torch
+    >>> from sdm import ConfigurationSet, add_target_noise, build_configuration, distance
+    >>> from sdm.data.synthetic import synthetic_images
+    >>> images = synthetic_images(32)  # the default synthetic data's first 32 images: car centres, metres
+    >>> data = ConfigurationSet.from_configurations([build_configuration(image.centres) for image in images])
+    >>> noisy = add_target_noise(data.targets, 2, torch.Generator().manual_seed(1))  # Table 2's noise, level 2
+    >>> runs = train_runs(data, [data.targets, noisy], [TrainSettings(n_epoch=2, seed=0), TrainSettings(n_epoch=2, seed=1)])
+    >>> runs.theta.shape  # (steps + 1, R, 2)
+    torch.Size([21, 2, 2])
+    >>> [round(distance(theta), 2) for theta in runs.final_theta]  # noise-free, noisy: metres from SKY_SHIFT
+    [0.02, 0.03]
     """
     settings = list(settings)
     n_runs = len(settings)
@@ -396,7 +419,7 @@ class Refinement:
     near the floor but whose pull far from it is weak) refines it (docs/method/floor.md, "A rule aimed at the floor").
 
     Attributes:
-        flow: a rule name (:func:`sdm.mapping.rules.flow_rule`).
+        flow: a rule name, or a :class:`~sdm.mapping.rules.Rule` (:meth:`sdm.mapping.rules.RuleRegistry.resolve`).
         passes: passes, a positive integer.
         rate_from: the first pass's rate is level ``zoom + rate_from``'s (a non-negative integer; 2 was chosen
             on runs no table holds: docs/method/floor.md, "The schedule that reaches the floor").
@@ -406,14 +429,14 @@ class Refinement:
         pass_steps: SGD steps per pass, a positive integer (32: one epoch of the default's 512 configurations).
     """
 
-    flow: str = "group_crossing"
+    flow: str | Rule = "group_crossing"
     passes: int = 4
     rate_from: int = 2
     moves_c: bool = True
     pass_steps: int = 32
 
     def __post_init__(self) -> None:
-        rule_by_name(self.flow)
+        RULES.resolve(self.flow)
         for name, least in (("passes", 1), ("rate_from", 0), ("pass_steps", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < least:
@@ -449,7 +472,7 @@ def parse_schedule(name: str) -> tuple[str, Refinement | None]:
     if not isinstance(name, str):
         raise SDMInputError(f"a schedule is a rule name or 'RULE+REFINE:E', got {name!r}")
     flow, plus, refined = name.partition("+")
-    rule_by_name(flow)
+    RULES.resolve(flow)
     if not plus:
         return flow, None
     refine, colon, passes = refined.partition(":")
@@ -593,11 +616,13 @@ def _train_program(train_set, targets, own_targets, settings, camera, method, le
     or the checked ``(P, G)`` param_index (:func:`check_param_index`), ``row_rate`` ``None`` or its rows' rates."""
     common = settings[0]
     device = train_set.device
-    windows = [kernel_form(common.flow, level) for level in levels]
-    if not (method == "fast" and not common.fit_depth and None not in windows and device.type == "cpu"
+    rule = RULES.resolve(common.flow)
+    windows = rule.kernel_flows(levels)  # None: no compiled form
+    if not (method == "fast" and not common.fit_depth and windows is not None and device.type == "cpu"
             and train_set.points.dtype == torch.float64 and native.enabled()
             and native.trains_screen(camera.screen_shape)):
-        if rows is not None and "crossing" in windows:  # the compiled groups split by rows; the torch rule cannot
+        # the compiled groups split by rows; the torch rule cannot
+        if rows is not None and windows is not None and KernelFlow.CROSSING in windows:
             _check_rigid_rows(train_set, rows)
         pyramids = _run_pyramids(train_set, targets, own_targets, common.s)  # run r's levels 0..s
         return _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar,
@@ -646,7 +671,7 @@ def _train_torch(train_set, pyramids, settings, camera, method, levels, rates, o
     # Run r's target of configuration c is row r * N + c of each level.
     pyramid = pyramids[0] if n_runs == 1 else [torch.cat(level) for level in zip(*pyramids)]
     # With several runs the rule is applied run by run (the chain stays one call), so each run's loss is its own.
-    rule = common.flow if n_runs == 1 else _RunByRun(flow_rule(common.flow), n_runs, batch_size)
+    rule = common.flow if n_runs == 1 else _RunByRun(RULES.resolve(common.flow), n_runs, batch_size)
     layers = {level: SpatialDomainMapping(camera, s=common.s, zoom=level, method=method, flow=rule,
                                           fit_depth=common.fit_depth) for level in levels}
     theta = starts.clone().requires_grad_(True)

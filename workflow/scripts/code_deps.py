@@ -52,7 +52,7 @@ RUNNER = ("workflow/scripts/stage.py", "workflow/scripts/run_notebook.py", "work
           "src/sdm/io.py")
 #: Files a module reads beside itself (not Python, hashed as they are): the module -> its files.
 #: tests/test_workflow_code.py checks that every non-Python file under src/sdm is listed here.
-RESOURCES = {"src/sdm/mapping/native.py": ("src/sdm/mapping/_native.c",)}
+RESOURCES = {"src/sdm/mapping/build.py": ("src/sdm/mapping/_native.c",)}
 
 
 class CodeDepsError(Exception):

@@ -215,7 +215,7 @@ def _check_schedule(name: str, key: str) -> None:
 def _check_research(config: Mapping[str, Any], noise_runs: int) -> None:
     """The research section: Table 4's runs are paired with Table 2's; Table 5's c* are finite.
 
-    The rule names are the schema's enum (the library's ``sdm.FLOW_RULES``, which this module does not
+    The rule names are the schema's enum (the library's registry ``sdm.RULES``, which this module does not
     import); the paper's own rule is refused here with the reason, and both rules of a schedule
     ``RULE+REFINE:E`` (the schema checks its form) must be of that enum.
     """

@@ -28,7 +28,7 @@ evaluation is bound by memory latency). Nothing of size ``N x H x W`` is zeroed 
 evaluation: on the default data an evaluation inside a search costs a fifth to a sixth of the
 straightforward count's CPU time (2.0-2.8 ms against 12.2 ms, one thread; benchmarks/bench_cmaes.py).
 
-Compiled (:func:`sdm.mapping.native.pixel_mismatch`, ``sdm_pixel_mismatch`` in ``_native.c``): the
+Compiled (:func:`sdm.baselines.cmaes_native.pixel_mismatch`, ``sdm_pixel_mismatch`` in ``_native.c``): the
 same groups, the same float operations for each group's shift and its trust check, then one loop
 over the points per candidate, configuration by configuration with the whole generation (pycma's
 6 candidates) in one call, so a configuration's pixels stay in cache across its candidates; a
@@ -70,7 +70,8 @@ import torch
 from ..batch import ConfigurationSet
 from ..camera import Camera
 from ..errors import SDMInputError
-from ..mapping import native
+from ..mapping.build import serves
+from .cmaes_native import pixel_mismatch
 from .common import FitResult, check_positive, check_positive_int, timed
 
 
@@ -215,7 +216,7 @@ class ShiftLayout:
         config_of_group = config[first]
         first_group = torch.searchsorted(config_of_group, torch.arange(n_configs, device=device))
         local = torch.arange(n_groups, device=device) - first_group[config_of_group]
-        # For the compiled count (sdm.mapping.native.pixel_mismatch): group and configuration bounds,
+        # For the compiled count (sdm.baselines.cmaes_native.pixel_mismatch): group and configuration bounds,
         # each point's padded pixel within its configuration, the limits of the trusted shifts.
         self.group_start = torch.cat((first, first.new_full((1,), order.numel())))
         self.config_group = torch.cat((first_group, first_group.new_full((1,), n_groups)))
@@ -357,7 +358,7 @@ class PixelMismatch:
     Attributes:
         evaluations: thetas counted so far.
         fallbacks: thetas counted by :meth:`reference` (a group's shift too close to a pixel border).
-        native: whether the compiled count (:func:`sdm.mapping.native.pixel_mismatch`) counts: CPU
+        native: whether the compiled count (:func:`sdm.baselines.cmaes_native.pixel_mismatch`) counts: CPU
             tensors and the kernel available (not ``SDM_NATIVE=0``), decided when the objective is built.
         table: ``(N * Hp * Wp,)`` int16 per padded pixel (:meth:`ShiftLayout.table`), 47 MB on the
             default data (512 configurations), or int8 (24 MB) for the compiled count; None when the
@@ -371,7 +372,7 @@ class PixelMismatch:
         self.train_set = train_set
         self.layout = layout if layout is not None else ShiftLayout(train_set, self.camera)
         self.table = self.high = self.on_target = None
-        self.native = self.layout.usable and native.serves(train_set.points, train_set.targets)
+        self.native = self.layout.usable and serves(train_set.points, train_set.targets)
         self._active = train_set.targets.nonzero()  # (K, 3) config, row, col: for the table and the reference
         if self.layout.usable:
             recycled = None
@@ -398,8 +399,13 @@ class PixelMismatch:
             return [self._count(theta) for theta in thetas]
         like = dict(dtype=torch.float64, device=self.table.device)
         candidates = torch.tensor([[float(theta[0]), float(theta[1])] for theta in thetas], **like).view(-1, 2)
-        counts = native.pixel_mismatch(candidates, self.layout, self.table, self.n_target,
-                                       self._memo.holding(len(thetas))).tolist()
+        layout, memo = self.layout, self._memo.holding(len(thetas))
+        counts = pixel_mismatch(
+            thetas=candidates, gain=layout.gain, frac_bounds=layout.frac_bounds, shift_low=layout.shift_low,
+            shift_high=layout.shift_high, group_start=layout.group_start, config_group=layout.config_group,
+            cells=layout.cells, table=self.table, padded_shape=layout.padded_shape, limits=layout.limits,
+            n_target=self.n_target, memo_offsets=memo.offsets, memo_sums=memo.sums, memo_state=memo.state,
+            stamp=layout.stamp).tolist()
         for index, count in enumerate(counts):
             if count < 0:  # a group's shift too close to a pixel border for the shared shift
                 self.fallbacks += 1
@@ -501,6 +507,14 @@ def fit(train_set: ConfigurationSet, settings: CMAESSettings = CMAESSettings(), 
         :class:`~sdm.baselines.common.FitResult`; history has one row per generation (``stage`` =
         generation, ``loss`` = its best count, ``a, b`` = the best candidate so far); ``seconds``
         includes building the objective.
+
+    >>> from sdm import ConfigurationSet, build_configuration, distance
+    >>> from sdm.data.synthetic import synthetic_images
+    >>> images = synthetic_images(32)  # the default synthetic data's first 32 images: car centres, metres
+    >>> data = ConfigurationSet.from_configurations([build_configuration(image.centres) for image in images])
+    >>> result = fit(data, CMAESSettings(budget=120), seed=0)
+    >>> result.evaluations, round(distance(result.theta), 3)  # objective calls; metres from SKY_SHIFT
+    (127, 0.006)
     """
     return timed(lambda: _search(PixelMismatch(train_set, camera), settings, seed, theta0))
 

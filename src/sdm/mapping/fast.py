@@ -84,8 +84,7 @@ def fast_mapping(
         zoom: the loss level, ``0 <= zoom <= steps``.
         camera: camera and screen ``(H, W)``.
         flow_rule: the gradient rule (default the paper's :func:`~sdm.mapping.flow.dynamic_flow`;
-            alternatives in :data:`sdm.FLOW_RULES` and the experiments'
-            :data:`sdm.mapping.research_rules.RESEARCH_RULES`), called with the same arguments.
+            the flows of the rules in :data:`sdm.RULES`), called with the same arguments.
         native: run the level loop (and the paper's flow) in the compiled CPU kernel of
             :mod:`~sdm.mapping.native`: ``None`` (default) wherever it can (contiguous CPU
             tensors, the kernel built), ``False`` never (the torch path; same results, bit for bit).

@@ -25,7 +25,8 @@ from ..zoom import check_divisible, zoom_out
 from .dense import dense_mapping
 from .fast import fast_mapping
 from .result import MappingResult
-from .rules import FLOW_RULES, flow_rule
+from .flow import dynamic_flow
+from .rules import RULES
 
 METHODS = {"fast": fast_mapping, "dense": dense_mapping}
 
@@ -112,12 +113,24 @@ class SpatialDomainMapping(nn.Module):
         method: ``"fast"`` (point rows) or ``"dense"`` (the paper's grids, for reference).
         c: kernel shape constant of the dense path, 1/metres (ignored by ``"fast"``,
             which is the ``c -> infinity`` limit).
-        flow: the gradient rule, a name of :data:`sdm.FLOW_RULES` (default ``"paper"``, eq. 19) or of
-            the experiments' :data:`~sdm.mapping.research_rules.RESEARCH_RULES`, or a function with
-            :func:`~sdm.mapping.flow.dynamic_flow`'s signature; only
-            ``"paper"`` with ``method="dense"``.
+        flow: the gradient rule: a name of :data:`sdm.mapping.rules.RULES` (default ``"paper"``, eq. 19), a
+            :class:`~sdm.mapping.rules.Rule`, or a function with :func:`~sdm.mapping.flow.dynamic_flow`'s
+            signature; only ``"paper"`` with ``method="dense"``.
         fit_depth: also give ``z`` a gradient, the depth flow of :mod:`sdm.depth`
             (beyond the paper; default off: ``z`` gets none, as in the paper).
+
+    >>> import torch
+    >>> from sdm import SKY_SHIFT, ConfigurationSet, build_configuration
+    >>> centres = torch.tensor([[-3.0, 2.5, 20.0], [2.0, 3.0, 35.0], [6.0, 4.5, 60.0]], dtype=torch.float64)
+    >>> batch = ConfigurationSet.from_configurations([build_configuration(centres, shift=SKY_SHIFT)]).batch([0])
+    >>> theta = torch.zeros(2, dtype=torch.float64, requires_grad=True)  # the shift (a, b), metres
+    >>> layer = SpatialDomainMapping(s=4, zoom=0)
+    >>> out = layer(batch.points + torch.nn.functional.pad(theta, (0, 1)), batch.pixels, batch.targets, batch.config)
+    >>> out.loss.backward()
+    >>> theta.grad  # the summed pulls: a step against them moves theta towards SKY_SHIFT = (0.517, 0.303)
+    tensor([-46., -38.], dtype=torch.float64)
+    >>> SpatialDomainMapping(flow="closed_centred_r1").rule
+    Rule('closed_centred_r1', compiled=CENTRED)
     """
 
     def __init__(self, camera: Camera = APOLLO_CAMERA_5, s: int = 4, zoom: int = 0, method: str = "fast", c: float = 1e9,
@@ -131,9 +144,10 @@ class SpatialDomainMapping(nn.Module):
         if not c > 0:
             raise SDMInputError(f"the kernel shape constant c must be positive, got {c!r}")
         self.camera, self.s, self.zoom, self.method, self.c = camera, int(s), int(zoom), method, float(c)
-        self.flow_rule = flow_rule(flow)
+        self.rule = RULES.resolve(flow)
+        self.flow_rule = self.rule.flow  # dynamic_flow itself for "paper": the kernel's flow (fast_mapping)
         self.fit_depth = bool(fit_depth)
-        if method == "dense" and self.flow_rule is not FLOW_RULES["paper"]:
+        if method == "dense" and self.flow_rule is not dynamic_flow:
             raise SDMInputError(f"flow: the dense reference implements only the paper's rule, got {flow!r}")
 
     def forward(

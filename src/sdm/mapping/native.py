@@ -1,4 +1,4 @@
-"""A compiled CPU kernel for the SDM chain, the paper's flow and whole training runs, with the torch path as fallback.
+"""The compiled CPU kernel's bindings for the layer (the SDM chain and the paper's flow) and the trainer.
 
 On the CPU the fast path's cost is not the arithmetic but the passes over memory:
 every level runs some twenty torch operations over all points, each a full pass
@@ -7,35 +7,9 @@ level in one loop over the points and the paper's flow in one more, with the sam
 integer arithmetic and the same floating-point operations in the same order as
 :func:`~sdm.mapping.fast.fast_mapping`'s level loop and
 :func:`~sdm.mapping.flow.dynamic_flow`, so results are equal to the bit
-(``tests/test_native.py``).
-
-The C file is compiled once per machine with the system C compiler (``$CC``,
-default ``cc``, split into words as a shell would: ``CC="ccache gcc"``) into a
-cache folder (``$SDM_CACHE_DIR``, default ``$XDG_CACHE_HOME/sdm`` or
-``~/.cache/sdm``) and loaded with :mod:`ctypes`; no torch headers are involved,
-so it takes well under a second.
-
-The cache (:func:`cache_files`) holds ``sdm_native_<key>.so``, its SHA-256 in
-``sdm_native_<key>.sha256`` and, after a failed build, ``sdm_native_<key>.failed``;
-the key hashes the source, ``$CC``, the flags and the platform. A cached library
-is checked against its checksum before it is loaded, never by loading it (a
-truncated one kills the process with SIGBUS inside ``dlopen``); a missing,
-damaged or foreign one is rebuilt. A build is checked before it is cached: the
-compiler must exit 0 within :data:`BUILD_TIMEOUT_S` (it runs in a session of its
-own; on timeout its whole process group is killed) and write a non-empty library
-that loads and has every function of :data:`SIGNATURES`. A failed build is
-written to the ``.failed`` file, and later processes warn with it instead of
-running the compiler again (parallel workflow jobs do not each wait for a hanging
-compiler): delete that file to build again; a different ``CC`` or a changed
-source has a key of its own and builds by itself. A compiler that cannot be
-found is not remembered (that costs nothing to find out again). Deleting the
-cache folder is always safe.
-
-Whenever the kernel cannot be used the layer runs its torch path (the same
-results, slower) after one warning that says why (and, where a cached file or a
-build failed, which file and what cause); with ``SDM_NATIVE=0`` it does so
-without a warning. It serves CPU tensors (non-contiguous ones are copied); CUDA
-tensors take the torch path. The chain runs in the kernel for
+(``tests/test_native.py``). The library is built, cached and loaded by :mod:`sdm.mapping.build`; whenever it
+cannot be used the layer runs its torch path (the same results, slower). It serves CPU tensors (non-contiguous
+ones are copied); CUDA tensors take the torch path. The chain runs in the kernel for
 any gradient rule and point dtype; the flow only for the paper's rule on float64
 points (other rules and float32 points get torch's flow).
 
@@ -43,289 +17,32 @@ It serves two callers. The layer (:func:`~sdm.mapping.fast.fast_mapping`) calls
 :func:`chain` and :func:`paper_flow` once per forward pass. The trainer
 (:func:`sdm.train.train_runs`) calls :func:`train_program` once per program of
 ``R`` runs: every level, epoch, mini-batch, projection, chain, flow (the paper's,
-``closed_centred_r1``'s or ``group_crossing``'s: :func:`sdm.mapping.rules.kernel_form`), loss and SGD step in C, the
-per-step Python work gone; theta histories equal the torch path's to the bit
+``closed_centred_r1``'s or ``group_crossing``'s: :meth:`sdm.mapping.rules.Rule.kernel_flows`), loss and SGD step
+in C, the per-step Python work gone; theta histories equal the torch path's to the bit
 (the loss to 1e-12 relative: its sum is compensated, not in torch's order). The
 paper's flow and the centred closed rule share one window function in C. Its
 chain runs in int32 with the per-coordinate arithmetic vectorised, its
 projection two points per AVX2 register where the CPU has it (picked at run
 time), and it zooms the runs' targets out itself (``_native.c`` says why each
-keeps the bits). :func:`noise_fill` is the paired runs' noise scatter into a reused
-buffer (:class:`sdm.sky.NoiseBuffer`).
+keeps the bits). The kernel's other callers have bindings of their own: :mod:`sdm.sky_native` (the paired runs'
+noise) and :mod:`sdm.baselines.cmaes_native` (the CMA-ES baseline's count).
 """
 from __future__ import annotations
 
-import contextlib
-import ctypes
-import functools
-import hashlib
-import os
-import platform
-import shlex
-import signal
-import subprocess
-import sys
-import tempfile
 import threading
-import warnings
 import weakref
-from pathlib import Path
 
 import torch
 
-from ..io import cache_dir, write_atomic, write_text
 from ..representation import NO_RANK
-
-SOURCE = Path(__file__).with_name("_native.c")
-#: ``-ffp-contract=off``: no fused multiply-add, so every float operation rounds as torch's does. ``-O3``
-#: vectorises loops, float ones only elementwise (without ``-ffast-math`` nothing is reassociated); the
-#: trainer's AVX2 code is chosen at run time inside the library, so no ``-march`` (and no CPU in the key).
-FLAGS = ("-O3", "-shared", "-fPIC", "-ffp-contract=off", "-fno-fast-math")
-
-_I64 = ctypes.c_int64
-_PTR = ctypes.c_void_p
-
-#: Seconds the C compiler may run before it and every process it started are killed. The build takes
-#: 0.5-0.6 s wall on a loaded 2-core machine (``cc`` on ``_native.c``, load average 4); 30 s leaves
-#: fifty times that for slow disks, a cold ``ccache`` and many jobs building at once, while a hanging
-#: compiler costs the first processes half a minute once instead of two minutes each (the failure
-#: is then remembered, see :func:`cache_files`).
-BUILD_TIMEOUT_S = 30.0
-
-#: The kernel's functions, name -> ``(restype, argtypes)``: every one must be in the built library
-#: (checked when it is loaded) and is bound with these types. A new kernel function is one entry here.
-SIGNATURES: dict[str, tuple[object, list]] = {
-    "sdm_chain": (None, [_I64, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _I64, _I64, _PTR, _I64,
-                         _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR]),
-    "sdm_paper_flow": (_I64, [_I64, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _I64,
-                              _PTR, _PTR, _PTR, _PTR]),
-    "sdm_train": (_I64, [_I64, _I64, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _PTR, _I64, _I64, _I64, _I64,
-                         *[_PTR] * 11, _I64, _I64, _I64, _PTR, _PTR, _I64, _PTR, _PTR, _PTR, _PTR]),
-    "sdm_noise_fill": (_I64, [_I64, _PTR, _I64, _PTR, _PTR, _I64, _I64, _PTR, _PTR, _I64]),
-    # the CMA-ES baseline's count (pixel_mismatch below)
-    "sdm_pixel_mismatch": (None, [_I64, _PTR, _I64, _I64, *[_PTR] * 8, _I64, _I64, _PTR, _I64, _I64,
-                                  *[_PTR] * 5]),
-}
+# enabled, disabled and serves: what the layer's and the trainer's callers ask of the kernel (sdm.mapping.build's).
+# The calls below read the library as _library.
+from .build import disabled, enabled, eager_under_compile, serves  # noqa: F401
+from .build import library as _library
+from .rules import KernelFlow
 
 
-_switched_off = False
-
-
-def enabled() -> bool:
-    """Whether the compiled kernel is in use (built or loaded on first call; ``SDM_NATIVE=0`` turns it off)."""
-    return not _switched_off and _library() is not None
-
-
-@contextlib.contextmanager
-def disabled():
-    """Inside the block the layer runs its torch path (for comparisons and benchmarks; process-wide)."""
-    global _switched_off
-    before, _switched_off = _switched_off, True
-    try:
-        yield
-    finally:
-        _switched_off = before
-
-
-class _Unavailable(Exception):
-    """Why the kernel cannot be used (the warning's text); ``remember``: a build that ran and failed."""
-
-    def __init__(self, message: str, remember: bool = False):
-        super().__init__(message)
-        self.remember = remember
-
-
-def cache_files(compiler: str | None = None) -> tuple[Path, Path, Path]:
-    """The cache's files for ``compiler`` (default ``$CC`` or ``cc``): ``(library, checksum, failure)``.
-
-    ``sdm_native_<key>.so`` is the library, ``sdm_native_<key>.sha256`` its SHA-256 (``sha256sum``'s
-    format, written after a successful build and checked before every load) and ``sdm_native_<key>.failed``
-    the error of a build that failed, which stops later processes from running the compiler again;
-    ``<key>`` hashes the source, the compiler, the flags and the platform, so a changed ``CC`` or source
-    gets files of its own. Deleting any of them is safe: the kernel is built again.
-    """
-    compiler = os.environ.get("CC", "cc") if compiler is None else compiler
-    source = SOURCE.read_bytes()  # OSError where an install left the source out
-    key = hashlib.sha256(b"\0".join([source, compiler.encode(), " ".join(FLAGS).encode(),
-                                     platform.machine().encode(), sys.platform.encode()])).hexdigest()[:16]
-    folder = cache_dir().absolute()  # RuntimeError where no home folder can be found
-    # Absolute: ctypes.CDLL would search the library path for a bare file name.
-    return tuple(folder / f"sdm_native_{key}{suffix}" for suffix in (".so", ".sha256", ".failed"))
-
-
-@functools.lru_cache(maxsize=1)
-def _library():
-    if os.environ.get("SDM_NATIVE", "1").strip().lower() in ("0", "off", "false", "no"):
-        return None
-    try:
-        return _cached_or_built(os.environ.get("CC", "cc"))
-    except _Unavailable as why:
-        warnings.warn(f"sdm: the compiled CPU kernel is not available: {why} The SDM layer runs its torch path "
-                      "(same results, slower); SDM_NATIVE=0 silences this warning.", RuntimeWarning, stacklevel=3)
-        return None
-
-
-def _cached_or_built(compiler: str):
-    """The kernel from the cache if its checksum and functions check out, else built (once) and cached."""
-    try:
-        command = shlex.split(compiler)  # as a shell would: CC="ccache gcc", CC="env gcc"
-    except ValueError as error:
-        raise _Unavailable(f"CC={compiler!r} cannot be split into words as a shell would ({error}).") from None
-    if not command:
-        raise _Unavailable("CC is set but empty; set it to a C compiler (e.g. CC=cc), or unset it.")
-    try:
-        library, checksum, failure = cache_files(compiler)
-    except (OSError, RuntimeError) as error:
-        raise _Unavailable(f"its source or cache folder cannot be found ({error}); set SDM_CACHE_DIR.") from None
-    damage = _damage(library, checksum)
-    if damage is None:
-        try:
-            return _bind(ctypes.CDLL(str(library)), library)
-        except (OSError, _Unavailable) as error:  # a foreign library planted with its checksum
-            damage = f"not the kernel ({error})"
-    if failure.is_file():
-        try:
-            cause = failure.read_text(encoding="utf-8", errors="replace").strip()
-        except OSError as error:
-            cause = f"({error})"
-        raise _Unavailable(f"an earlier build failed: {cause} That failure is remembered in {failure}: delete "
-                           "that file to build again (a different CC or a changed kernel source builds afresh).")
-    try:
-        return _build(command, library, checksum, failure)
-    except _Unavailable as why:
-        cause = f"{why}" if not damage else f"the cached kernel {library} is {damage}, and rebuilding it failed: {why}"
-        if not why.remember:
-            raise _Unavailable(cause) from None
-        with contextlib.suppress(OSError):  # a read-only cache: nothing to remember it in
-            write_text(failure, cause + "\n")
-            cause += (f" This failure is remembered in {failure}: delete that file to build again (a different "
-                      "CC or a changed kernel source builds afresh).")
-        raise _Unavailable(cause) from None
-
-
-def _damage(library: Path, checksum: Path) -> str | None:
-    """``None`` where ``library`` matches its checksum file, else what is wrong ("" where there is no library).
-
-    Checked on the bytes, never by loading them: a truncated library kills the process with SIGBUS inside
-    ``dlopen``, and a foreign or garbage one fails with a misleading error.
-    """
-    try:
-        data = library.read_bytes()
-    except FileNotFoundError:
-        return ""
-    except OSError as error:
-        return f"unreadable ({error})"
-    try:
-        expected = checksum.read_text(encoding="ascii").split()[0]
-    except (OSError, UnicodeDecodeError, IndexError):
-        return f"without a valid checksum file {checksum.name} (one is written after each successful build)"
-    if hashlib.sha256(data).hexdigest() != expected:
-        return (f"damaged: its SHA-256 does not match {checksum.name} ({len(data)} bytes; truncated, "
-                "overwritten or copied from elsewhere)")
-    return None
-
-
-def _bind(library: ctypes.CDLL, path: Path) -> ctypes.CDLL:
-    """``library`` with every function of :data:`SIGNATURES` typed; :class:`_Unavailable` if one is missing."""
-    missing = [name for name in SIGNATURES if not hasattr(library, name)]
-    if missing:
-        raise _Unavailable(f"{path} lacks the function(s) {', '.join(missing)}.", remember=True)
-    for name, (restype, argtypes) in SIGNATURES.items():
-        function = getattr(library, name)
-        function.restype, function.argtypes = restype, argtypes
-    return library
-
-
-def _build(command: list[str], library: Path, checksum: Path, failure: Path) -> ctypes.CDLL:
-    """Compile the kernel into ``library``, check and load it, then write its checksum; the loaded library.
-
-    Built beside the target and renamed into place (:func:`sdm.io.write_atomic`): concurrent processes
-    (parallel workflow jobs) each build their own file, and no half-written one is ever loaded. The
-    build is checked (non-empty, loadable, every function present) and loaded from its temporary
-    name before it is renamed: what failed is never cached, and ``dlopen`` never returns a stale
-    handle for the final name (it reuses one per path).
-    """
-    built = {}
-
-    def compile_and_check(partial: Path):
-        _compile(command, [*FLAGS, "-o", str(partial), str(SOURCE)])
-        data = partial.read_bytes()
-        if not data:
-            raise _Unavailable(f"CC={shlex.join(command)!r} exited 0 but wrote nothing to its output file.",
-                               remember=True)
-        try:
-            loaded = ctypes.CDLL(str(partial))
-        except OSError as error:
-            raise _Unavailable(f"what CC={shlex.join(command)!r} built cannot be loaded ({error}).",
-                               remember=True) from None
-        built["library"] = _bind(loaded, partial)
-        built["digest"] = hashlib.sha256(data).hexdigest()
-
-    try:
-        write_atomic(library, compile_and_check)
-        # After the library: a reader between the two renames sees a mismatch and builds again.
-        write_text(checksum, f"{built['digest']}  {library.name}\n")
-    except OSError as error:
-        raise _Unavailable(f"the cache folder {library.parent} cannot be written ({error}); "
-                           "set SDM_CACHE_DIR to a writable folder.") from None
-    failure.unlink(missing_ok=True)
-    return built["library"]
-
-
-def _compile(command: list[str], arguments: list[str]) -> None:
-    """Run the compiler (``command``: ``$CC``'s words) in a session of its own; on timeout kill its process group.
-
-    Its output goes to a temporary file, not a pipe: a grandchild holding a pipe open would keep
-    ``communicate`` waiting after the compiler itself was killed.
-    """
-    with tempfile.TemporaryFile() as log:
-        try:
-            process = subprocess.Popen([*command, *arguments], stdin=subprocess.DEVNULL, stdout=log,
-                                       stderr=subprocess.STDOUT, start_new_session=True)
-        except OSError as error:  # not remembered: finding no compiler is instant, and one may be installed
-            raise _Unavailable(f"the C compiler {command[0]!r} cannot be run ({error.strerror or error}); "
-                               "set CC to a C compiler.") from None
-        try:
-            status = process.wait(timeout=BUILD_TIMEOUT_S)
-        except subprocess.TimeoutExpired:
-            raise _Unavailable(f"CC={shlex.join(command)!r} did not finish within {BUILD_TIMEOUT_S:g} s; it and "
-                               "its process group were killed.", remember=True) from None
-        finally:
-            if process.returncode is None:  # timed out or interrupted: the group id is still ours
-                with contextlib.suppress(ProcessLookupError):
-                    os.killpg(process.pid, signal.SIGKILL)
-                process.wait()
-        if status != 0:
-            log.seek(0)
-            output = log.read().decode(errors="replace").strip()
-            raise _Unavailable(f"CC={shlex.join(command)!r} failed (exit status {status})"
-                               + (f"; it printed {output[-300:]!r}." if output else "."), remember=True)
-
-
-def _eager_under_compile(function):
-    """``function``, run eagerly by Dynamo when a graph is being traced (a ``ctypes`` call cannot be traced).
-
-    The same as decorating it with ``torch.compiler.disable`` (one graph break per call, the kernel runs
-    inside the compiled program), but applied only while tracing: the decorator imports Dynamo, about
-    1.2 s, and ``sdm`` is imported by every workflow job and test process, few of which compile.
-    """
-
-    @functools.wraps(function)
-    def call(*args):
-        if torch.compiler.is_compiling():
-            return torch.compiler.disable(function)(*args)
-        return function(*args)
-
-    return call
-
-
-@_eager_under_compile
-def serves(*tensors: torch.Tensor) -> bool:
-    """Whether the kernel can take these tensors: all on the CPU, and the kernel available."""
-    return all(t.device.type == "cpu" for t in tensors) and enabled()
-
-
-@_eager_under_compile
+@eager_under_compile
 def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, rank: torch.Tensor,
           scratch: torch.Tensor, height: int, width: int, steps: int, zoom: int):
     """Levels ``steps..zoom`` of the zoom chain (the level loop of :func:`~sdm.mapping.fast.fast_mapping`).
@@ -375,7 +92,7 @@ def _workspace(n_points: int, device: torch.device) -> tuple[torch.Tensor, torch
     return flat[: 2 * n_points].view(n_points, 2), flat[2 * n_points : 3 * n_points], flags[:n_points]
 
 
-@_eager_under_compile
+@eager_under_compile
 def paper_flow(screen: torch.Tensor, config: torch.Tensor, landed: torch.Tensor, block: torch.Tensor,
                landing: torch.Tensor, target: torch.Tensor, zoom: int):
     """The paper's flow (:func:`~sdm.mapping.flow.dynamic_flow`) but the loss's metres.
@@ -416,7 +133,7 @@ def trains_screen(screen_shape) -> bool:
 
 def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor, offsets: torch.Tensor,
                   camera, steps: int, levels: list[int], n_epoch: int, batch_size: int, rates: list[float],
-                  windows: list[str], orders: torch.Tensor, targets: list[list[torch.Tensor | None]],
+                  windows: list[KernelFlow], orders: torch.Tensor, targets: list[list[torch.Tensor | None]],
                   theta0: torch.Tensor, bases: list[torch.Tensor] | None = None,
                   param_index: torch.Tensor | None = None, record_every: int = 1,
                   row_rate: torch.Tensor | None = None):
@@ -430,10 +147,11 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
             another (the paper's ``s, s - 1, ...``; a refinement's ``0, 0, ...``).
         n_epoch, batch_size: epochs per level, configurations per mini-batch (the last incomplete one dropped).
         rates: the learning rate at each of ``levels``.
-        windows: per level, the flow (:func:`sdm.mapping.rules.kernel_form`): ``"paper"``; ``"centred"``,
-            ``closed_centred_r1``'s window (centred on the landing block, on the level's target closed 3 x 3
-            by the kernel, as :func:`sdm.mapping.rules.closing` ``(3)``);
-            ``"crossing"``, ``group_crossing``'s flow (level 0 only; the loss is then the mismatch count).
+        windows: per level, the flow (:meth:`sdm.mapping.rules.Rule.kernel_flows`), a
+            :class:`~sdm.mapping.rules.KernelFlow`: ``PAPER``; ``CENTRED``, ``closed_centred_r1``'s window
+            (centred on the landing block, on the level's target closed 3 x 3 by the kernel, as
+            :func:`sdm.mapping.rules.closing` ``(3)``); ``CROSSING``, ``group_crossing``'s flow (level 0 only;
+            the loss is then the mismatch count).
         orders: ``(len(levels) * n_epoch, R, N)`` int64, each epoch's shuffling of each run.
         targets: ``R`` lists, one ``(N, H >> level, W >> level)`` bool target per level of ``levels``, or
             ``None``: the kernel zooms ``bases[r]`` out to that level itself (as
@@ -480,10 +198,10 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
                               camera.fx * camera.cols_per_image_pixel], dtype=torch.float64, device=device)
     rates_t = torch.tensor(rates, dtype=torch.float64, device=device)
     levels_t = torch.tensor(levels, dtype=torch.int64, device=device)
-    if any(window not in _WINDOWS for window in windows):  # sdm_train refuses a level it cannot run (-3)
-        raise ValueError(f"train_program: windows must be of {sorted(_WINDOWS)}, got {windows}")
-    modes_t = torch.tensor([_WINDOWS[window] for window in windows], dtype=torch.uint8, device=device)
-    groups = (_crossing_groups(points, offsets, param_index) if "crossing" in windows
+    if not all(isinstance(window, KernelFlow) for window in windows):  # sdm_train refuses an unknown mode (-3)
+        raise ValueError(f"train_program: windows must be sdm.mapping.rules.KernelFlow, got {windows}")
+    modes_t = torch.tensor([int(window) for window in windows], dtype=torch.uint8, device=device)
+    groups = (_crossing_groups(points, offsets, param_index) if KernelFlow.CROSSING in windows
               else (torch.zeros(1, dtype=torch.int64),) * 3)
     crossing = _crossing_constants(device)
     addresses = torch.tensor([[level.data_ptr() if level is not None else 0 for level in run] for run in targets],
@@ -492,7 +210,7 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     # as sdm_train lays it out: the zoomed-out levels where it zooms any out, then the closed targets
     zooms = any(target is None and level > 0 for run in targets for target, level in zip(run, levels))
     pyramid = _pyramid_scratch(n_configs * sum((height >> k) * (width >> k) for k in range(1, steps + 1)) * zooms
-                               + n_configs * height * width * ("centred" in windows), device)
+                               + n_configs * height * width * (KernelFlow.CENTRED in windows), device)
     base_addresses = torch.tensor([base.data_ptr() for base in bases] if bases is not None else [0] * n_runs,
                                   dtype=torch.int64, device=device)
     thetas = torch.empty(total // record_every + 1, n_runs, *row_shape, dtype=torch.float64, device=device)
@@ -510,15 +228,11 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     if code == -2:
         raise ValueError(f"sdm_train: a {height} x {width} screen is beyond its int32 chain (trains_screen)")
     if code == -3:
-        raise ValueError(f"sdm_train: levels {levels} outside 0..{steps}, or 'crossing' above level 0: "
-                         f"{list(zip(windows, levels))}")
+        raise ValueError(f"sdm_train: levels {levels} outside 0..{steps}, or CROSSING above level 0: "
+                         f"{[(window.name, level) for window, level in zip(windows, levels)]}")
     if code != 0:
         raise MemoryError("sdm_train: no memory for one configuration's working rows")
     return thetas, losses, failed
-
-
-#: train_program's flows, by kernel_form's name, as sdm_train's modes.
-_WINDOWS = {"paper": 0, "centred": 1, "crossing": 2}
 
 
 #: _crossing_groups' last layout: (weak references to points and offsets, their versions, the layout). A set's
@@ -591,56 +305,3 @@ def _pyramid_scratch(n_bytes: int, device: torch.device) -> torch.Tensor:
     if buffer is None or buffer.numel() < n_bytes or buffer.device != device:
         buffer = _SCRATCH.pyramid = torch.empty(max(n_bytes, 1), dtype=torch.uint8, device=device)
     return buffer
-
-
-@_eager_under_compile
-def pixel_mismatch(thetas: torch.Tensor, layout, table: torch.Tensor, n_target: int, memo) -> torch.Tensor:
-    """The CMA-ES baseline's exact zoom-0 pixel mismatch for ``K`` candidates in one pass over the points.
-
-    Args:
-        thetas: ``(K, 2)`` float64 candidates ``(a, b)``, metres, on the CPU.
-        layout: a usable :class:`sdm.baselines.cmaes.ShiftLayout` on the CPU (its grouping and scratch).
-        table: ``(N * Hp * Wp,)`` int8 weight + 1 per padded pixel (:meth:`ShiftLayout.table` with ``compact``).
-        n_target: active target pixels of the run.
-        memo: the :class:`sdm.baselines.cmaes.MismatchMemo` of ``table`` (its last candidates' per-configuration
-            sums, reused where a configuration's groups shift alike: the same integers), at least ``K`` slots.
-
-    Returns:
-        ``(K,)`` int64 counts (false positives + false negatives), ``-1`` for a candidate whose group
-        shifts cannot be trusted (the caller counts it by the torch reference).
-    """
-    thetas = thetas.to(torch.float64).contiguous()
-    n_candidates = thetas.shape[0]
-    n_groups = layout.gain.shape[0]
-    if memo.slots < n_candidates:
-        raise ValueError(f"pixel_mismatch: memo holds {memo.slots} slots, fewer than the {n_candidates} candidates")
-    counts = torch.empty(n_candidates, dtype=torch.int64, device=thetas.device)
-    _library().sdm_pixel_mismatch(
-        n_candidates, thetas.data_ptr(), n_groups, layout.config_group.shape[0] - 1, layout.gain.data_ptr(),
-        layout.frac_bounds.data_ptr(), layout.shift_low.data_ptr(), layout.shift_high.data_ptr(),
-        layout.group_start.data_ptr(), layout.config_group.data_ptr(), layout.cells.data_ptr(), table.data_ptr(),
-        layout.padded_shape[0] * layout.padded_shape[1], layout.padded_shape[1], layout.limits.data_ptr(),
-        int(n_target), memo.slots, memo.offsets.data_ptr(), memo.sums.data_ptr(), memo.state.data_ptr(),
-        layout.stamp.data_ptr(), counts.data_ptr())
-    return counts
-
-
-def noise_fill(active: torch.Tensor, moves: torch.Tensor, height: int, width: int, out: torch.Tensor,
-               written: torch.Tensor, n_written: int) -> int:
-    """:func:`sdm.sky.add_target_noise`'s scatter into a reused buffer (``sdm_noise_fill``), in one pass.
-
-    Args:
-        active: ``(K, d)`` int64 active pixels: ``d - 2`` leading indices, then ``(row, col)``.
-        moves: ``(K, 2)`` int64 the drawn moves ``(row, col)``.
-        height, width: the grid; pixels moved off it are dropped.
-        out: contiguous ``(..., height, width)`` bool buffer (``d - 2`` leading dimensions) whose only set
-            entries are the ``n_written`` flat indices in ``written`` (all of it 0 where ``n_written`` is 0).
-        written: ``(>= K,)`` int64: in, those flat indices; out, this draw's.
-
-    All tensors on the CPU (see :func:`serves`). Returns the number of pixels now set (this draw's ``n_written``).
-    """
-    active, moves = active.contiguous(), moves.contiguous()
-    lead_strides = torch.tensor(out.stride()[:-2] or (0,), dtype=torch.int64, device=out.device)
-    return int(_library().sdm_noise_fill(active.shape[0], active.data_ptr(), active.shape[1] - 2,
-                                         lead_strides.data_ptr(), moves.data_ptr(), height, width, out.data_ptr(),
-                                         written.data_ptr(), int(n_written)))

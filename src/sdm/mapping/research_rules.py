@@ -9,11 +9,12 @@ Table 2 per rule and of the flow at theta*); the one that met the bar,
 ``closed_centred_r1``, is in :data:`sdm.FLOW_RULES` with the paper's rule, and no
 configuration or table of the workflow uses the ones below.
 
-Selecting one: by name wherever a rule is named (``TrainSettings(flow="closed")``,
+Each is a :class:`~sdm.mapping.rules.Rule` (``experiment=True``, no compiled form) registered in
+:data:`sdm.mapping.rules.RULES` when :mod:`sdm.mapping` is imported; :data:`RESEARCH_RULES` is the registry's
+view of them. Selecting one: by name wherever a rule is named (``TrainSettings(flow="closed")``,
 ``SpatialDomainMapping(flow="closed")``, ``research.rules.names`` of the workflow,
-``benchmarks/flow_rules.py --rules``: :func:`sdm.mapping.rules.flow_rule` looks in
-:data:`sdm.FLOW_RULES` first, then in :data:`RESEARCH_RULES`), or as the function
-itself (``SpatialDomainMapping(flow=RESEARCH_RULES["nearest"])``).
+``benchmarks/flow_rules.py --rules``), or as the object itself
+(``SpatialDomainMapping(flow=RESEARCH_RULES["nearest"])``).
 
 Shapes and signature: those of :mod:`sdm.mapping.rules`.
 """
@@ -23,7 +24,7 @@ import torch
 
 from ..camera import Camera
 from .flow import block_window, nine
-from .rules import FlowRule, closing, sign_flow, window_rule
+from .rules import RULES, FlowRule, Rule, closing, sign_flow, window_rule
 
 
 def _uncovered_window(screen, config, landed, landing, target, zoom, camera):
@@ -128,8 +129,8 @@ def _closing_pixels(radius: int, at_least: int = 0):
     return close
 
 
-#: The experimental rules by name docs/method/rules.md; none is used by a table.
-RESEARCH_RULES: dict[str, FlowRule] = {
+#: The experiments, registered in :data:`sdm.mapping.rules.RULES`; none has a compiled form.
+_EXPERIMENTS = {
     "nearest": window_rule(weigh=_nearest),
     "normalised": window_rule(weigh=_normalised),
     "reached": window_rule(select=_reached),
@@ -148,3 +149,9 @@ RESEARCH_RULES: dict[str, FlowRule] = {
     "two_sided": _two_sided(),
     "closed_two_sided": _two_sided(prepare=closing(3)),
 }
+for _name, _flow in _EXPERIMENTS.items():
+    RULES.register(Rule(_name, _flow, experiment=True))
+
+#: The experimental rules by name (docs/method/rules.md), a live view of :data:`sdm.mapping.rules.RULES`; no
+#: table uses one.
+RESEARCH_RULES = RULES.view(experiment=True)

@@ -1,21 +1,23 @@
-"""The gradient rules the product uses, by name: the paper's eq. 19 and the recommended ``closed_centred_r1``.
+"""Gradient rules as objects (:class:`Rule`) and their one registry, :data:`RULES`.
 
-Every rule is a function with the signature of :func:`~sdm.mapping.flow.dynamic_flow`
-``(screen, depth, config, landed, block, landing, target, zoom, camera) -> (flow, loss, matched)``
-and plugs into the same autograd layer (``SpatialDomainMapping(flow=NAME)``,
-``TrainSettings(flow=NAME)``). ``"paper"`` is the paper's eq. 19, unchanged.
+A rule is a name, its torch flow, and optionally its compiled form: the flow the compiled trainer
+(:func:`sdm.mapping.native.train_program`) runs at each loss level (:class:`KernelFlow`). Every rule of the
+project is registered in :data:`RULES`; :data:`FLOW_RULES` (the rules a configuration or table uses) and
+:data:`sdm.mapping.research_rules.RESEARCH_RULES` (the experiments of docs/method/rules.md) are live views of
+it, and the workflow schema's rule names are held to it by ``tests/test_research.py``.
 
-:data:`FLOW_RULES` holds the rules a configuration or table of this project uses.
-``"closed_centred_r1"`` docs/method/rules.md is eq. 19 at every
-zoom >= 1 (the coarse levels, where blocks are wider than the noise's holes and
-the paper's strong pull brings theta near theta*), and at zoom 0 a 3x3 closing
-of the target with the window centred on the landing block: the one rule that
-meets the bar "half the paper's mean" at every noise level on the default data.
-The other rules measured there are experiments, in :mod:`sdm.mapping.research_rules`
-(:data:`~sdm.mapping.research_rules.RESEARCH_RULES`); :func:`flow_rule` finds a
-name in either registry. This module also holds the builders they share: one
-generic 3x3 window with hooks (:func:`window_rule`), :func:`by_zoom` and
-:func:`closing`.
+Wherever a rule is named (``SpatialDomainMapping(flow=...)``, ``TrainSettings(flow=...)``) it may be a
+registered name, a :class:`Rule`, or a bare function with the signature of
+:func:`~sdm.mapping.flow.dynamic_flow` ``(screen, depth, config, landed, block, landing, target, zoom, camera)
+-> (flow, loss, matched)`` (:meth:`RuleRegistry.resolve`; a bare function has no compiled form, so it trains on the torch
+path). ``"paper"`` is the paper's eq. 19, unchanged, and the default.
+
+The product's rules: ``"paper"``; ``"closed_centred_r1"`` (docs/method/rules.md), eq. 19 at every zoom >= 1 (the
+coarse levels, where blocks are wider than the noise's holes and the paper's strong pull brings theta near
+theta*), and at zoom 0 a 3x3 closing of the target with the window centred on the landing block: the one rule
+that meets the bar "half the paper's mean" at every noise level on the default data; ``"group_crossing"``
+(:mod:`sdm.mapping.crossing`), Table 4's refinement. This module also holds the builders every rule shares: one
+generic 3x3 window with hooks (:func:`window_rule`), :func:`by_zoom` and :func:`closing`.
 
 Shapes follow :func:`~sdm.mapping.flow.dynamic_flow`: ``screen`` ``(P, 2)`` float
 ``(row, col)`` screen pixels, ``depth`` ``(P,)`` metres, ``config`` ``(P,)`` int64,
@@ -23,9 +25,18 @@ Shapes follow :func:`~sdm.mapping.flow.dynamic_flow`: ``screen`` ``(P, 2)`` floa
 ``zoom``, ``target`` ``(n, H / 2^zoom, W / 2^zoom)`` bool; all on one device (any).
 Outputs: ``flow`` ``(P, 2)`` ``(x, y)`` (dtype of ``screen``), ``loss`` ``()`` metres,
 ``matched`` ``(P,)`` bool.
+
+>>> from sdm.mapping.rules import RULES
+>>> RULES["closed_centred_r1"].kernel_flows([2, 1, 0])
+[<KernelFlow.PAPER: 0>, <KernelFlow.PAPER: 0>, <KernelFlow.CENTRED: 1>]
+>>> RULES["nearest"].kernel_flows([0]) is None  # an experiment: the torch path
+True
 """
 from __future__ import annotations
 
+import enum
+from collections.abc import Iterable, Iterator, Mapping
+from dataclasses import dataclass
 from typing import Callable
 
 import torch
@@ -136,64 +147,185 @@ def _spread(image: torch.Tensor, radius: int, combine) -> torch.Tensor:
     return image
 
 
-#: closed_centred_r1: the 3x3 closing and the centred window below this loss level, eq. 19 from it on.
-_CLOSE_3 = closing(3)
-_R1_FINEST_COARSE = 1
+class KernelFlow(enum.IntEnum):
+    """A flow the compiled trainer (``sdm_train`` in ``_native.c``) runs at one loss level; the value is its mode."""
 
-#: The gradient rules a configuration or table uses, by name. ``"paper"`` is eq. 19
-#: (:func:`~sdm.mapping.flow.dynamic_flow`), the default.
-FLOW_RULES: dict[str, FlowRule] = {
-    "paper": dynamic_flow,
-    # 3x3 closing and the window centred on the landing block at zoom 0, eq. 19 at the coarser levels.
-    "closed_centred_r1": by_zoom(window_rule(prepare=_CLOSE_3, centred=True), dynamic_flow,
-                                 finest_coarse=_R1_FINEST_COARSE),
-    # The kernel-weighted discrete derivative of CMA-ES's objective at zoom 0 (sdm.mapping.crossing),
-    # eq. 19 at the coarser levels; Table 4 refines closed_centred_r1's runs with it (sdm.train.Refinement).
-    "group_crossing": by_zoom(group_crossing_flow, dynamic_flow, finest_coarse=CROSSING_FINEST_COARSE),
-}
+    #: eq. 19's window on the input block (:func:`~sdm.mapping.flow.dynamic_flow`)
+    PAPER = 0
+    #: the window on the landing block, over the level's target closed as :func:`closing` ``(3)`` closes it
+    CENTRED = 1
+    #: ``group_crossing``'s flow (:func:`~sdm.mapping.crossing.group_crossing_flow`; level 0 only)
+    CROSSING = 2
 
 
-def kernel_form(name: str, level: int):
-    """How the compiled trainer (:func:`sdm.mapping.native.train_program`) runs rule ``name`` at loss ``level``.
+@dataclass(frozen=True, repr=False)
+class Rule:
+    """A gradient rule: its name, its torch flow and, optionally, its compiled form.
 
-    Returns:
-        ``None`` where the rule has no compiled form (the trainer then takes the torch path); otherwise the
-        kernel's flow: ``"paper"`` (eq. 19's window on the input block), ``"centred"`` (the window on the
-        landing block, over the target closed as ``closing(3)`` closes it) or ``"crossing"``
-        (``group_crossing``'s flow). Read from the same constants that build :data:`FLOW_RULES`, so the two
-        cannot drift.
+    Attributes:
+        name: the name it is registered (and written in tables) under.
+        flow: the torch flow, a function with :func:`~sdm.mapping.flow.dynamic_flow`'s signature; a rule is
+            also callable itself, as its flow.
+        compiled: ``None`` (no compiled form: training takes the torch path) or the :class:`KernelFlow` the
+            compiled trainer runs where the rule is not eq. 19; it must give ``flow``'s theta history to the
+            bit (``tests/test_native.py`` holds the product's rules to that).
+        finest_coarse: ``None``, or the loss level from which on the rule is eq. 19 (:class:`KernelFlow` ``PAPER``
+            in the kernel; :meth:`by_zoom` builds ``flow`` from the same number).
+        experiment: measured in docs/method/rules.md, used by no table (:data:`RESEARCH_RULES` rather than
+            :data:`FLOW_RULES`).
+
+    >>> from sdm.mapping.flow import dynamic_flow
+    >>> mine = Rule("mine", dynamic_flow, KernelFlow.PAPER)
+    >>> mine.kernel_flows([1, 0])
+    [<KernelFlow.PAPER: 0>, <KernelFlow.PAPER: 0>]
+    >>> Rule("torch_only", dynamic_flow).kernel_flows([1, 0]) is None
+    True
     """
-    if name == "paper":
-        return "paper"
-    if name == "closed_centred_r1":  # window_rule(prepare=_CLOSE_3, centred=True) below the coarse levels
-        return "paper" if level >= _R1_FINEST_COARSE else "centred"
-    if name == "group_crossing":
-        return "paper" if level >= CROSSING_FINEST_COARSE else "crossing"
-    return None
+
+    name: str
+    flow: FlowRule
+    compiled: KernelFlow | None = None
+    finest_coarse: int | None = None
+    experiment: bool = False
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.name, str) or not self.name:
+            raise SDMInputError(f"Rule name must be a non-empty string, got {self.name!r}")
+        if not callable(self.flow):
+            raise SDMInputError(f"Rule {self.name!r}: flow must be a function with dynamic_flow's signature, "
+                                f"got {type(self.flow).__name__}")
+        if self.compiled is not None and not isinstance(self.compiled, KernelFlow):
+            raise SDMInputError(f"Rule {self.name!r}: compiled must be a KernelFlow or None, got {self.compiled!r}")
+        if self.finest_coarse is not None and (isinstance(self.finest_coarse, bool)
+                                               or not isinstance(self.finest_coarse, int) or self.finest_coarse < 0):
+            raise SDMInputError(f"Rule {self.name!r}: finest_coarse must be a non-negative integer or None, "
+                                f"got {self.finest_coarse!r}")
+
+    @classmethod
+    def by_zoom(cls, name: str, fine: FlowRule, finest_coarse: int, compiled: KernelFlow | None = None,
+                experiment: bool = False) -> "Rule":
+        """``fine`` below loss level ``finest_coarse``, eq. 19 from it on: the torch flow (:func:`by_zoom`) and the
+        compiled form's switch read the same number."""
+        return cls(name, by_zoom(fine, dynamic_flow, finest_coarse), compiled, finest_coarse, experiment)
+
+    def __call__(self, screen, depth, config, landed, block, landing, target, zoom, camera: Camera):
+        return self.flow(screen, depth, config, landed, block, landing, target, zoom, camera)
+
+    def __repr__(self) -> str:
+        compiled = f", compiled={self.compiled.name}" if self.compiled is not None else ""
+        return f"Rule({self.name!r}{compiled})"
+
+    def kernel_flows(self, levels: Iterable[int]) -> list[KernelFlow] | None:
+        """The compiled trainer's flow at each of ``levels``, or ``None`` where the rule has no compiled form."""
+        if self.compiled is None:
+            return None
+        coarse = self.finest_coarse
+        return [KernelFlow.PAPER if coarse is not None and level >= coarse else self.compiled for level in levels]
 
 
-def rule_by_name(name: str) -> FlowRule:
-    """The rule named ``name`` in :data:`FLOW_RULES` or, failing that, in the experiments' ``RESEARCH_RULES``.
+class RuleRegistry(Mapping):
+    """The registered rules by name (a read-only mapping; :meth:`register` adds one).
 
-    Raises:
-        SDMInputError: not a name of either (naming the argument ``flow`` and both registries' names).
+    >>> from sdm.mapping.rules import RULES
+    >>> sorted(RULES.view(experiment=False))
+    ['closed_centred_r1', 'group_crossing', 'paper']
+    >>> RULES.resolve("paper")
+    Rule('paper', compiled=PAPER)
     """
-    # Imported here: the experiments are built from this module's builders.
-    from .research_rules import RESEARCH_RULES
 
-    if isinstance(name, str):
-        if name in FLOW_RULES:
-            return FLOW_RULES[name]
-        if name in RESEARCH_RULES:
-            return RESEARCH_RULES[name]
-    raise SDMInputError(f"flow must be a rule of sdm.FLOW_RULES {sorted(FLOW_RULES)} or an experiment of "
-                        f"sdm.mapping.research_rules.RESEARCH_RULES {sorted(RESEARCH_RULES)}, got {name!r}")
+    def __init__(self) -> None:
+        self._rules: dict[str, Rule] = {}
+
+    def __getitem__(self, name: str) -> Rule:
+        return self._rules[name]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._rules)
+
+    def __len__(self) -> int:
+        return len(self._rules)
+
+    def register(self, rule: Rule) -> Rule:
+        """Add ``rule`` under its name, and return it; :class:`SDMInputError` where the name holds another rule."""
+        if not isinstance(rule, Rule):
+            raise SDMInputError(f"register takes a sdm.mapping.rules.Rule, got {type(rule).__name__}")
+        if self._rules.get(rule.name, rule) != rule:
+            raise SDMInputError(f"a rule named {rule.name!r} is already registered: {self._rules[rule.name]!r}")
+        self._rules[rule.name] = rule
+        return rule
+
+    def unregister(self, name: str) -> None:
+        """Remove the rule named ``name`` (:class:`SDMInputError` if there is none)."""
+        if name not in self._rules:
+            raise SDMInputError(f"no rule named {name!r} is registered")
+        del self._rules[name]
+
+    def view(self, experiment: bool) -> "RuleView":
+        """A live read-only view of the registered rules that are (``True``) or are not experiments."""
+        return RuleView(self, experiment)
+
+    def resolve(self, flow) -> Rule:
+        """The :class:`Rule` of ``flow``: a registered name, a :class:`Rule` (as it is) or a bare flow function
+        (a :class:`Rule` without compiled form, named after it).
+
+        Raises:
+            SDMInputError: an unknown name or anything else (naming the argument ``flow`` and the registered names).
+        """
+        if isinstance(flow, Rule):
+            return flow
+        if isinstance(flow, str) and flow in self._rules:
+            return self._rules[flow]
+        if callable(flow) and not isinstance(flow, str):
+            return Rule(getattr(flow, "__qualname__", type(flow).__name__), flow)
+        raise SDMInputError(f"flow must be a rule of sdm.mapping.rules.RULES {sorted(self._rules)}, a Rule or a "
+                            f"flow function, got {flow!r}")
 
 
-def flow_rule(rule: str | FlowRule) -> FlowRule:
-    """The rule function for a name (:func:`rule_by_name`); a callable passes through.
+class RuleView(Mapping):
+    """The rules of a :class:`RuleRegistry` that are, or are not, experiments: live, read-only, ``|``-able."""
 
-    Raises:
-        SDMInputError: an unknown name (naming the argument ``flow`` and the known names).
-    """
-    return rule if callable(rule) else rule_by_name(rule)
+    def __init__(self, registry: RuleRegistry, experiment: bool) -> None:
+        self._registry, self._experiment = registry, experiment
+
+    def _selected(self) -> dict[str, Rule]:
+        return {name: rule for name, rule in self._registry.items() if rule.experiment == self._experiment}
+
+    def __getitem__(self, name: str) -> Rule:
+        rule = self._registry[name]
+        if rule.experiment != self._experiment:
+            raise KeyError(name)
+        return rule
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._selected())
+
+    def __len__(self) -> int:
+        return len(self._selected())
+
+    def __or__(self, other: Mapping) -> dict[str, Rule]:
+        return self._selected() | dict(other)
+
+    def __ror__(self, other: Mapping) -> dict[str, Rule]:
+        return dict(other) | self._selected()
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self._selected()!r})"
+
+
+#: Every gradient rule by name: the product's (below) and the experiments (:mod:`sdm.mapping.research_rules`,
+#: registered when :mod:`sdm.mapping` is imported); :meth:`RuleRegistry.register` adds one.
+RULES = RuleRegistry()
+
+#: eq. 19 (:func:`~sdm.mapping.flow.dynamic_flow`), the default; the kernel's window on the input block.
+PAPER = RULES.register(Rule("paper", dynamic_flow, KernelFlow.PAPER))
+#: The 3x3 closing and the window centred on the landing block at zoom 0, eq. 19 at the coarser levels.
+CLOSED_CENTRED_R1 = RULES.register(Rule.by_zoom("closed_centred_r1", window_rule(prepare=closing(3), centred=True),
+                                                1, KernelFlow.CENTRED))
+#: The kernel-weighted discrete derivative of CMA-ES's objective at zoom 0 (sdm.mapping.crossing), eq. 19 at the
+#: coarser levels; Table 4 refines closed_centred_r1's runs with it (sdm.train.Refinement).
+GROUP_CROSSING = RULES.register(Rule.by_zoom("group_crossing", group_crossing_flow, CROSSING_FINEST_COARSE,
+                                             KernelFlow.CROSSING))
+
+#: The rules a configuration or table uses, by name (every registered rule that is not an experiment).
+FLOW_RULES = RULES.view(experiment=False)
+
