@@ -86,6 +86,22 @@ def test_cmaes_per_configuration_recovers_separate_cars():
                                   result.totals[first:last], shifted.camera) == int(result.mismatch[index])
 
 
+def test_a_start_whose_rows_share_memory_is_copied():
+    """One shared start for every unit, as an expanded view: each configuration's search writes its own rows."""
+    data, cars, n_cars = car_grid_scene(3, n_configs=2, seed=1, far=40.0)
+    level = S.per_car(data, cars, n_cars)
+    truth = S.draw_truth(level, 3)
+    shifted = S.shifted_set(data, truth, level.param_index)
+    units = S.units(shifted, level.param_index, level.n_rows)
+    start = torch.tensor([0.5, 0.3], dtype=torch.float64)
+    viewed = rows.fit_configurations(shifted, units, rows.RowsCMAESSettings(), seed=2,
+                                     theta0=start.expand(len(units), 2))
+    copied = rows.fit_configurations(shifted, units, rows.RowsCMAESSettings(), seed=2,
+                                     theta0=start.expand(len(units), 2).clone())
+    assert torch.equal(viewed.totals, copied.totals) and len(set(map(tuple, viewed.totals.tolist()))) > 1
+    assert torch.equal(start, torch.tensor([0.5, 0.3], dtype=torch.float64))  # the caller's tensor untouched
+
+
 def test_floor_per_configuration_is_in_theta_stars_region(scene):
     data, units, totals = scene
     settings = rows.RowsFloorSettings(evaluations_per_unknown=50, floor=FloorSettings(refine_tol=1e-4,

@@ -535,7 +535,7 @@ def test_methods(test: ShiftSet, level: int, networks: dict[str, ShiftNet], refi
     theta, _, seconds, _ = sdm_rows(test.data, targets, sharing, seed, objects_settings, objects_settings.schedule)
     record("sdm_zero", theta, seconds / n_configs)
     result = fit_configurations(test.data, units, objects_settings.cmaes, seed,
-                                theta0=start[0].expand(len(units), 2))
+                                theta0=start[0].expand(len(units), 2).clone())
     record("cmaes", result.totals, result.seconds + start[1] / n_configs)
     return pd.concat(frames, ignore_index=True)
 

@@ -179,10 +179,14 @@ def _check_units(data: ConfigurationSet, units: Units) -> None:
 
 
 def _start(theta0, units: Units, name: str) -> torch.Tensor:
-    """``(U, 2)`` float64 start totals: ``theta0`` ``(U, 2)``, or zeros when None."""
+    """``(U, 2)`` float64 start totals, a tensor of its own: ``theta0`` ``(U, 2)``, or zeros when None.
+
+    A copy always: the searches write their results into it row by row, and a caller's ``theta0`` may be a view
+    whose rows share memory (``shared.expand(U, 2)``), where each row written would overwrite every other.
+    """
     if theta0 is None:
         return torch.zeros(len(units), 2, dtype=torch.float64)
-    return check_theta(theta0, len(units), name=name).detach().double().cpu()
+    return check_theta(theta0, len(units), name=name).detach().to(device="cpu", dtype=torch.float64, copy=True)
 
 
 def fit_configurations(data: ConfigurationSet, units: Units, settings: RowsCMAESSettings = RowsCMAESSettings(),
