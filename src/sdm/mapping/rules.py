@@ -26,13 +26,14 @@ Outputs: ``flow`` ``(P, 2)`` ``(x, y)`` (dtype of ``screen``), ``loss`` ``()`` m
 """
 from __future__ import annotations
 
+import functools
 from typing import Callable
 
 import torch
 
 from ..camera import Camera
 from ..errors import SDMInputError
-from .crossing import CROSSING_FINEST_COARSE, group_crossing_flow
+from .crossing import CROSSING_FINEST_COARSE, CROSSING_WIDTH, check_crossing_width, group_crossing_flow
 from .flow import block_window, dynamic_flow, landing_matched, nine, pull_loss
 
 FlowRule = Callable[..., tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
@@ -151,6 +152,21 @@ FLOW_RULES: dict[str, FlowRule] = {
     # eq. 19 at the coarser levels; Table 4 refines closed_centred_r1's runs with it (sdm.train.Refinement).
     "group_crossing": by_zoom(group_crossing_flow, dynamic_flow, finest_coarse=CROSSING_FINEST_COARSE),
 }
+
+
+def crossing_width_rule(name: str, width: float | None) -> FlowRule:
+    """Rule ``name`` with ``group_crossing``'s kernel half-width ``width`` (metres; a refinement pass's,
+    :attr:`sdm.train.Refinement.widths`). ``width=None``, and every rule but ``"group_crossing"`` (which read no
+    width), give :func:`rule_by_name`'s rule itself.
+
+    Raises:
+        SDMInputError: an unknown ``name`` (naming ``flow``), a ``width`` that is not a positive finite number.
+    """
+    rule = rule_by_name(name)
+    if name != "group_crossing" or width is None or check_crossing_width(width) == CROSSING_WIDTH:
+        return rule
+    return by_zoom(functools.partial(group_crossing_flow, width=float(width)), dynamic_flow,
+                   finest_coarse=CROSSING_FINEST_COARSE)
 
 
 def kernel_form(name: str, level: int):
