@@ -1,4 +1,5 @@
 """The schedule's refinement passes (closed_centred_r1, then group_crossing at zoom 0), counted in SGD steps."""
+import math
 from dataclasses import replace
 
 import pytest
@@ -66,8 +67,14 @@ def test_refinement_passes_continue_the_halving_at_the_finest_level(small):
     per_pass = 64 // 16
     assert history.level[-3 * per_pass:].tolist() == [0] * (3 * per_pass)
     rates = history.lr[-3 * per_pass:].reshape(3, per_pass)
-    assert rates[:, 0].tolist() == [1e-4 * 0.5**2, 1e-4 * 0.5**3, 1e-4 * 0.5**4]
-    assert Refinement("group_crossing", 2, rate_from=1).rates(BASE) == [1e-4 * 0.5**3, 1e-4 * 0.5**4]
+    # widths 8, 4, 2e-3 m: the wider passes at 1 / sqrt(4) and 1 / sqrt(2) of the halving rates
+    assert rates[:, 0].tolist() == pytest.approx([1e-4 * 0.5**2 / 2, 1e-4 * 0.5**3 / math.sqrt(2), 1e-4 * 0.5**4],
+                                                 rel=1e-15)
+    assert Refinement("group_crossing", 2, rate_from=1).rates(BASE) == pytest.approx(
+        [1e-4 * 0.5**3 / math.sqrt(2), 1e-4 * 0.5**4], rel=1e-15)
+    one_width = Refinement("group_crossing", 3, first_width=2e-3)
+    assert one_width.rates(BASE) == [1e-4 * 0.5**2, 1e-4 * 0.5**3, 1e-4 * 0.5**4]
+    assert Refinement("paper", 2).rates(BASE) == [1e-4 * 0.5**2, 1e-4 * 0.5**3]  # no kernel: the plain rates
     assert bool((rates == rates[:, :1]).all())
     assert refine_seed(7) != 7 and refine_seed(7) != refine_seed(8)
 
@@ -128,8 +135,8 @@ def test_the_kernel_narrows_by_halves_to_the_last_width_on_the_last_pass():
 def test_the_passes_widths_equal_the_reference_loop_bit_for_bit(small, monkeypatch, compiled):
     """Each pass at its own kernel half-width (16, 8, 4, 2e-3 m), on the compiled path (one sdm_train call for every
     pass) and on the torch path: each run's theta history and loss are tests/train_reference.py's, run over the
-    levels 0, 0, 0, 0 with a group_crossing rule of each pass's width, the rate halving per pass, shuffled by the
-    run's refine_seed generator. The widths matter: the same passes at 2e-3 m alone end elsewhere."""
+    levels 0, 0, 0, 0 with a group_crossing rule of each pass's width at each pass's rate, shuffled by the run's
+    refine_seed generator. The widths matter: the same passes at 2e-3 m alone end elsewhere."""
     from train_reference import reference_train
 
     if compiled and not native.enabled():
@@ -147,10 +154,9 @@ def test_the_passes_widths_equal_the_reference_loop_bit_for_bit(small, monkeypat
     assert len(calls) == (2 if compiled else 0)
     main_steps = history.theta.shape[0] - 1
     for run, (one, run_targets) in enumerate(zip(settings, targets)):
-        passes = replace(one, flow="group_crossing", lr=refinement.rates(one)[0], seed=refine_seed(one.seed),
-                         n_epoch=1)
+        passes = replace(one, flow="group_crossing", seed=refine_seed(one.seed), n_epoch=1)
         theta, loss = reference_train(small.with_targets(run_targets), passes, theta0=history.theta[-1, run],
-                                      levels=[0] * 4, crossing_widths=refinement.widths)
+                                      levels=[0] * 4, rates=refinement.rates(one), crossing_widths=refinement.widths)
         assert torch.equal(refined.theta[main_steps:, run], theta), run
         assert torch.equal(refined.loss[main_steps:, run], loss), run
     narrow = refine_runs(small, targets, settings, history, replace(refinement, first_width=2e-3))
@@ -183,7 +189,7 @@ def test_a_pass_counts_sgd_steps_whatever_the_size_of_the_training_set(small):
         main_steps = 5 * (len(configs) // 16)
         assert history.theta.shape == (main_steps + 24 + 1, 1, 2)
         assert history.level[main_steps:].tolist() == [0] * 24
-        assert history.lr[main_steps:].tolist() == [1e-4 * 0.5 ** (2 + i // 8) for i in range(24)]
+        assert history.lr[main_steps:].tolist() == [rate for rate in refinement.rates(BASE) for _ in range(8)]
 
 
 def test_passes_of_whole_epochs_are_the_epochs_of_one_program(small):

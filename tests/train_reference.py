@@ -20,16 +20,17 @@ from sdm.train import TrainSettings
 
 
 def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera=None, method: str = "fast",
-                    theta0=(0.0, 0.0), param_index=None, row_rate=None, levels=None,
+                    theta0=(0.0, 0.0), param_index=None, row_rate=None, levels=None, rates=None,
                     crossing_widths=None) -> tuple[torch.Tensor, torch.Tensor]:
     """``(theta (steps + 1, n_params), loss (steps,))`` float64 CPU of one run (the set's own targets).
 
     ``param_index`` ``(P, G)`` (parameters attached to points): ``theta0`` is ``(K, 2)``, each point moved by the sum
     of its rows in column order, and theta comes back ``(steps + 1, K, 2)``, every step.
 
-    ``levels``: the loss levels trained one after another (default ``s .. zoom``; a refinement's ``0, 0, ...``),
-    the rate halving (``lr_decay``) after each; ``crossing_widths``: per entry of ``levels``, ``group_crossing``'s
-    kernel half-width there (metres; ``settings.flow`` must be ``"group_crossing"``), a refinement's passes'.
+    ``levels``: the loss levels trained one after another (default ``s .. zoom``; a refinement's ``0, 0, ...``);
+    ``rates``: the learning rate of each (default ``lr``, times ``lr_decay`` after each level); ``crossing_widths``:
+    per entry of ``levels``, ``group_crossing``'s kernel half-width there (metres; ``settings.flow`` must be
+    ``"group_crossing"``): a refinement's passes'.
     """
     camera = camera or train_set.camera
     device = train_set.device
@@ -56,8 +57,12 @@ def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera
     thetas = torch.empty(total + 1, *start.shape, dtype=torch.float64, device=device)
     thetas[0] = theta.detach()
     losses = torch.zeros(total, dtype=torch.float64, device=device)
-    step, rate = 0, settings.lr
-    for level, layer in zip(levels, layers):
+    if rates is None:  # lr, then lr_decay times the last, one product at a time
+        rates = [settings.lr]
+        while len(rates) < len(levels):
+            rates.append(rates[-1] * settings.lr_decay)
+    step = 0
+    for level, layer, rate in zip(levels, layers, rates):
         rate_scale = settings.rate_scale(level, start) if settings.fit_depth else None
         for _ in range(settings.n_epoch):
             order = torch.randperm(n_configs, generator=generator, device="cpu").to(device)
@@ -88,7 +93,6 @@ def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera
                     losses[step] = out.loss.detach()
                 thetas[step + 1] = theta.detach()
                 step += 1
-        rate *= settings.lr_decay
     return thetas.cpu(), losses.cpu()
 
 

@@ -386,8 +386,8 @@ class Refinement:
     After the levels ``s .. zoom`` of :class:`TrainSettings`, ``passes`` passes of ``pass_steps`` SGD steps each
     at level ``zoom`` with the gradient rule ``flow``; pass ``i`` (from 0) runs at the rate of level
     ``zoom + rate_from`` times ``lr_decay^i`` (by default four times the last level's rate, then halving each
-    pass: the paper's halving, continued per pass), with the chain ``s .. zoom`` of the last level
-    (:func:`refine_runs`).
+    pass: the paper's halving, continued per pass) times the kernel's factor below, with the chain ``s .. zoom``
+    of the last level (:func:`refine_runs`).
 
     The passes are counted in SGD steps, not in epochs, so the refinement's strength does not depend on the size
     of the training set: 4 passes of 32 steps are 4 epochs of the default's 512 configurations (batches of 16),
@@ -401,8 +401,10 @@ class Refinement:
     fixed point the schedule keeps), each earlier pass at twice the next one's, at most ``first_width``
     (:attr:`widths`; 4 passes: 16, 8, 4, 2e-3 m). On sparse real frames (few rigid groups, 0.2 m of theta per
     pixel) theta ends ``closed_centred_r1``'s levels farther than 2e-3 m from any crossing that lowers the count,
-    and the wide first passes reach them (docs/method/floor.md, "The refinement on the real sample"). Other
-    rules read no width.
+    and the wide first passes reach them. A kernel ``k`` times wider sums the pulls of about ``k`` times as many
+    crossings, so a pass runs at ``1 / sqrt(k)`` of its rate (:meth:`rates`): at the full rate the wide passes
+    scatter theta on dense data (docs/method/floor.md, "The refinement on the real sample"). Other rules read no
+    width: their passes run at the plain rates.
 
     Attributes:
         flow: a rule name (:func:`sdm.mapping.rules.flow_rule`).
@@ -457,9 +459,13 @@ class Refinement:
         return widths[::-1]
 
     def rates(self, settings: TrainSettings) -> list[float]:
-        """The learning rate of each pass (metres per unit of summed flow)."""
+        """The learning rate of each pass (metres per unit of summed flow): level ``zoom + rate_from``'s rate times
+        ``lr_decay^i``, with ``group_crossing`` times ``sqrt(last_width / widths[i])`` (1 on the passes at
+        ``last_width``)."""
         rate = settings.lr * settings.lr_decay ** max(settings.s - settings.zoom - self.rate_from, 0)
-        return [rate * settings.lr_decay ** i for i in range(self.passes)]
+        narrow = [math.sqrt(self.last_width / width) if self.flow == "group_crossing" else 1.0
+                  for width in self.widths]
+        return [rate * settings.lr_decay ** i * factor for i, factor in enumerate(narrow)]
 
 
 def parse_schedule(name: str) -> tuple[str, Refinement | None]:
