@@ -236,3 +236,24 @@ def test_a_pass_that_ends_inside_an_epoch_is_cut_after_its_steps(small):
         start = history.theta.shape[0] + 6 * index
         assert torch.equal(cut.theta[start : start + 6], steps[1:7]), index
         theta = steps[6]
+
+
+@pytest.mark.parametrize("width", [0.0, -2e-3, float("nan"), float("inf"), "2e-3", True])
+def test_a_bad_kernel_width_is_refused_naming_it(width):
+    from sdm.mapping.rules import crossing_width_rule
+
+    with pytest.raises(SDMInputError, match="^width must be a positive finite number of metres"):
+        crossing_width_rule("group_crossing", width)
+
+
+def test_only_group_crossing_reads_a_width():
+    """A width builds group_crossing at that width; the rule's own width, no width and every other rule give the
+    registered rule itself."""
+    from sdm import FLOW_RULES
+    from sdm.mapping.crossing import CROSSING_WIDTH
+    from sdm.mapping.rules import crossing_width_rule
+
+    assert crossing_width_rule("group_crossing", None) is FLOW_RULES["group_crossing"]
+    assert crossing_width_rule("group_crossing", CROSSING_WIDTH) is FLOW_RULES["group_crossing"]
+    assert crossing_width_rule("paper", 16e-3) is FLOW_RULES["paper"]
+    assert crossing_width_rule("group_crossing", 16e-3) is not FLOW_RULES["group_crossing"]
