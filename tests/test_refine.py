@@ -111,9 +111,10 @@ def test_the_refinement_moves_c_with_fit_depth_unless_told_not_to(small):
                                           ({"pass_steps": False}, "pass_steps"), ({"pass_steps": "32"}, "pass_steps"),
                                           ({"rate_from": -1}, "rate_from"), ({"rate_from": 1.5}, "rate_from"),
                                           ({"moves_c": 1}, "moves_c"), ({"first_width": 0.0}, "first_width"),
-                                          ({"first_width": -1e-3}, "first_width"), ({"last_width": float("nan")}, "last_width"),
-                                          ({"last_width": float("inf")}, "last_width"), ({"first_width": "16e-3"}, "first_width"),
-                                          ({"last_width": True}, "last_width"),
+                                          ({"first_width": -1e-3}, "first_width"),
+                                          ({"last_width": float("nan")}, "last_width"),
+                                          ({"last_width": float("inf")}, "last_width"),
+                                          ({"first_width": "16e-3"}, "first_width"), ({"last_width": True}, "last_width"),
                                           ({"first_width": 1e-3, "last_width": 2e-3}, "first_width")])
 def test_bad_refinements_are_refused_naming_the_field(kwargs, match):
     with pytest.raises(SDMInputError, match=match):

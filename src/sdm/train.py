@@ -512,9 +512,9 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     epochs of the training set (shuffled mini-batches, the incomplete last one dropped): run ``r`` draws one
     permutation per epoch from a generator seeded :func:`refine_seed` ``(settings[r].seed)``. A pass is the
     fewest whole epochs that hold its ``pass_steps`` steps, cut after them, at its own rate and
-    ``group_crossing`` kernel half-width (:meth:`Refinement.rates`, :attr:`Refinement.widths`): where an epoch's steps divide
-    ``pass_steps`` (the default's 32 steps an epoch; 2 of a 41-configuration set) no step is cut and every pass
-    is one program; elsewhere each pass is its own program and the steps of its last epoch beyond ``pass_steps``
+    ``group_crossing`` kernel half-width (:meth:`Refinement.rates`, :attr:`Refinement.widths`): where an epoch's
+    steps divide ``pass_steps`` (the default's 32 steps an epoch; 2 of a 41-configuration set) no step is cut
+    and every pass is one program; elsewhere each pass is its own program and the steps of its last epoch beyond ``pass_steps``
     are computed and dropped (a set of more than ``16 * pass_steps`` configurations computes a whole epoch
     per pass). Returns the whole history: the steps of ``history``, then the refinement's
     :attr:`Refinement.steps`. ``param_index``: that of :func:`train_runs` (the passes move the same rows, with

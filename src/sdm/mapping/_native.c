@@ -542,8 +542,8 @@ static int64_t count_active(int64_t n, const uint8_t *grid) {
  * scale * (lower(-e) K(behind) - lower(+e) K(ahead)), K = floor(max(0, 1 - d / width) * steps) / steps of the
  * distance d in metres (sub-pixel offset of the group's first point over its pixels per metre), in the torch
  * rule's operations and order; every term an exact binary fraction, so the sums are exact in any order.
- * crossing: (width, scale, steps), the level's. Returns the configuration's mismatch (false positives + false negatives),
- * given n_target, its target's active pixels.
+ * crossing: (width, scale, steps), the level's. Returns the configuration's mismatch (false positives + false
+ * negatives), given n_target, its target's active pixels.
  */
 #define CROSSING_MARGIN 2
 
@@ -957,9 +957,9 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
                             }
                             const int64_t mismatch = crossing_pull(
                                 n, screen, projected, points + 3 * lo, config_group[c], config_group[c + 1], group_start,
-                                members, own, height, width, k_row, k_col, crossing + 3 * li, cover, stamp, padded_cells,
-                                n_target[c], known_pixels + 2 * lo, known_lower, known_mismatch + c, own_rows, n_cols,
-                                grad);
+                                members, own, height, width, k_row, k_col, crossing + 3 * li, cover, stamp,
+                                padded_cells, n_target[c], known_pixels + 2 * lo, known_lower, known_mismatch + c,
+                                own_rows, n_cols, grad);
                             sum_add(&loss, (double)mismatch);
                             continue;
                         }
