@@ -4,10 +4,13 @@
 
 On another run's data (the real sample: results/apollocar3d-sample/...), ``--best BEST.json`` trains with that
 run's Table 1 choice instead of the default's, and ``--cmaes TUNING.csv`` adds CMA-ES (that run's tuned cell) on
-the same runs, with each rule's ratio to it. ``--pass-steps K`` and ``--refine-rate-from K`` change the
-refined schedules' :class:`sdm.train.Refinement`; ``--crossing-width W`` (metres) is a measurement knob, not a
-setting of the library: it widens ``group_crossing``'s kernel (``sdm.mapping.crossing.CROSSING_WIDTH``, read by
-the compiled kernel at each call) for this process, to measure how far the rule's pull reaches.
+the same runs, with each rule's ratio to it. ``--pass-steps K``, ``--refine-rate-from K``, ``--first-width W`` and
+``--last-width W`` (metres) change the refined schedules' :class:`sdm.train.Refinement` (its passes' kernel
+half-widths narrow by halves from ``first_width`` to ``last_width``); ``--crossing-width W`` sets both, one width
+on every pass. ``--pass-widths W0,W1,...`` and ``--pass-rates F0,F1,...`` are measurement knobs, not settings of the
+library: each pass's width (metres), and each pass's rate as a factor on the first pass's rate without the
+widths' factor (``1,0.5,0.25,0.125``: the plain halving), in place of :attr:`Refinement.widths` and
+:meth:`Refinement.rates`.
 
 For every rule: Table 2's protocol (noise levels, runs r = 0..R-1 with the noisy
 targets and shuffling of ``run_seed(0, level, r)``, the tuned settings: 2 epochs,
@@ -31,7 +34,7 @@ import torch
 from sdm import FLOW_RULES
 from sdm.mapping.research_rules import RESEARCH_RULES
 from sdm.experiments import flow_at_true_shift, load_split, noise_runs, settings_for
-from sdm.train import parse_schedule
+from sdm.train import Refinement, parse_schedule
 
 TUNED = dict(n_epoch=2, lr=1e-4, s=4, batch_size=16, lr_decay=0.5, seed=0)
 #: Table 2 of the paper, mean distance (metres) per noise level 1..4; the bar is half of it ("half the paper's mean").
@@ -54,18 +57,20 @@ def main(argv=None) -> int:
                         help="Refinement.pass_steps of the refined schedules (default: the class's)")
     parser.add_argument("--best", help="a run's results/tuning/best.json: train with its n_epoch and lr")
     parser.add_argument("--cmaes", help="a run's results/baselines/tuning_cmaes.csv: CMA-ES on the same runs")
+    parser.add_argument("--first-width", type=float, default=None,
+                        help="Refinement.first_width of the refined schedules, metres (default: the class's)")
+    parser.add_argument("--last-width", type=float, default=None,
+                        help="Refinement.last_width of the refined schedules, metres (default: the class's)")
     parser.add_argument("--crossing-width", type=float, default=None,
-                        help="group_crossing's kernel half-width in metres for this measurement (default 2e-3)")
+                        help="one kernel half-width on every pass of the refined schedules: first and last width")
+    parser.add_argument("--pass-widths", help="each pass's kernel half-width, metres, comma-separated")
+    parser.add_argument("--pass-rates", help="each pass's rate over the first pass's plain rate, comma-separated")
     parser.add_argument("--levels", default="0,1,2,3,4")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--no-flow", action="store_true", help="skip the flow at theta*")
     parser.add_argument("--csv", help="write the per-run rows here")
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
-    if args.crossing_width is not None:
-        import sdm.mapping.crossing
-
-        sdm.mapping.crossing.CROSSING_WIDTH = args.crossing_width
     train_set, _, camera = load_split(args.sky, json.load(open(args.split)))
     levels = [int(v) for v in args.levels.split(",")]
     best = json.load(open(args.best)) if args.best else {}
@@ -80,6 +85,15 @@ def main(argv=None) -> int:
             refine = replace(refine, rate_from=args.refine_rate_from)
         if refine is not None and args.pass_steps is not None:
             refine = replace(refine, pass_steps=args.pass_steps)
+        widths = {"first_width": args.first_width, "last_width": args.last_width}
+        if args.crossing_width is not None:
+            widths = {"first_width": args.crossing_width, "last_width": args.crossing_width}
+        if refine is not None:
+            refine = replace(refine, **{key: value for key, value in widths.items() if value is not None})
+            refine = _given(refine, args.pass_widths, args.pass_rates, settings)
+            rates = [f"{rate / refine.rates(settings)[0]:.3g}" for rate in refine.rates(settings)]
+            print(f"# {rule}: kernel half-widths per pass {refine.widths} m, rates over the first pass's {rates}",
+                  file=sys.stderr)
         for level in levels:
             frame = noise_runs(train_set, level, range(args.first_run, args.first_run + args.runs),
                                replace(settings, flow=base), camera=camera, refine=refine)
@@ -122,6 +136,28 @@ def main(argv=None) -> int:
     if args.csv:
         pd.concat(rows).to_csv(args.csv, index=False)
     return 0
+
+
+def _given(refine: Refinement, widths: str | None, rates: str | None, settings) -> Refinement:
+    """``refine`` with the passes' widths and rate factors given on the command line (a measurement, not a setting
+    of the library: :class:`Refinement` defines both from its fields)."""
+    if widths is None and rates is None:
+        return refine
+    width_list = [float(v) for v in widths.split(",")] if widths else refine.widths
+    plain = replace(refine, first_width=refine.last_width).rates(settings)[0]  # the first pass's rate, factor 1
+    rate_list = [plain * float(v) for v in rates.split(",")] if rates else refine.rates(settings)
+    if not len(width_list) == len(rate_list) == refine.passes:
+        raise SystemExit(f"--pass-widths and --pass-rates need one value per pass ({refine.passes})")
+
+    class Given(Refinement):
+        @property
+        def widths(self):
+            return width_list
+
+        def rates(self, _):
+            return rate_list
+
+    return Given(**{field: getattr(refine, field) for field in refine.__dataclass_fields__})
 
 
 if __name__ == "__main__":

@@ -1,4 +1,5 @@
 """The schedule's refinement passes (closed_centred_r1, then group_crossing at zoom 0), counted in SGD steps."""
+import math
 from dataclasses import replace
 
 import pytest
@@ -66,8 +67,14 @@ def test_refinement_passes_continue_the_halving_at_the_finest_level(small):
     per_pass = 64 // 16
     assert history.level[-3 * per_pass:].tolist() == [0] * (3 * per_pass)
     rates = history.lr[-3 * per_pass:].reshape(3, per_pass)
-    assert rates[:, 0].tolist() == [1e-4 * 0.5**2, 1e-4 * 0.5**3, 1e-4 * 0.5**4]
-    assert Refinement("group_crossing", 2, rate_from=1).rates(BASE) == [1e-4 * 0.5**3, 1e-4 * 0.5**4]
+    # widths 8, 4, 2e-3 m: the wider passes at 1 / sqrt(4) and 1 / sqrt(2) of the halving rates
+    assert rates[:, 0].tolist() == pytest.approx([1e-4 * 0.5**2 / 2, 1e-4 * 0.5**3 / math.sqrt(2), 1e-4 * 0.5**4],
+                                                 rel=1e-15)
+    assert Refinement("group_crossing", 2, rate_from=1).rates(BASE) == pytest.approx(
+        [1e-4 * 0.5**3 / math.sqrt(2), 1e-4 * 0.5**4], rel=1e-15)
+    one_width = Refinement("group_crossing", 3, first_width=2e-3)
+    assert one_width.rates(BASE) == [1e-4 * 0.5**2, 1e-4 * 0.5**3, 1e-4 * 0.5**4]
+    assert Refinement("paper", 2).rates(BASE) == [1e-4 * 0.5**2, 1e-4 * 0.5**3]  # no kernel: the plain rates
     assert bool((rates == rates[:, :1]).all())
     assert refine_seed(7) != 7 and refine_seed(7) != refine_seed(8)
 
@@ -103,10 +110,58 @@ def test_the_refinement_moves_c_with_fit_depth_unless_told_not_to(small):
                                           ({"pass_steps": 0}, "pass_steps"), ({"pass_steps": 32.0}, "pass_steps"),
                                           ({"pass_steps": False}, "pass_steps"), ({"pass_steps": "32"}, "pass_steps"),
                                           ({"rate_from": -1}, "rate_from"), ({"rate_from": 1.5}, "rate_from"),
-                                          ({"moves_c": 1}, "moves_c")])
+                                          ({"moves_c": 1}, "moves_c"), ({"first_width": 0.0}, "first_width"),
+                                          ({"first_width": -1e-3}, "first_width"),
+                                          ({"last_width": float("nan")}, "last_width"),
+                                          ({"last_width": float("inf")}, "last_width"),
+                                          ({"first_width": "16e-3"}, "first_width"), ({"last_width": True}, "last_width"),
+                                          ({"first_width": 1e-3, "last_width": 2e-3}, "first_width")])
 def test_bad_refinements_are_refused_naming_the_field(kwargs, match):
     with pytest.raises(SDMInputError, match=match):
         Refinement(**kwargs)
+
+
+def test_the_kernel_narrows_by_halves_to_the_last_width_on_the_last_pass():
+    """Refinement.widths: last_width on the last pass, twice the next pass's before it, at most first_width; one width
+    on every pass where the two are equal."""
+    assert Refinement("group_crossing", 4).widths == [16e-3, 8e-3, 4e-3, 2e-3]
+    assert Refinement("group_crossing", 6).widths == [16e-3, 16e-3, 16e-3, 8e-3, 4e-3, 2e-3]
+    assert Refinement("group_crossing", 1).widths == [2e-3]
+    assert Refinement("group_crossing", 3, first_width=5e-3, last_width=1e-3).widths == [4e-3, 2e-3, 1e-3]
+    assert Refinement("group_crossing", 2, first_width=3e-3, last_width=3e-3).widths == [3e-3, 3e-3]
+    assert parse_schedule("closed_centred_r1+group_crossing:4")[1].widths == [16e-3, 8e-3, 4e-3, 2e-3]
+
+
+@pytest.mark.parametrize("compiled", [True, False])
+def test_the_passes_widths_equal_the_reference_loop_bit_for_bit(small, monkeypatch, compiled):
+    """Each pass at its own kernel half-width (16, 8, 4, 2e-3 m), on the compiled path (one sdm_train call for every
+    pass) and on the torch path: each run's theta history and loss are tests/train_reference.py's, run over the
+    levels 0, 0, 0, 0 with a group_crossing rule of each pass's width at each pass's rate, shuffled by the run's
+    refine_seed generator. The widths matter: the same passes at 2e-3 m alone end elsewhere."""
+    from train_reference import reference_train
+
+    if compiled and not native.enabled():
+        pytest.skip("no C compiler: the compiled kernel is not built")
+    if not compiled:
+        monkeypatch.setattr(native, "enabled", lambda: False)
+    calls = []
+    program = native.train_program
+    monkeypatch.setattr(native, "train_program", lambda *args, **kwargs: calls.append(1) or program(*args, **kwargs))
+    settings = [replace(BASE, seed=seed) for seed in (3, 8)]
+    targets = [noisy_targets(small.targets, 3, 2), noisy_targets(small.targets, 1, 6)]
+    refinement = Refinement("group_crossing", 4, pass_steps=PER_EPOCH)
+    history = train_runs(small, targets, settings)
+    refined = refine_runs(small, targets, settings, history, refinement)
+    assert len(calls) == (2 if compiled else 0)
+    main_steps = history.theta.shape[0] - 1
+    for run, (one, run_targets) in enumerate(zip(settings, targets)):
+        passes = replace(one, flow="group_crossing", seed=refine_seed(one.seed), n_epoch=1)
+        theta, loss = reference_train(small.with_targets(run_targets), passes, theta0=history.theta[-1, run],
+                                      levels=[0] * 4, rates=refinement.rates(one), crossing_widths=refinement.widths)
+        assert torch.equal(refined.theta[main_steps:, run], theta), run
+        assert torch.equal(refined.loss[main_steps:, run], loss), run
+    narrow = refine_runs(small, targets, settings, history, replace(refinement, first_width=2e-3))
+    assert not torch.equal(narrow.theta[-1], refined.theta[-1])
 
 
 @pytest.mark.parametrize("name,expected", [
@@ -135,7 +190,7 @@ def test_a_pass_counts_sgd_steps_whatever_the_size_of_the_training_set(small):
         main_steps = 5 * (len(configs) // 16)
         assert history.theta.shape == (main_steps + 24 + 1, 1, 2)
         assert history.level[main_steps:].tolist() == [0] * 24
-        assert history.lr[main_steps:].tolist() == [1e-4 * 0.5 ** (2 + i // 8) for i in range(24)]
+        assert history.lr[main_steps:].tolist() == [rate for rate in refinement.rates(BASE) for _ in range(8)]
 
 
 def test_passes_of_whole_epochs_are_the_epochs_of_one_program(small):
@@ -147,9 +202,13 @@ def test_passes_of_whole_epochs_are_the_epochs_of_one_program(small):
     history = train_runs(small, targets, settings)
     two = refine_runs(small, targets, settings, history, Refinement("group_crossing", 2, pass_steps=8))
 
-    class Halving(Refinement):  # four one-epoch passes, the rate halving every second one
+    class Halving(Refinement):  # four one-epoch passes, the rate and the kernel width halving every second one
         def rates(self, one):
             return [rate for rate in Refinement("group_crossing", 2).rates(one) for _ in range(2)]
+
+        @property
+        def widths(self):
+            return [width for width in Refinement("group_crossing", 2).widths for _ in range(2)]
 
     four = refine_runs(small, targets, settings, history, Halving("group_crossing", 4, pass_steps=PER_EPOCH))
     assert torch.equal(two.theta, four.theta) and torch.equal(two.lr, four.lr)
@@ -172,9 +231,30 @@ def test_a_pass_that_ends_inside_an_epoch_is_cut_after_its_steps(small):
     orders = _shufflings([refine_seed(one.seed) for one in settings], 64, 4)
     passes = [replace(one, flow="group_crossing", depth_zoom=one.zoom) for one in settings]
     theta = history.theta[-1]
-    for index, rate in enumerate(refinement.rates(passes[0])):
+    for index, (rate, width) in enumerate(zip(refinement.rates(passes[0]), refinement.widths)):
         steps, _ = _train_program(small, targets, [False, False], passes, small.camera, "fast", [0, 0], [rate, rate],
-                                  orders[2 * index : 2 * index + 2], theta, tqdm(disable=True))
+                                  orders[2 * index : 2 * index + 2], theta, tqdm(disable=True), widths=[width, width])
         start = history.theta.shape[0] + 6 * index
         assert torch.equal(cut.theta[start : start + 6], steps[1:7]), index
         theta = steps[6]
+
+
+@pytest.mark.parametrize("width", [0.0, -2e-3, float("nan"), float("inf"), "2e-3", True])
+def test_a_bad_kernel_width_is_refused_naming_it(width):
+    from sdm.mapping.rules import crossing_width_rule
+
+    with pytest.raises(SDMInputError, match="^width must be a positive finite number of metres"):
+        crossing_width_rule("group_crossing", width)
+
+
+def test_only_group_crossing_reads_a_width():
+    """A width builds group_crossing at that width; the rule's own width, no width and every other rule give the
+    registered rule itself."""
+    from sdm import FLOW_RULES
+    from sdm.mapping.crossing import CROSSING_WIDTH
+    from sdm.mapping.rules import crossing_width_rule
+
+    assert crossing_width_rule("group_crossing", None) is FLOW_RULES["group_crossing"]
+    assert crossing_width_rule("group_crossing", CROSSING_WIDTH) is FLOW_RULES["group_crossing"]
+    assert crossing_width_rule("paper", 16e-3) is FLOW_RULES["paper"]
+    assert crossing_width_rule("group_crossing", 16e-3) is not FLOW_RULES["group_crossing"]

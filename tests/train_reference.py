@@ -6,26 +6,43 @@ history to the bit (``test_train.py``, ``test_native.py``); with ``fit_depth`` t
 """
 from __future__ import annotations
 
+import functools
+
 import torch
 
 from sdm.batch import ConfigurationSet, PointBatch
 from sdm.mapping import SpatialDomainMapping
+from sdm.mapping.crossing import CROSSING_FINEST_COARSE, group_crossing_flow
+from sdm.mapping.flow import dynamic_flow
+from sdm.mapping.rules import by_zoom
 from sdm.sky import shift_vector
 from sdm.train import TrainSettings
 
 
 def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera=None, method: str = "fast",
-                    theta0=(0.0, 0.0), param_index=None, row_rate=None) -> tuple[torch.Tensor, torch.Tensor]:
+                    theta0=(0.0, 0.0), param_index=None, row_rate=None, levels=None, rates=None,
+                    crossing_widths=None) -> tuple[torch.Tensor, torch.Tensor]:
     """``(theta (steps + 1, n_params), loss (steps,))`` float64 CPU of one run (the set's own targets).
 
     ``param_index`` ``(P, G)`` (parameters attached to points): ``theta0`` is ``(K, 2)``, each point moved by the sum
     of its rows in column order, and theta comes back ``(steps + 1, K, 2)``, every step.
+
+    ``levels``: the loss levels trained one after another (default ``s .. zoom``; a refinement's ``0, 0, ...``);
+    ``rates``: the learning rate of each (default ``lr``, times ``lr_decay`` after each level); ``crossing_widths``:
+    per entry of ``levels``, ``group_crossing``'s kernel half-width there (metres; ``settings.flow`` must be
+    ``"group_crossing"``): a refinement's passes'.
     """
     camera = camera or train_set.camera
     device = train_set.device
-    layers = {level: SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method, flow=settings.flow,
-                                          fit_depth=settings.fit_depth)
-              for level in range(settings.s, settings.zoom - 1, -1)}
+    levels = list(range(settings.s, settings.zoom - 1, -1)) if levels is None else list(levels)
+    if crossing_widths is None:
+        rules = [settings.flow] * len(levels)
+    else:
+        assert settings.flow == "group_crossing" and len(crossing_widths) == len(levels)
+        rules = [by_zoom(functools.partial(group_crossing_flow, width=width), dynamic_flow, CROSSING_FINEST_COARSE)
+                 for width in crossing_widths]
+    layers = [SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method, flow=rule,
+                                   fit_depth=settings.fit_depth) for level, rule in zip(levels, rules)]
     n_configs = len(train_set)
     start = torch.as_tensor(theta0, dtype=torch.float64, device=device)
     if settings.fit_depth and start.shape == (2,):
@@ -34,16 +51,18 @@ def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera
     rows = None if param_index is None else torch.as_tensor(param_index).reshape(train_set.points.shape[0], -1)
     generator = torch.Generator(device="cpu").manual_seed(settings.seed)
     pyramid = train_set.pyramid(settings.s)
-    levels = range(settings.s, settings.zoom - 1, -1)
     batch_size = settings.batch_size
     batches_per_epoch = n_configs // batch_size
     total = len(levels) * settings.n_epoch * batches_per_epoch
     thetas = torch.empty(total + 1, *start.shape, dtype=torch.float64, device=device)
     thetas[0] = theta.detach()
     losses = torch.zeros(total, dtype=torch.float64, device=device)
-    step, rate = 0, settings.lr
-    for level in levels:
-        layer = layers[level]
+    if rates is None:  # lr, then lr_decay times the last, one product at a time
+        rates = [settings.lr]
+        while len(rates) < len(levels):
+            rates.append(rates[-1] * settings.lr_decay)
+    step = 0
+    for level, layer, rate in zip(levels, layers, rates):
         rate_scale = settings.rate_scale(level, start) if settings.fit_depth else None
         for _ in range(settings.n_epoch):
             order = torch.randperm(n_configs, generator=generator, device="cpu").to(device)
@@ -74,7 +93,6 @@ def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera
                     losses[step] = out.loss.detach()
                 thetas[step + 1] = theta.detach()
                 step += 1
-        rate *= settings.lr_decay
     return thetas.cpu(), losses.cpu()
 
 

@@ -29,7 +29,8 @@ from .camera import Camera
 from .errors import SDMInputError
 from .mapping import SpatialDomainMapping, native
 from .mapping.layer import METHODS
-from .mapping.rules import RULES, KernelFlow, Rule
+from .mapping.crossing import CROSSING_WIDTH, check_crossing_width
+from .mapping.rules import RULES, KernelFlow, Rule, crossing_width_rule
 from .sharing import check_param_index, point_shifts
 from .sky import shift_vector
 from .zoom import check_divisible, target_pyramid
@@ -408,8 +409,8 @@ class Refinement:
     After the levels ``s .. zoom`` of :class:`TrainSettings`, ``passes`` passes of ``pass_steps`` SGD steps each
     at level ``zoom`` with the gradient rule ``flow``; pass ``i`` (from 0) runs at the rate of level
     ``zoom + rate_from`` times ``lr_decay^i`` (by default four times the last level's rate, then halving each
-    pass: the paper's halving, continued per pass), with the chain ``s .. zoom`` of the last level
-    (:func:`refine_runs`).
+    pass: the paper's halving, continued per pass) times the kernel's factor below, with the chain ``s .. zoom``
+    of the last level (:func:`refine_runs`).
 
     The passes are counted in SGD steps, not in epochs, so the refinement's strength does not depend on the size
     of the training set: 4 passes of 32 steps are 4 epochs of the default's 512 configurations (batches of 16),
@@ -417,6 +418,16 @@ class Refinement:
 
     ``closed_centred_r1`` brings theta within a few millimetres, where ``group_crossing`` (whose fixed point is
     near the floor but whose pull far from it is weak) refines it (docs/method/floor.md, "A rule aimed at the floor").
+
+    ``group_crossing`` pulls theta only towards pixel crossings within its kernel's half-width. The passes narrow
+    it: the last pass runs at ``last_width`` (the rule's own :data:`~sdm.mapping.crossing.CROSSING_WIDTH`, whose
+    fixed point the schedule keeps), each earlier pass at twice the next one's, at most ``first_width``
+    (:attr:`widths`; 4 passes: 16, 8, 4, 2e-3 m). On sparse real frames (few rigid groups, 0.2 m of theta per
+    pixel) theta ends ``closed_centred_r1``'s levels farther than 2e-3 m from any crossing that lowers the count,
+    and the wide first passes reach them. A kernel ``k`` times wider sums the pulls of about ``k`` times as many
+    crossings, so a pass runs at ``1 / sqrt(k)`` of its rate (:meth:`rates`): at the full rate the wide passes
+    scatter theta on dense data (docs/method/floor.md, "The refinement on the real sample"). Other rules read no
+    width: their passes run at the plain rates.
 
     Attributes:
         flow: a rule name, or a :class:`~sdm.mapping.rules.Rule` (:meth:`sdm.mapping.rules.RuleRegistry.resolve`).
@@ -427,6 +438,9 @@ class Refinement:
             ``depth_zoom`` says: ``group_crossing``'s depth flow at theta* under noise is less biased at zoom 0 than
             the paper's rule's at zoom 1 (measured by ``sdm.experiments.depth_bias``: Table 5's ``table5_bias``).
         pass_steps: SGD steps per pass, a positive integer (32: one epoch of the default's 512 configurations).
+        first_width: ``group_crossing``'s widest kernel half-width, metres (positive, at least ``last_width``;
+            16e-3 m, chosen on runs no table holds: docs/method/floor.md, "The refinement on the real sample").
+        last_width: the last pass's kernel half-width, metres (positive; the rule's own, 2e-3 m).
     """
 
     flow: str | Rule = "group_crossing"
@@ -434,6 +448,8 @@ class Refinement:
     rate_from: int = 2
     moves_c: bool = True
     pass_steps: int = 32
+    first_width: float = 16e-3
+    last_width: float = CROSSING_WIDTH
 
     def __post_init__(self) -> None:
         RULES.resolve(self.flow)
@@ -444,22 +460,43 @@ class Refinement:
                 raise SDMInputError(f"refinement {name} must be {kind} integer, got {value!r}")
         if not isinstance(self.moves_c, bool):
             raise SDMInputError(f"refinement moves_c must be True or False, got {self.moves_c!r}")
+        for name in ("first_width", "last_width"):
+            check_crossing_width(getattr(self, name), f"refinement {name}")
+        if self.first_width < self.last_width:
+            raise SDMInputError(f"refinement first_width ({self.first_width!r} m) must be at least last_width "
+                                f"({self.last_width!r} m): the passes narrow the kernel")
 
     @property
     def steps(self) -> int:
         """The refinement's SGD steps, ``passes * pass_steps``."""
         return self.passes * self.pass_steps
 
+    @property
+    def widths(self) -> list[float]:
+        """``group_crossing``'s kernel half-width of each pass, metres: ``last_width`` on the last pass, twice the
+        next pass's on each earlier one, at most ``first_width``."""
+        widths, width = [], float(self.last_width)
+        for _ in range(self.passes):
+            widths.append(width)
+            width = min(2.0 * width, float(self.first_width))
+        return widths[::-1]
+
     def rates(self, settings: TrainSettings) -> list[float]:
-        """The learning rate of each pass (metres per unit of summed flow)."""
+        """The learning rate of each pass (metres per unit of summed flow): level ``zoom + rate_from``'s rate times
+        ``lr_decay^i``, with ``group_crossing`` times ``sqrt(last_width / widths[i])`` (1 on the passes at
+        ``last_width``)."""
         rate = settings.lr * settings.lr_decay ** max(settings.s - settings.zoom - self.rate_from, 0)
-        return [rate * settings.lr_decay ** i for i in range(self.passes)]
+        narrow = [math.sqrt(self.last_width / width) if self.flow == "group_crossing" else 1.0
+                  for width in self.widths]
+        return [rate * settings.lr_decay ** i * factor for i, factor in enumerate(narrow)]
 
 
 def parse_schedule(name: str) -> tuple[str, Refinement | None]:
     """A training schedule by name: ``"RULE"`` (the paper's schedule, rule ``RULE``) or ``"RULE+REFINE:E"``
     (then ``E`` refinement passes of :attr:`Refinement.pass_steps` SGD steps with rule ``REFINE``,
-    :class:`Refinement`; ``"RULE+REFINE"``: 4 passes).
+    :class:`Refinement`; ``"RULE+REFINE"``: 4 passes). Every other choice of the passes is the class's default:
+    their rates, and ``group_crossing``'s kernel half-widths narrowing to 2e-3 m on the last pass
+    (:attr:`Refinement.widths`: 16, 8, 4, 2e-3 m for ``:4``).
 
     Table 4 (``research.rules.names``) and ``benchmarks/flow_rules.py --rules`` name schedules this way.
 
@@ -497,9 +534,10 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     it applies: for ``group_crossing`` on float64 CPU points; else packed runs in torch). Their steps are
     epochs of the training set (shuffled mini-batches, the incomplete last one dropped): run ``r`` draws one
     permutation per epoch from a generator seeded :func:`refine_seed` ``(settings[r].seed)``. A pass is the
-    fewest whole epochs that hold its ``pass_steps`` steps, cut after them: where an epoch's steps divide
-    ``pass_steps`` (the default's 32 steps an epoch; 2 of a 41-configuration set) no step is cut and every pass
-    is one program; elsewhere each pass is its own program and the steps of its last epoch beyond ``pass_steps``
+    fewest whole epochs that hold its ``pass_steps`` steps, cut after them, at its own rate and
+    ``group_crossing`` kernel half-width (:meth:`Refinement.rates`, :attr:`Refinement.widths`): where an epoch's
+    steps divide ``pass_steps`` (the default's 32 steps an epoch; 2 of a 41-configuration set) no step is cut
+    and every pass is one program; elsewhere each pass is its own program and the steps of its last epoch beyond ``pass_steps``
     are computed and dropped (a set of more than ``16 * pass_steps`` configurations computes a whole epoch
     per pass). Returns the whole history: the steps of ``history``, then the refinement's
     :attr:`Refinement.steps`. ``param_index``: that of :func:`train_runs` (the passes move the same rows, with
@@ -517,7 +555,7 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     epochs_per_pass = -(-refinement.pass_steps // per_epoch)
     orders = _shufflings([refine_seed(one.seed) for one in settings], len(train_set),
                          refinement.passes * epochs_per_pass)
-    rates = refinement.rates(common)
+    rates, widths = refinement.rates(common), refinement.widths
     whole = refinement.pass_steps % per_epoch == 0  # no step cut: every pass in one program
     programs = [range(refinement.passes)] if whole else [range(i, i + 1) for i in range(refinement.passes)]
     theta = history.theta[-1].to(train_set.device)
@@ -529,7 +567,8 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
         with tqdm(total=0, disable=True) as bar:
             steps, step_losses = _train_program(train_set, targets, own_targets, passes, camera, "fast",
                                                 [common.zoom] * len(epochs), [rates[i // epochs_per_pass] for i in epochs],
-                                                orders[epochs], theta, bar, rows, 1, row_rate)
+                                                orders[epochs], theta, bar, rows, 1, row_rate,
+                                                [widths[i // epochs_per_pass] for i in epochs])
         kept = len(program) * refinement.pass_steps  # the steps of the program's passes; the rest are cut
         thetas.append(steps[1 : kept + 1].cpu())
         losses.append(step_losses[:kept].cpu())
@@ -609,11 +648,13 @@ def _starts(theta0, n_runs: int, fit_depth: bool, device: torch.device, n_rows: 
 
 
 def _train_program(train_set, targets, own_targets, settings, camera, method, levels, rates, orders, starts, bar,
-                   rows=None, record_every=1, row_rate=None):
+                   rows=None, record_every=1, row_rate=None, widths=None):
     """The steps of :func:`train_runs` at ``levels`` (``settings[0].n_epoch`` epochs each, rates ``rates``,
     shufflings ``orders``) from ``starts``, on the compiled path where it applies, else the torch path:
     ``(thetas (steps / record_every + 1, R, ...), losses (steps, R))`` on the set's device. ``rows``: ``None``
-    or the checked ``(P, G)`` param_index (:func:`check_param_index`), ``row_rate`` ``None`` or its rows' rates."""
+    or the checked ``(P, G)`` param_index (:func:`check_param_index`), ``row_rate`` ``None`` or its rows' rates;
+    ``widths``: ``None`` or, per entry of ``levels``, ``group_crossing``'s kernel half-width there (metres;
+    :attr:`Refinement.widths`)."""
     common = settings[0]
     device = train_set.device
     rule = RULES.resolve(common.flow)
@@ -626,14 +667,14 @@ def _train_program(train_set, targets, own_targets, settings, camera, method, le
             _check_rigid_rows(train_set, rows)
         pyramids = _run_pyramids(train_set, targets, own_targets, common.s)  # run r's levels 0..s
         return _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar,
-                            rows, record_every, row_rate)
+                            rows, record_every, row_rate, widths)
     bases = [run_targets.to(device) for run_targets in targets]
     run_levels = [_kernel_targets(train_set, base, own, common.s, levels)
                   for base, own in zip(bases, own_targets)]
     thetas, losses, failed = native.train_program(
         train_set.points, train_set.pixels, train_set.rank, train_set.offsets, camera, common.s, levels,
         common.n_epoch, common.batch_size, rates, windows, orders, run_levels, starts, bases, rows, record_every,
-        row_rate)
+        row_rate, widths)
     if bool((failed >= 0).any()):
         step = int(failed[failed >= 0].min())
         run = int((failed == step).nonzero()[0])
@@ -663,17 +704,25 @@ def _check_rigid_rows(train_set: ConfigurationSet, rows: torch.Tensor) -> None:
 
 
 def _train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar, rows=None,
-                 record_every=1, row_rate=None):
+                 record_every=1, row_rate=None, widths=None):
     """The torch path of :func:`train_runs`: ``(thetas (steps / record_every + 1, R, ...), losses (steps, R))`` on
     the set's device."""
     common, n_runs = settings[0], len(settings)
     device, batch_size = train_set.device, common.batch_size
     # Run r's target of configuration c is row r * N + c of each level.
     pyramid = pyramids[0] if n_runs == 1 else [torch.cat(level) for level in zip(*pyramids)]
+    # Per entry of levels: its rule (group_crossing's kernel width may differ pass by pass) and its layer.
     # With several runs the rule is applied run by run (the chain stays one call), so each run's loss is its own.
-    rule = common.flow if n_runs == 1 else _RunByRun(RULES.resolve(common.flow), n_runs, batch_size)
-    layers = {level: SpatialDomainMapping(camera, s=common.s, zoom=level, method=method, flow=rule,
-                                          fit_depth=common.fit_depth) for level in levels}
+    built, layers, runners = {}, [], []
+    for index, level in enumerate(levels):
+        width = None if widths is None else widths[index]
+        if (level, width) not in built:
+            rule = crossing_width_rule(common.flow, width)
+            runner = rule if n_runs == 1 else _RunByRun(rule, n_runs, batch_size)
+            built[level, width] = (SpatialDomainMapping(camera, s=common.s, zoom=level, method=method, flow=runner,
+                                                        fit_depth=common.fit_depth), runner)
+        layers.append(built[level, width][0])
+        runners.append(built[level, width][1])
     theta = starts.clone().requires_grad_(True)
     total = len(levels) * common.n_epoch * (len(train_set) // batch_size)
     thetas = torch.empty(total // record_every + 1, *theta.shape, dtype=torch.float64, device=device)
@@ -696,9 +745,10 @@ def _train_torch(train_set, pyramids, settings, camera, method, levels, rates, o
                         moves = shift_vector(theta[0], batch.points)
                     else:
                         moves = shift_vector(theta, batch.points).index_select(0, run_of_point)  # (P, 3)
+                    rule = runners[index_level]
                     if n_runs > 1:
                         rule.bounds = run_bounds
-                    out = layers[level](
+                    out = layers[index_level](
                         batch.points + moves, batch.pixels, pyramid[level].index_select(0, target_rows),
                         batch.config, batch.rank, target_is_zoomed=True, validate=False,
                     )

@@ -542,8 +542,8 @@ static int64_t count_active(int64_t n, const uint8_t *grid) {
  * scale * (lower(-e) K(behind) - lower(+e) K(ahead)), K = floor(max(0, 1 - d / width) * steps) / steps of the
  * distance d in metres (sub-pixel offset of the group's first point over its pixels per metre), in the torch
  * rule's operations and order; every term an exact binary fraction, so the sums are exact in any order.
- * crossing: (width, scale, steps). Returns the configuration's mismatch (false positives + false negatives),
- * given n_target, its target's active pixels.
+ * crossing: (width, scale, steps), the level's. Returns the configuration's mismatch (false positives + false
+ * negatives), given n_target, its target's active pixels.
  */
 #define CROSSING_MARGIN 2
 
@@ -704,7 +704,8 @@ static void close3(int64_t h, int64_t w, const uint8_t *restrict src, uint8_t *r
  *          the chain's projections, not its survivors, so that level runs no chain)
  * groups:  for mode 2: config_group (N + 1,) each configuration's first group; group_start (G + 1,) and
  *          members (P,) int32 the groups' points (indices within their configuration, see crossing_pull);
- *          crossing (3,) its kernel's width (metres), scale and steps. Unread (may be 0) without mode 2.
+ *          crossing (n_levels, 3) per level its kernel's half-width (metres), scale and steps (a refinement
+ *          narrows the width pass by pass). Unread (may be 0) without mode 2.
  * orders:  (n_levels * n_epoch, R, N) each epoch's shuffling of each run
  * targets: (R, n_levels) addresses of run r's (N, H >> level, W >> level) 0/1 target at each level, 0
  *          where the kernel zooms it out itself from bases[r] (levels 1..steps of the run's pyramid, made
@@ -956,9 +957,9 @@ static inline __attribute__((always_inline)) int64_t train_body(TRAIN_PARAMETERS
                             }
                             const int64_t mismatch = crossing_pull(
                                 n, screen, projected, points + 3 * lo, config_group[c], config_group[c + 1], group_start,
-                                members, own, height, width, k_row, k_col, crossing, cover, stamp, padded_cells,
-                                n_target[c], known_pixels + 2 * lo, known_lower, known_mismatch + c, own_rows, n_cols,
-                                grad);
+                                members, own, height, width, k_row, k_col, crossing + 3 * li, cover, stamp,
+                                padded_cells, n_target[c], known_pixels + 2 * lo, known_lower, known_mismatch + c,
+                                own_rows, n_cols, grad);
                             sum_add(&loss, (double)mismatch);
                             continue;
                         }

@@ -11,15 +11,20 @@ Shapes and signature: those of :mod:`sdm.mapping.rules`.
 """
 from __future__ import annotations
 
+import math
+from numbers import Real
+
 import torch
 
 from ..camera import Camera
+from ..errors import SDMInputError
 from .flow import landing_matched
 
 #: The four one-pixel moves: ``(drow, dcol)`` for y+, y-, x+, x-.
 _MOVES = ((1, 0), (-1, 0), (0, 1), (0, -1))
 
-#: ``group_crossing``'s kernel half-width in metres of theta (docs/method/floor.md, "A rule aimed at the floor").
+#: ``group_crossing``'s kernel half-width in metres of theta (docs/method/floor.md, "A rule aimed at the floor"):
+#: the rule's own, and the last refinement pass's (:attr:`sdm.train.Refinement.last_width`).
 CROSSING_WIDTH = 2e-3
 #: ``group_crossing``'s flow scale (a power of two: the scaled flow stays a multiple of ``1 / CROSSING_STEPS``).
 CROSSING_SCALE = 8.0
@@ -116,12 +121,22 @@ def group_move_changes(screen, group, config, target) -> torch.Tensor:
     return changes, mismatch
 
 
-def _crossing_kernel(distance: torch.Tensor) -> torch.Tensor:
-    """``max(0, 1 - d / CROSSING_WIDTH)`` rounded down to a multiple of ``1 / CROSSING_STEPS`` (``d`` metres)."""
-    return torch.floor(torch.clamp(1.0 - distance / CROSSING_WIDTH, min=0.0) * CROSSING_STEPS) / CROSSING_STEPS
+def _crossing_kernel(distance: torch.Tensor, width: float) -> torch.Tensor:
+    """``max(0, 1 - d / width)`` rounded down to a multiple of ``1 / CROSSING_STEPS`` (``d``, ``width`` metres)."""
+    return torch.floor(torch.clamp(1.0 - distance / width, min=0.0) * CROSSING_STEPS) / CROSSING_STEPS
 
 
-def group_crossing_flow(screen, depth, config, landed, block, landing, target, zoom, camera: Camera):
+def check_crossing_width(width, name: str = "width") -> float:
+    """``width`` as a float: a kernel half-width in metres, positive and finite; :class:`SDMInputError` naming
+    ``name`` otherwise (a bool or a string is not a width)."""
+    if isinstance(width, bool) or not isinstance(width, Real) or not (math.isfinite(width) and width > 0):
+        raise SDMInputError(f"{name} must be a positive finite number of metres (group_crossing's kernel "
+                            f"half-width), got {width!r}")
+    return float(width)
+
+
+def group_crossing_flow(screen, depth, config, landed, block, landing, target, zoom, camera: Camera,
+                        width: float = CROSSING_WIDTH):
     """The kernel-weighted, one-sided discrete derivative of the exact zoom-0 pixel mismatch, per rigid group.
 
     The objective is CMA-ES's (Table 3). It is a step function of theta: it changes only where a rigid group
@@ -130,7 +145,8 @@ def group_crossing_flow(screen, depth, config, landed, block, landing, target, z
     ``(1 - frac) / g`` ahead and ``frac / g`` behind, ``frac`` the group's sub-pixel position, ``g = f' / z``
     its screen pixels per metre) and what the crossing changes (:func:`group_move_changes`, the group alone
     moving one pixel). A crossing that lowers the count pulls theta towards it by the amount it lowers it,
-    weighted by :func:`_crossing_kernel` of its distance (zero beyond :data:`CROSSING_WIDTH`); crossings that
+    weighted by :func:`_crossing_kernel` of its distance (zero beyond ``width``, metres of theta: by default
+    :data:`CROSSING_WIDTH`; a refinement pass sets its own, :attr:`sdm.train.Refinement.widths`); crossings that
     raise the count pull nothing. Per axis the group's flow is
 
         ``scale * (lower(-e) K(d(-e)) - lower(+e) K(d(+e)))``,   ``lower(e) = max(0, -change(e))``
@@ -155,7 +171,7 @@ def group_crossing_flow(screen, depth, config, landed, block, landing, target, z
     group_depth = depth.index_select(0, first)
     gain = torch.stack((camera.fy * camera.rows_per_image_pixel / group_depth,
                         camera.fx * camera.cols_per_image_pixel / group_depth), 1)  # (G, 2) pixels per metre
-    ahead, behind = _crossing_kernel((1.0 - sub_pixel) / gain), _crossing_kernel(sub_pixel / gain)
+    ahead, behind = _crossing_kernel((1.0 - sub_pixel) / gain, width), _crossing_kernel(sub_pixel / gain, width)
     pull_y = lowers[:, 1] * behind[:, 0] - lowers[:, 0] * ahead[:, 0]
     pull_x = lowers[:, 3] * behind[:, 1] - lowers[:, 2] * ahead[:, 1]
     flow.index_copy_(0, first, CROSSING_SCALE * torch.stack((pull_x, pull_y), 1))

@@ -136,7 +136,7 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
                   windows: list[KernelFlow], orders: torch.Tensor, targets: list[list[torch.Tensor | None]],
                   theta0: torch.Tensor, bases: list[torch.Tensor] | None = None,
                   param_index: torch.Tensor | None = None, record_every: int = 1,
-                  row_rate: torch.Tensor | None = None):
+                  row_rate: torch.Tensor | None = None, crossing_widths: list[float] | None = None):
     """``R`` whole SGD runs in one call (``sdm_train``): the compiled path of :func:`sdm.train.train_runs`.
 
     Args:
@@ -152,6 +152,9 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
             (centred on the landing block, on the level's target closed 3 x 3 by the kernel, as
             :func:`sdm.mapping.rules.closing` ``(3)``); ``CROSSING``, ``group_crossing``'s flow (level 0 only;
             the loss is then the mismatch count).
+        crossing_widths: ``None`` (:data:`sdm.mapping.crossing.CROSSING_WIDTH` at every level) or, per level of
+            ``levels``, ``group_crossing``'s kernel half-width in metres at that level (read at its
+            ``CROSSING`` levels only; a refinement's passes, :attr:`sdm.train.Refinement.widths`).
         orders: ``(len(levels) * n_epoch, R, N)`` int64, each epoch's shuffling of each run.
         targets: ``R`` lists, one ``(N, H >> level, W >> level)`` bool target per level of ``levels``, or
             ``None``: the kernel zooms ``bases[r]`` out to that level itself (as
@@ -203,7 +206,7 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     modes_t = torch.tensor([int(window) for window in windows], dtype=torch.uint8, device=device)
     groups = (_crossing_groups(points, offsets, param_index) if KernelFlow.CROSSING in windows
               else (torch.zeros(1, dtype=torch.int64),) * 3)
-    crossing = _crossing_constants(device)
+    crossing = _crossing_constants(device, crossing_widths, len(levels))
     addresses = torch.tensor([[level.data_ptr() if level is not None else 0 for level in run] for run in targets],
                              dtype=torch.int64, device=device)
     height, width = camera.screen_shape
@@ -286,11 +289,16 @@ def _crossing_layout(points: torch.Tensor, offsets: torch.Tensor,
     return config_group, group_start, members.contiguous()
 
 
-def _crossing_constants(device: torch.device) -> torch.Tensor:
-    """``(3,)`` float64: ``group_crossing``'s kernel width (metres), flow scale and kernel steps."""
+def _crossing_constants(device: torch.device, widths: list[float] | None, n_levels: int) -> torch.Tensor:
+    """``(n_levels, 3)`` float64, per level: ``group_crossing``'s kernel half-width (metres; ``widths[level]``,
+    :data:`~sdm.mapping.crossing.CROSSING_WIDTH` for ``None``), flow scale and kernel steps."""
     from .crossing import CROSSING_SCALE, CROSSING_STEPS, CROSSING_WIDTH
 
-    return torch.tensor([CROSSING_WIDTH, CROSSING_SCALE, float(CROSSING_STEPS)], dtype=torch.float64, device=device)
+    widths = [CROSSING_WIDTH] * n_levels if widths is None else [float(width) for width in widths]
+    if len(widths) != n_levels:
+        raise ValueError(f"train_program: crossing_widths must hold one width per level ({n_levels}), got {widths}")
+    return torch.tensor([[width, CROSSING_SCALE, float(CROSSING_STEPS)] for width in widths], dtype=torch.float64,
+                        device=device).reshape(n_levels, 3)
 
 #: Per thread, the compiled trainer's pyramid scratch (:func:`train_program`): kept, because on the machines
 #: measured the first touch of fresh pages (a noise run's pyramid is 5.6 MB) cost more than zooming out.

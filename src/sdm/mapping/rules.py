@@ -35,6 +35,7 @@ True
 from __future__ import annotations
 
 import enum
+import functools
 from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass
 from typing import Callable
@@ -43,7 +44,7 @@ import torch
 
 from ..camera import Camera
 from ..errors import SDMInputError
-from .crossing import CROSSING_FINEST_COARSE, group_crossing_flow
+from .crossing import CROSSING_FINEST_COARSE, CROSSING_WIDTH, check_crossing_width, group_crossing_flow
 from .flow import block_window, dynamic_flow, landing_matched, nine, pull_loss
 
 FlowRule = Callable[..., tuple[torch.Tensor, torch.Tensor, torch.Tensor]]
@@ -329,3 +330,20 @@ GROUP_CROSSING = RULES.register(Rule.by_zoom("group_crossing", group_crossing_fl
 #: The rules a configuration or table uses, by name (every registered rule that is not an experiment).
 FLOW_RULES = RULES.view(experiment=False)
 
+
+def crossing_width_rule(flow, width: float | None) -> Rule:
+    """The rule ``flow`` (:meth:`RuleRegistry.resolve`) with ``group_crossing``'s kernel half-width ``width``
+    (metres; a refinement pass's, :attr:`sdm.train.Refinement.widths`). ``width=None``, its own width
+    :data:`~sdm.mapping.crossing.CROSSING_WIDTH`, and every rule but ``group_crossing`` (which read no width) give
+    the rule itself; another width a :class:`Rule` of the same name and compiled form whose torch flow reads it
+    (the compiled trainer reads the width per level itself: ``crossing_widths`` of
+    :func:`sdm.mapping.native.train_program`).
+
+    Raises:
+        SDMInputError: an unknown ``flow`` (naming ``flow``), a ``width`` that is not a positive finite number.
+    """
+    rule = RULES.resolve(flow)
+    if rule is not GROUP_CROSSING or width is None or check_crossing_width(width) == CROSSING_WIDTH:
+        return rule
+    return Rule.by_zoom(rule.name, functools.partial(group_crossing_flow, width=float(width)), CROSSING_FINEST_COARSE,
+                        KernelFlow.CROSSING)

@@ -295,10 +295,14 @@ def _refinement_reading(flow: str, rows: pd.DataFrame, frame: pd.DataFrame) -> l
                      f"the gap closed)")
     if not parts:
         return []
+    from ..train import parse_schedule  # the schedule's own widths (torch is imported only where a line is written)
+
+    widths = parse_schedule(flow)[1].widths
     return [f"  Why it misses, measured on the same runs (1e-3 m): the refinement (`{refine}`) starts where `{first}` "
             f"ends; per missed level: " + "; ".join(parts) + ". The refinement's rule pulls theta only "
-            "towards the pixel crossings within its kernel's reach, a few millimetres of theta (docs/method/floor.md, "
-            "\"The refinement on the real sample\": more steps and other rates measured, and a wider kernel)."]
+            f"towards the pixel crossings within its kernel's half-width, {1e3 * widths[0]:g}e-3 m of theta on its "
+            f"first pass narrowing to {1e3 * widths[-1]:g}e-3 m on its last (docs/method/floor.md, \"The refinement "
+            "on the real sample\": the steps, rates and widths measured)."]
 
 
 #: Columns of the rules' fixed-point measurement (:func:`sdm.experiments.rule_bias`, plus ``flow``).

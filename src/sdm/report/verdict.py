@@ -202,8 +202,8 @@ def _against_cmaes(rule: str, data: str, table4: pd.DataFrame, elsewhere: Mappin
             worst = (name, top)
         over = rows[rows["ratio_to_cmaes"] > CMAES_FACTOR]
         if len(over):
-            missed.append(f"on {name} at {_levels(over['level'])} ({over['ratio_to_cmaes'].min():.2f}x-"
-                          f"{over['ratio_to_cmaes'].max():.2f}x)")
+            low, high = f"{over['ratio_to_cmaes'].min():.2f}x", f"{over['ratio_to_cmaes'].max():.2f}x"
+            missed.append(f"on {name} at {_levels(over['level'])} ({low if low == high else f'{low}-{high}'})")
     if worst is None:
         return ""
     name, top = worst
