@@ -64,12 +64,17 @@ def test_count_one_at_a_time_equals_generation(scene):
         objective.many([[0.0, 0.0]])
 
 
-def test_cmaes_per_configuration_recovers_separate_cars():
+def _separate_cars():
+    """Two configurations of three cars far apart, a shift per car: the set, the cars' rows, theta* and the units."""
     data, cars, n_cars = car_grid_scene(3, n_configs=2, seed=1, far=40.0)
     level = S.per_car(data, cars, n_cars)
     truth = S.draw_truth(level, 3)
     shifted = S.shifted_set(data, truth, level.param_index)
-    units = S.units(shifted, level.param_index, level.n_rows)
+    return shifted, level, truth, S.units(shifted, level.param_index, level.n_rows)
+
+
+def test_cmaes_per_configuration_recovers_separate_cars():
+    shifted, level, truth, units = _separate_cars()
     result = rows.fit_configurations(shifted, units, rows.RowsCMAESSettings(), seed=2)
     again = rows.fit_configurations(shifted, units, rows.RowsCMAESSettings(), seed=2)
     assert torch.equal(result.totals, again.totals) and torch.equal(result.evaluations, again.evaluations)
@@ -88,11 +93,7 @@ def test_cmaes_per_configuration_recovers_separate_cars():
 
 def test_a_start_whose_rows_share_memory_is_copied():
     """One shared start for every unit, as an expanded view: each configuration's search writes its own rows."""
-    data, cars, n_cars = car_grid_scene(3, n_configs=2, seed=1, far=40.0)
-    level = S.per_car(data, cars, n_cars)
-    truth = S.draw_truth(level, 3)
-    shifted = S.shifted_set(data, truth, level.param_index)
-    units = S.units(shifted, level.param_index, level.n_rows)
+    shifted, _, _, units = _separate_cars()
     start = torch.tensor([0.5, 0.3], dtype=torch.float64)
     viewed = rows.fit_configurations(shifted, units, rows.RowsCMAESSettings(), seed=2,
                                      theta0=start.expand(len(units), 2))

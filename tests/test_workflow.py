@@ -651,6 +651,17 @@ def _key_cases() -> dict[str, tuple[dict, str | None]]:
     }
 
 
+def _nested_cases(section: str, cases: dict[str, tuple]) -> dict[str, tuple[dict, str | None]]:
+    """``research.<section>``'s cases by dotted key (``train.lr``) as whole config changes, by full key."""
+    changes = {}
+    for key, (value, stage) in cases.items():
+        change = value
+        for part in reversed(["research", section, *key.split(".")]):
+            change = {part: change}
+        changes[f"research.{section}.{key}"] = (change, stage)
+    return changes
+
+
 def _network_cases() -> dict[str, tuple[dict, str | None]]:
     """The Table 7 keys' cases: (config change, first stage expected to rerun); the .test config runs Table 7."""
     cases = {
@@ -672,13 +683,7 @@ def _network_cases() -> dict[str, tuple[dict, str | None]]:
         "refine.flow": ("paper", "network_test"),
         "refine.batch_size": (2, "network_test"),
     }
-    changes = {}
-    for key, (value, stage) in cases.items():
-        change = value
-        for part in reversed(["research", "network", *key.split(".")]):
-            change = {part: change}
-        changes[f"research.network.{key}"] = (change, stage)
-    return changes
+    return _nested_cases("network", cases)
 
 
 def _objects_cases() -> dict[str, tuple[dict, str | None]]:
@@ -714,13 +719,7 @@ def _objects_cases() -> dict[str, tuple[dict, str | None]]:
         "scaling.epochs": ([2], "objects_scaling"),
         "scaling.budgets": ([7], "objects_scaling"),
     }
-    changes = {}
-    for key, (value, stage) in cases.items():
-        change = value
-        for part in reversed(["research", "objects", *key.split(".")]):
-            change = {part: change}
-        changes[f"research.objects.{key}"] = (change, stage)
-    return changes
+    return _nested_cases("objects", cases)
 
 
 def _schema_keys(schema: dict, prefix: str = "") -> list[str]:
