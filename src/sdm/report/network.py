@@ -229,4 +229,5 @@ def verdict_sentence(table: pd.DataFrame) -> str:
         parts.append(f"and with k SDM steps after it ends at {min(ratios):.2f}-{max(ratios):.2f}x CMA-ES's mean at "
                      f"1/{min(speeds):.0f} to 1/{max(speeds):.0f} of its CPU time per configuration")
     levels_words = f"noise levels {levels[0]}-{levels[-1]}" if len(levels) > 1 else f"noise level {levels[0]}"
-    return f"{', '.join(parts[:-1])} {parts[-1]} ({levels_words}; docs/results/network/)."
+    subject, said = parts[0], parts[1:]
+    return f"{subject} {', '.join(said[:-1])} {said[-1]} ({levels_words}; docs/results/network/)."
