@@ -17,11 +17,12 @@ def test_readme_quick_start_runs():
 
 def test_library_page_examples_run():
     blocks = re.findall(r"```python\n(.*?)```", (ROOT / "docs" / "library.md").read_text(), flags=re.S)
-    assert len(blocks) == 2
+    assert len(blocks) == 3
     namespace: dict = {}
-    for block in blocks:  # the second block continues the first one's session
+    for block in blocks:  # each block continues the first one's session
         exec(compile(block, "docs/library.md", "exec"), namespace)
     assert namespace["theta"].grad is not None
+    assert all(weight.grad is not None for weight in namespace["net"].parameters())  # the flow reached the network
 
 
 def test_calibration_notebook_runs(tmp_path, apollo_sample):

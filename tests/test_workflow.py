@@ -535,7 +535,7 @@ def test_snakemake_report_collects_the_results(completed_run, tmp_path):
     expected = {f"results/{path.relative_to(run).as_posix()}" for path in [*(run / "figures").glob("*.png"),
                                                                             *(run / "tables").glob("table?.html")]}
     expected.add("results/report/reproduction.html")
-    assert len(expected) == 11 + 6 + 1 and expected <= set(embedded), sorted(expected - set(embedded))  # Tables 1-6
+    assert len(expected) == 12 + 7 + 1 and expected <= set(embedded), sorted(expected - set(embedded))  # Tables 1-7
     # the report shows images and HTML pages in place, and offers anything else (a CSV) as a download only
     assert {path.rsplit(".", 1)[1] for path in embedded} <= {"png", "html"}, sorted(embedded)
     for path in expected:

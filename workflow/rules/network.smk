@@ -56,8 +56,11 @@ notebook_stage(
     "table7",
     "Table 7: per noise level, each method's distance to theta* on the test set and CPU time; the learning curves.",
     jobs=[{}] if NETWORK_ON else [],
-    input=dict(test_files=each("network_test", "test_file"), curves=each("network_train", "curve"),
-               bias_files=each("network_bias", "bias_file")),
+    input=dict(
+        test_files=each("network_test", "test_file"),
+        curves=each("network_train", "curve"),
+        bias_files=each("network_bias", "bias_file"),
+    ),
     output=dict(
         **table_files("table7"),
         table7_summary=result("tables/table7_summary.md"),
