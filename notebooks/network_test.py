@@ -43,7 +43,8 @@ from IPython.display import display
 
 from sdm.experiments import single_thread
 from sdm.io import write_csv
-from sdm.network import load_weights, read_sets, refine_settings, search_settings, test_methods
+from sdm.network import load_weights, read_sets, refine_settings, test_methods
+from sdm.objects import search_settings
 
 single_thread(threads)
 test = read_sets(sky, sizes, seed, levels, camera_sd, parts=["test"], test_level=level)["test"]

@@ -27,7 +27,7 @@ table7_tex = "results/tables/table7.tex"  # output
 table7_html = "results/tables/table7.html"  # output
 table7_summary = "results/tables/table7_summary.md"  # output
 figure = "results/figures/network_curves.png"  # output
-refine = {"s": 3, "n_epoch": 1}
+refine = {"s": 3, "n_epoch": 1, "lr": 5.0e-3, "flow": "closed_centred_r1", "batch_size": 4}
 train = {"epochs": 16}
 sizes = [3000, 500, 748]
 threads = 1
@@ -39,6 +39,7 @@ import pandas as pd
 from IPython.display import Image, Markdown, display
 
 from sdm.io import write_text
+from sdm.network import refine_settings, refine_steps
 from sdm.report import network as report
 
 frames = [pd.read_csv(path) for path in test_files]
@@ -49,7 +50,7 @@ display(Markdown(Path(table7_md).read_text()))
 
 # %%
 bias = pd.read_csv(bias_files[0]) if bias_files else None
-summary = report.table7_summary(table, (int(refine["s"]) + 1) * int(refine["n_epoch"]), int(train["epochs"]),
+summary = report.table7_summary(table, refine_steps(refine_settings(refine, seed=0)), int(train["epochs"]),
                                 int(sizes[0]), bias)
 write_text(table7_summary, summary)
 display(Markdown(summary))

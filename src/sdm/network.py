@@ -558,21 +558,6 @@ def refine_settings(refine: dict, seed: int):
                          s=int(refine["s"]), n_epoch=int(refine["n_epoch"]), zoom=0, seed=int(seed))
 
 
-def search_settings(warm: dict, rows: dict, schedule: str, cmaes: dict, s: int, batch_size: int, lr_decay: float):
-    """The per-configuration searches' settings (``research.objects``' ``warm``, ``rows``, ``schedule`` and ``cmaes``,
-    as Table 6 runs them) as :class:`sdm.objects.ObjectsSettings` (no floor or silhouette: Table 7 runs neither)."""
-    from .baselines.rows import RowsCMAESSettings
-    from .objects import ObjectsSettings
-    from .train import TrainSettings
-
-    common = dict(batch_size=int(batch_size), lr_decay=float(lr_decay), zoom=0)
-    return ObjectsSettings(
-        warm=TrainSettings(lr=float(warm["lr"]), n_epoch=int(warm["n_epoch"]), s=int(s), **common),
-        rows=TrainSettings(lr=float(rows["lr"]), n_epoch=int(rows["n_epoch"]), s=int(rows["s"]), **common),
-        schedule=str(schedule), cmaes=RowsCMAESSettings(evaluations_per_unknown=int(cmaes["evaluations_per_unknown"])),
-        floor=None, silhouette=None)
-
-
 def save_weights(net: ShiftNet, path: str | Path) -> Path:
     """Write ``net``'s state_dict to ``path`` atomically (a temporary file renamed), readable by others."""
     from .io import write_atomic

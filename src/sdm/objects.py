@@ -267,18 +267,29 @@ def _scaling_record(n_cars, noise, run, method, budget, error, cpu_s) -> dict:
             "mean": float(distance.mean()), "median": float(distance.median()), "cpu_s": float(cpu_s)}
 
 
-def settings_from_config(truth: dict, warm: dict, rows: dict, schedule: str, cmaes: dict, floor: dict,
-                         silhouette: dict, s: int, batch_size: int, lr_decay: float) -> ObjectsSettings:
-    """:class:`ObjectsSettings` from the config's ``research.objects`` values and the ``train`` section."""
-    from .baselines.rows import RowsCMAESSettings, RowsFloorSettings
-    from .baselines.silhouette import SilhouetteSettings
+def search_settings(warm: dict, rows: dict, schedule: str, cmaes: dict, s: int, batch_size: int,
+                    lr_decay: float) -> ObjectsSettings:
+    """SDM's and CMA-ES's settings per configuration from the config's ``research.objects`` ``warm``, ``rows``,
+    ``schedule`` and ``cmaes`` and the ``train`` section: :class:`ObjectsSettings` without floor or silhouette
+    (Table 7 runs neither; :func:`settings_from_config` adds them for Table 6)."""
+    from .baselines.rows import RowsCMAESSettings
 
     common = dict(batch_size=int(batch_size), lr_decay=float(lr_decay), zoom=0)
     return ObjectsSettings(
         warm=TrainSettings(lr=float(warm["lr"]), n_epoch=int(warm["n_epoch"]), s=int(s), **common),
         rows=TrainSettings(lr=float(rows["lr"]), n_epoch=int(rows["n_epoch"]), s=int(rows["s"]), **common),
-        schedule=str(schedule),
-        cmaes=RowsCMAESSettings(evaluations_per_unknown=int(cmaes["evaluations_per_unknown"])),
+        schedule=str(schedule), cmaes=RowsCMAESSettings(evaluations_per_unknown=int(cmaes["evaluations_per_unknown"])),
+        floor=None, silhouette=None)
+
+
+def settings_from_config(truth: dict, warm: dict, rows: dict, schedule: str, cmaes: dict, floor: dict,
+                         silhouette: dict, s: int, batch_size: int, lr_decay: float) -> ObjectsSettings:
+    """:class:`ObjectsSettings` from the config's ``research.objects`` values and the ``train`` section."""
+    from .baselines.rows import RowsFloorSettings
+    from .baselines.silhouette import SilhouetteSettings
+
+    return replace(
+        search_settings(warm, rows, schedule, cmaes, s, batch_size, lr_decay),
         floor=RowsFloorSettings(evaluations_per_unknown=int(floor["evaluations_per_unknown"]),
                                 restarts=int(floor["restarts"])),
         silhouette=SilhouetteSettings(**silhouette),
