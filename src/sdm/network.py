@@ -65,7 +65,8 @@ DEPTH_SCALE = 10.0
 
 
 def split_three(n_total: int, sizes: Sequence[int], seed: int) -> dict[str, list[int]]:
-    """``train``, ``dev`` and ``test`` index lists: one seeded permutation of ``range(n_total)``, cut in order.
+    """``train``, ``dev`` and ``test`` index lists (each sorted): one seeded permutation of ``range(n_total)``, cut in
+    order (:func:`sdm.experiments.split_indices`, its second part cut into dev and test).
 
     Raises:
         SDMInputError: naming ``sizes`` when they are not three positive integers summing to at most ``n_total``.
@@ -74,10 +75,11 @@ def split_three(n_total: int, sizes: Sequence[int], seed: int) -> dict[str, list
         raise SDMInputError(f"sizes must be three positive integers (train, dev, test), got {list(sizes)!r}")
     if sum(sizes) > n_total:
         raise SDMInputError(f"sizes {list(sizes)} ask for {sum(sizes)} configurations; the set has {n_total}")
-    order = torch.randperm(n_total, generator=torch.Generator().manual_seed(int(seed))).tolist()
-    train, dev = int(sizes[0]), int(sizes[1])
-    return {"train": sorted(order[:train]), "dev": sorted(order[train:train + dev]),
-            "test": sorted(order[train + dev:train + dev + int(sizes[2])])}
+    from .experiments import split_indices
+
+    train, dev, test = (int(size) for size in sizes)
+    chosen = split_indices(n_total, train, dev + test, seed)  # the split stage's permutation, its rest cut in two
+    return {"train": sorted(chosen["train"]), "dev": sorted(chosen["dev"][:dev]), "test": sorted(chosen["dev"][dev:])}
 
 
 @dataclass(frozen=True)
