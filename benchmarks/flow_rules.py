@@ -8,8 +8,8 @@ the same runs, with each rule's ratio to it. ``--pass-steps K``, ``--refine-rate
 ``--last-width W`` (metres) change the refined schedules' :class:`sdm.train.Refinement` (its passes' kernel
 half-widths narrow by halves from ``first_width`` to ``last_width``); ``--crossing-width W`` sets both, one width
 on every pass. ``--pass-widths W0,W1,...`` and ``--pass-rates F0,F1,...`` are measurement knobs, not settings of the
-library: each pass's width (metres), and each pass's rate as a factor on the first pass's rate without the
-widths' factor (``1,0.5,0.25,0.125``: the plain halving), in place of :attr:`Refinement.widths` and
+library: each pass's width (metres), and each pass's rate as a factor on the first pass's rate
+(``1,0.5,0.25,0.125``: the halving of :meth:`Refinement.rates`), in place of :attr:`Refinement.widths` and
 :meth:`Refinement.rates`.
 
 For every rule: Table 2's protocol (noise levels, runs r = 0..R-1 with the noisy
@@ -64,7 +64,7 @@ def main(argv=None) -> int:
     parser.add_argument("--crossing-width", type=float, default=None,
                         help="one kernel half-width on every pass of the refined schedules: first and last width")
     parser.add_argument("--pass-widths", help="each pass's kernel half-width, metres, comma-separated")
-    parser.add_argument("--pass-rates", help="each pass's rate over the first pass's plain rate, comma-separated")
+    parser.add_argument("--pass-rates", help="each pass's rate over the first pass's, comma-separated")
     parser.add_argument("--levels", default="0,1,2,3,4")
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--no-flow", action="store_true", help="skip the flow at theta*")
@@ -144,7 +144,7 @@ def _given(refine: Refinement, widths: str | None, rates: str | None, settings) 
     if widths is None and rates is None:
         return refine
     width_list = [float(v) for v in widths.split(",")] if widths else refine.widths
-    plain = replace(refine, first_width=refine.last_width).rates(settings)[0]  # the first pass's rate, factor 1
+    plain = refine.rates(settings)[0]  # the first pass's rate, factor 1
     rate_list = [plain * float(v) for v in rates.split(",")] if rates else refine.rates(settings)
     if not len(width_list) == len(rate_list) == refine.passes:
         raise SystemExit(f"--pass-widths and --pass-rates need one value per pass ({refine.passes})")

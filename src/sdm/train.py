@@ -409,12 +409,12 @@ class Refinement:
     After the levels ``s .. zoom`` of :class:`TrainSettings`, ``passes`` passes of ``pass_steps`` SGD steps each
     at level ``zoom`` with the gradient rule ``flow``; pass ``i`` (from 0) runs at the rate of level
     ``zoom + rate_from`` times ``lr_decay^i`` (by default four times the last level's rate, then halving each
-    pass: the paper's halving, continued per pass) times the kernel's factor below, with the chain ``s .. zoom``
-    of the last level (:func:`refine_runs`).
+    pass: the paper's halving, continued per pass), with the chain ``s .. zoom`` of the last level
+    (:func:`refine_runs`).
 
     The passes are counted in SGD steps, not in epochs, so the refinement's strength does not depend on the size
-    of the training set: 4 passes of 32 steps are 4 epochs of the default's 512 configurations (batches of 16),
-    and 64 epochs of a 41-configuration set (docs/method/floor.md, "The schedule that reaches the floor").
+    of the training set: 4 passes of 96 steps are 12 epochs of the default's 512 configurations (batches of 16),
+    and 192 epochs of a 41-configuration set (docs/method/floor.md, "The schedule that reaches the floor").
 
     ``closed_centred_r1`` brings theta within a few millimetres, where ``group_crossing`` (whose fixed point is
     near the floor but whose pull far from it is weak) refines it (docs/method/floor.md, "A rule aimed at the floor").
@@ -423,11 +423,10 @@ class Refinement:
     it: the last pass runs at ``last_width`` (the rule's own :data:`~sdm.mapping.crossing.CROSSING_WIDTH`, whose
     fixed point the schedule keeps), each earlier pass at twice the next one's, at most ``first_width``
     (:attr:`widths`; 4 passes: 16, 8, 4, 2e-3 m). On sparse real frames (few rigid groups, 0.2 m of theta per
-    pixel) theta ends ``closed_centred_r1``'s levels farther than 2e-3 m from any crossing that lowers the count,
-    and the wide first passes reach them. A kernel ``k`` times wider sums the pulls of about ``k`` times as many
-    crossings, so a pass runs at ``1 / sqrt(k)`` of its rate (:meth:`rates`): at the full rate the wide passes
-    scatter theta on dense data (docs/method/floor.md, "The refinement on the real sample"). Other rules read no
-    width: their passes run at the plain rates.
+    pixel) theta ends ``closed_centred_r1``'s levels farther than 2e-3 m from any crossing that lowers the count;
+    the wide first passes, at the full rate, reach them. On dense data the same passes scatter theta by a few
+    millimetres; the narrower passes pull it back, given steps enough (96 a pass: docs/method/floor.md, "The
+    refinement on the real sample").
 
     Attributes:
         flow: a rule name, or a :class:`~sdm.mapping.rules.Rule` (:meth:`sdm.mapping.rules.RuleRegistry.resolve`).
@@ -437,7 +436,8 @@ class Refinement:
         moves_c: with ``fit_depth``, the passes move ``c`` too (at ``depth_lr_scale`` times their rate), whatever
             ``depth_zoom`` says: ``group_crossing``'s depth flow at theta* under noise is less biased at zoom 0 than
             the paper's rule's at zoom 1 (measured by ``sdm.experiments.depth_bias``: Table 5's ``table5_bias``).
-        pass_steps: SGD steps per pass, a positive integer (32: one epoch of the default's 512 configurations).
+        pass_steps: SGD steps per pass, a positive integer (96: three epochs of the default's 512 configurations;
+            chosen on runs no table holds: docs/method/floor.md, "The refinement on the real sample").
         first_width: ``group_crossing``'s widest kernel half-width, metres (positive, at least ``last_width``;
             16e-3 m, chosen on runs no table holds: docs/method/floor.md, "The refinement on the real sample").
         last_width: the last pass's kernel half-width, metres (positive; the rule's own, 2e-3 m).
@@ -447,7 +447,7 @@ class Refinement:
     passes: int = 4
     rate_from: int = 2
     moves_c: bool = True
-    pass_steps: int = 32
+    pass_steps: int = 96
     first_width: float = 16e-3
     last_width: float = CROSSING_WIDTH
 
@@ -483,12 +483,9 @@ class Refinement:
 
     def rates(self, settings: TrainSettings) -> list[float]:
         """The learning rate of each pass (metres per unit of summed flow): level ``zoom + rate_from``'s rate times
-        ``lr_decay^i``, with ``group_crossing`` times ``sqrt(last_width / widths[i])`` (1 on the passes at
-        ``last_width``)."""
+        ``lr_decay^i``, whatever the pass's kernel width."""
         rate = settings.lr * settings.lr_decay ** max(settings.s - settings.zoom - self.rate_from, 0)
-        narrow = [math.sqrt(self.last_width / width) if self.flow == "group_crossing" else 1.0
-                  for width in self.widths]
-        return [rate * settings.lr_decay ** i * factor for i, factor in enumerate(narrow)]
+        return [rate * settings.lr_decay ** i for i in range(self.passes)]
 
 
 def parse_schedule(name: str) -> tuple[str, Refinement | None]:
