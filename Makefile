@@ -34,8 +34,10 @@ test: install
 test-slurm: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest -m slurm tests/test_slurm.py
 
+# The CPU figures, then the GPU section (benchmarks/bench_gpu.py: it says so and stops where CUDA is missing).
 bench: install
 	$(BIN)/python benchmarks/bench_sdm.py
+	$(BIN)/python benchmarks/bench_gpu.py
 
 # docs/results/timing.md, rewritten whole: `make run`, `make bench` and `make test` timed one after another on a
 # fresh clone of HEAD (install included), and the run's per-job times (benchmarks/timing.py; about 30 minutes).

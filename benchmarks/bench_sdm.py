@@ -19,7 +19,7 @@ Prints, in one run on one thread:
     configurations, the tuned settings of the default workflow (n_epoch 2, lr 1e-4),
     batched with the default group size, compiled; and the torch path's time for them,
     extrapolated from one group per level, with the ratio;
-  * the last two again on CUDA when a GPU is present.
+  * the GPU's figures are ``benchmarks/bench_gpu.py``'s (``make bench`` runs both).
 
 Times are given as wall seconds and as CPU seconds of this process (the
 latter is what one core spends, whatever else runs on the machine). Ratios are
@@ -163,21 +163,24 @@ def car_against_shared(data: ConfigurationSet, repeats: int) -> dict:
 
 
 def step_ms(data: ConfigurationSet, method: str, zoom: int, repeats: int, batch_size: int = 16) -> float:
-    """Median ms of one SGD step (gather, forward, backward) at loss level ``zoom``."""
+    """Median ms of one SGD step (gather, forward, backward, update) at loss level ``zoom``, on the set's device
+    (synchronised around each step)."""
     layer = SpatialDomainMapping(data.camera, s=4, zoom=zoom, method=method)
-    theta = torch.tensor([0.3, 0.2], dtype=torch.float64, requires_grad=True)
+    theta = torch.tensor([0.3, 0.2], dtype=torch.float64, device=data.device, requires_grad=True)
     pyramid = data.pyramid(4)
     times = []
     for repeat in range(repeats + 1):
-        indices = torch.arange(batch_size) + (repeat * batch_size) % (len(data) - batch_size)
-        start = time.perf_counter()
-        batch = data.batch(indices)
-        out = layer(batch.points + shift_vector(theta, batch.points), batch.pixels,
-                    pyramid[zoom].index_select(0, indices), batch.config, batch.rank, target_is_zoomed=True)
-        theta.grad = None
-        out.loss.backward()
+        indices = (torch.arange(batch_size) + (repeat * batch_size) % (len(data) - batch_size)).to(data.device)
+        with Clock(data.device.type) as clock:
+            batch = data.batch(indices)
+            out = layer(batch.points + shift_vector(theta, batch.points), batch.pixels,
+                        pyramid[zoom].index_select(0, indices), batch.config, batch.rank, target_is_zoomed=True)
+            theta.grad = None
+            out.loss.backward()
+            with torch.no_grad():
+                theta -= 1e-4 * theta.grad
         if repeat:  # the first call warms up allocators and caches
-            times.append(time.perf_counter() - start)
+            times.append(clock.wall)
     return 1000 * statistics.median(times)
 
 
@@ -245,15 +248,14 @@ def main() -> None:
           f"with nothing moving (lr 1e-12, the same points pulled at every step): {per_car['still_car_ms']:.1f} ms "
           f"against {per_car['still_shared_ms']:.1f} ms, {per_car['still_ratio']:.2f}x")
 
-    devices = ["cpu"] + (["cuda"] if torch.cuda.is_available() else [])
     many, tables = [], []
-    for device in devices:
+    for device in ["cpu"]:  # the GPU's figures: benchmarks/bench_gpu.py
         many.append(runs_together_vs_alone(data, args.runs, device))
         report_runs(many[-1])
         if args.table2_runs:
             tables.append(table2(data, args.table2_runs, device))
             t2 = tables[-1]
-            target = "at most 15 s on one core" if device == "cpu" else "at most 5 s on one H100"
+            target = "at most 15 s on one core"
             print(f"\nall {t2['runs']} Table 2 runs (5 levels x {args.table2_runs}, n_epoch 2, lr 1e-4, groups of "
                   f"{NOISE_GROUP_SIZE}) on {device}{', compiled' if device == 'cpu' else ''}: {t2['wall_s']:.1f} s "
                   f"wall, {t2['cpu_s']:.1f} s CPU (target: {target})")

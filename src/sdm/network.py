@@ -30,6 +30,7 @@ Tensors: points float64 metres on the set's device; images float32; ``theta`` fl
 from __future__ import annotations
 
 import math
+import os
 import pickle
 import time
 from contextlib import contextmanager
@@ -362,7 +363,12 @@ class BatchLoss:
 
 @contextmanager
 def deterministic():
-    """Torch's deterministic algorithms for the block (restored after)."""
+    """Torch's deterministic algorithms for the block (restored after).
+
+    On a GPU, cuBLAS is deterministic only with a fixed workspace: ``CUBLAS_WORKSPACE_CONFIG`` is set to
+    ``:4096:8`` unless the environment gives one (torch refuses a cuBLAS call in this mode without it).
+    """
+    os.environ.setdefault("CUBLAS_WORKSPACE_CONFIG", ":4096:8")
     was = torch.are_deterministic_algorithms_enabled()
     torch.use_deterministic_algorithms(True)
     try:
