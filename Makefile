@@ -7,7 +7,7 @@ CORES ?= 2
 # torch comes from PyTorch's CPU-only index (no GPU libraries); `make TORCH_INDEX= install` takes pip's default build
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 
-.PHONY: install run test test-slurm bench timing report snapshot clean
+.PHONY: install run test test-fast test-slurm bench timing report snapshot clean
 
 install: $(VENV)/.installed
 
@@ -27,6 +27,11 @@ run: install
 # once), the files of the longest fixtures first (tests/conftest.py). Plain `pytest` runs the same in one process.
 test: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest -n $(CORES) --dist loadfile --no-loadscope-reorder
+
+# The quick loop while editing the library: every test that runs no workflow, starts no notebook kernel and builds
+# no kernel cache (markers `workflow`, `slow`, `slurm`; pyproject.toml). `make test` runs them all.
+test-fast: install
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest -n $(CORES) -m 'not workflow and not slow and not slurm' -q
 
 # The .test config on a one-node SLURM cluster that the test starts and stops (tests/test_slurm.py):
 # needs root and the slurm-wlm and munge packages; about 35 minutes on two cores. `make test` leaves it out.

@@ -63,6 +63,7 @@ def test_sdm_recovers_the_shift(small):
     assert distance(result.theta) < 5e-3
 
 
+@pytest.mark.slow
 def test_silhouette_recovers_the_shift(small):
     """Soft IoU, levels 3..0: within 1e-2 m, a tenth of a pixel at 20 m (measured with seeds 0-2: 1.7-4.0e-3)."""
     train_set, _ = small
@@ -81,6 +82,7 @@ def test_chamfer_recovers_the_shift(small):
     assert distance(result.theta) < 1e-2, result.theta
 
 
+@pytest.mark.slow
 def test_sinkhorn_recovers_the_shift(small):
     """Sinkhorn divergence (64 points per configuration and step): within 1.5e-2 m (seeds 0-2: 4.4-6.0e-3)."""
     pytest.importorskip("geomloss")
@@ -149,6 +151,7 @@ def test_silhouette_and_chamfer_gradients_point_back_to_the_true_shift(small, di
     assert float(theta.grad @ d) > 0, theta.grad
 
 
+@pytest.mark.slow
 def test_coarse_silhouette_level_brings_theta_near_but_is_biased(small):
     """The failure mode of the coarse soft silhouette, measured: at level 3 (8 x 8-pixel blocks,
     sigma = 4 pixels) the gradient from the start (0, 0) points towards theta*, which is the coarse

@@ -50,6 +50,7 @@ def largest_difference(one, other) -> float:
     return max(abs(x - y) for x, y in pairs)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name", sorted(SHORT))
 def test_each_batched_run_is_its_single_run(runs, name, monkeypatch):
     if name == "sinkhorn":
@@ -97,6 +98,7 @@ def test_the_tolerance_catches_a_shared_generator(runs, monkeypatch):
     assert largest_difference(single, broken) > 1e3 * TOLERANCE_M
 
 
+@pytest.mark.slow
 def test_row_adam_is_torch_adam_per_row_and_skips_per_row():
     """RowAdam on (3, 2) equals torch.optim.Adam on each row alone, to the bit; a row with a
     non-finite gradient keeps its theta and its Adam state (as one run alone would skip it)."""

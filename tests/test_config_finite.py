@@ -114,6 +114,7 @@ def test_the_finite_check_names_float_keys_in_its_own_words():
     assert refusal(config) == "config key 'baselines.cmaes.sigma0': must be a finite number, got -inf"
 
 
+@pytest.mark.slow
 def test_a_nan_learning_rate_fails_before_any_job_naming_the_key(tmp_path):
     """The Snakefile's path: `tuning: {lr: [.nan]}` once ended in a MissingInputException for cell_1_nan.json."""
     overlay = tmp_path / "bad.yaml"

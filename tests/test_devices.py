@@ -13,6 +13,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 import torch
 
 from scenes import configuration_set
@@ -27,6 +28,7 @@ def run_probe(data_path, out_path, device, default_device=None):
     return torch.load(out_path)
 
 
+@pytest.mark.slow
 def test_nothing_is_created_on_a_fixed_device(saved_set, tmp_path):
     plain = run_probe(saved_set, tmp_path / "plain.pt", "cpu")
     trapped = run_probe(saved_set, tmp_path / "meta.pt", "cpu", default_device="meta")
@@ -35,6 +37,7 @@ def test_nothing_is_created_on_a_fixed_device(saved_set, tmp_path):
         assert torch.equal(plain[name], trapped[name]), name
 
 
+@pytest.mark.slow
 def test_the_trap_catches_a_fixed_device_tensor(saved_set, tmp_path):
     """The probe can fail: a module constant created without a device is caught."""
     sabotage = tmp_path / "sitecustomize.py"

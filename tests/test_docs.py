@@ -2,6 +2,8 @@
 import re
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
@@ -25,6 +27,7 @@ def test_library_page_examples_run():
     assert all(weight.grad is not None for weight in namespace["net"].parameters())  # the flow reached the network
 
 
+@pytest.mark.slow
 def test_calibration_notebook_runs(tmp_path, apollo_sample):
     """The calibration notebook (an analysis beside the benchmarks, not a workflow stage) executes top to bottom on a small synthetic set."""
     import os

@@ -142,6 +142,7 @@ def _on_screen(points):
 generic_shift = st.floats(-1.0, 1.5).filter(lambda x: abs(x) > 1e-6)
 
 
+@pytest.mark.slow
 @SLOW
 @given(seed=st.integers(0, 10_000), zoom=st.integers(0, 4), a=generic_shift, b=generic_shift)
 def test_dense_reference_in_the_large_c_limit_equals_the_fast_path(seed, zoom, a, b):
@@ -191,6 +192,7 @@ def test_single_point_gradient_pulls_towards_the_target(target_pixel, pull_sign)
     assert not bool(out.result.matched.any())
 
 
+@pytest.mark.slow
 def test_single_point_descends_to_its_target_then_stops():
     q, pixels = single_point()
     target = torch.zeros(H, W, dtype=torch.bool)
@@ -353,6 +355,7 @@ def test_dynamic_flow_is_the_gradient_of_the_layer():
     assert float(loss.detach()) == float(out.loss.detach())
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("kernel", [True, False], ids=["kernel", "torch path"])
 def test_torch_compile_runs_the_layer(kernel):
     """docs/method/fast-path.md: Dynamo breaks the graph at the input checks and at the kernel's calls (or, on the torch

@@ -154,6 +154,7 @@ def test_the_compiled_run_equals_the_reference_loop_bit_for_bit(flow, seed, s, z
     assert not torch.equal(together.theta[0], together.theta[-1])
 
 
+@pytest.mark.slow
 def test_the_compiled_run_on_real_sized_data(compiled_calls):
     """512 configurations of the test scenes, Table 2's schedule (n_epoch 2, lr 1e-4), noisy targets, both rules."""
     from sdm.experiments import noisy_targets
@@ -202,6 +203,7 @@ def test_the_compiled_closing_on_a_screen_of_odd_sides(compiled_calls):
         assert torch.equal(compiled.theta[:, run], theta), run
 
 
+@pytest.mark.slow
 def test_other_training_settings_take_the_torch_path(compiled_calls):
     data = configuration_set(32, seed=12)
     for settings in (TrainSettings(flow="closed", s=2), TrainSettings(fit_depth=True, s=2)):
@@ -244,6 +246,7 @@ def test_without_a_compiler_the_layer_warns_once_and_runs_the_torch_path(tmp_pat
     assert not any((tmp_path / "cache").glob("*")), "a failed build left a file behind"
 
 
+@pytest.mark.slow
 def test_the_kernel_is_built_once_into_the_cache_folder(tmp_path):
     env = os.environ | {"SDM_CACHE_DIR": str(tmp_path)}
     script = "from sdm.mapping import native; print(native.enabled())"

@@ -32,8 +32,10 @@ from sdm.sky import shift_vector
 from scenes import configuration_set
 
 COMPILER = os.environ.get("CC", "cc")
-pytestmark = pytest.mark.skipif(shutil.which((shlex.split(COMPILER) or [""])[0]) is None,
-                                reason=f"no C compiler ({COMPILER!r}): these tests build the kernel")
+#: Each test builds the kernel in a fresh cache folder (seconds): out of `make test-fast`.
+pytestmark = [pytest.mark.slow,
+              pytest.mark.skipif(shutil.which((shlex.split(COMPILER) or [""])[0]) is None,
+                                 reason=f"no C compiler ({COMPILER!r}): these tests build the kernel")]
 FIELDS = ("out_pixels", "flow", "loss", "entered", "matched", "landed")
 
 

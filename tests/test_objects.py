@@ -29,6 +29,7 @@ def data():
     return ConfigurationSet.from_configurations(configurations(16, seed=41, mean_cars=3))
 
 
+@pytest.mark.slow
 def test_every_method_scores_the_same_units_of_a_run(data):
     runs = objects_runs(data, "car", 2, [0], seed=3, settings=SETTINGS)
     scored = runs[runs["method"] != "hidden"]
@@ -49,6 +50,7 @@ def test_sdm_moves_every_configuration_towards_its_own_shift(data):
     assert scored["distance"].median() < 0.5 * float(torch.tensor(start).median())
 
 
+@pytest.mark.slow
 def test_table6_and_its_words(data):
     frames = [objects_runs(data, level, noise, [0], seed=5, settings=SETTINGS)
               for level in ("configuration", "camera+car") for noise in (0, 1)]

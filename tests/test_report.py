@@ -241,6 +241,7 @@ def test_tune_cell_reports_dev_loss_and_history():
 # -- figures ---------------------------------------------------------------------------------------
 
 
+@pytest.mark.slow
 def test_importing_figures_leaves_the_backend_alone():
     """Forcing Agg at import hid every plot from the rendered notebooks (the inline backend must win)."""
     import os
@@ -257,6 +258,7 @@ def test_importing_figures_leaves_the_backend_alone():
     assert result.stdout.strip() == "svg"
 
 
+@pytest.mark.slow
 def test_show_figure_saves_and_closes_outside_a_notebook(tmp_path):
     import matplotlib.pyplot as plt
 
@@ -268,6 +270,7 @@ def test_show_figure_saves_and_closes_outside_a_notebook(tmp_path):
     assert figures.show_figure(other) is None and not plt.fignum_exists(other.number)
 
 
+@pytest.mark.slow
 def test_figures_render_and_save(tmp_path):
     import matplotlib.pyplot as plt
 

@@ -82,6 +82,7 @@ def _modules() -> list[str]:
                   for path in package.rglob("*.py"))
 
 
+@pytest.mark.slow
 def test_every_module_imports_first_on_its_own():
     """Each module of the library imported first, with no sdm module loaded before it (one interpreter, sdm's
     modules dropped between imports; torch stays loaded): no import cycle breaks any entry point."""

@@ -12,6 +12,9 @@ from pathlib import Path
 
 import pytest
 
+#: Every test runs a notebook in a kernel (seconds): out of `make test-fast`.
+pytestmark = pytest.mark.slow
+
 ROOT = Path(__file__).resolve().parents[1]
 RUNNER = ROOT / "workflow" / "scripts" / "run_notebook.py"
 

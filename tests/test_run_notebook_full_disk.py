@@ -16,6 +16,9 @@ import pytest
 
 from test_run_notebook import HEADER, ROOT
 
+#: Every test runs a notebook in a kernel (seconds): out of `make test-fast`.
+pytestmark = pytest.mark.slow
+
 #: Runs run_notebook.main(source, executed, html, parameters[, log]) with ENOSPC from the n-th call of
 #: papermill's local write on (argv[1]; 0: never): half of that one reaches the file, the later ones
 #: leave it empty, as on a disk that stays full. With argv[2] == "log", the runner's log writer fails.

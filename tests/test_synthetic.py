@@ -148,6 +148,7 @@ def test_moving_lanes_keep_five_metre_gaps():
         assert (dz >= model.car_length[0] + model.min_gap).all(), image.image_id
 
 
+@pytest.mark.slow
 def test_cars_sit_on_the_road_plane_of_the_real_sample(calibration_set):
     images, _ = calibration_set
     plane = fit_road_plane(images)

@@ -49,6 +49,7 @@ def test_same_seed_same_run_other_seed_other_run(sky768):
     assert not torch.equal(first.theta, other.theta)
 
 
+@pytest.mark.slow
 def test_dense_training_follows_the_fast_path(sky768):
     train_set, _ = sky768
     small = train_set.subset(range(16))
@@ -195,6 +196,7 @@ def test_bad_starts(sky768):
         train_runs(small, [small.targets] * 2, [TrainSettings()] * 2, method="dense")
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("flow", ["paper", "closed_centred_r1", "normalised"])
 def test_noise_runs_equal_single_noise_runs(sky768, flow):
     """Each batched run of Table 2 (the paper's rule) or Table 4 (another rule) is the run
