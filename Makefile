@@ -7,7 +7,7 @@ CORES ?= 2
 # torch comes from PyTorch's CPU-only index (no GPU libraries); `make TORCH_INDEX= install` takes pip's default build
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 
-.PHONY: install run test test-fast test-slurm bench timing report snapshot clean
+.PHONY: install run workflow test test-fast test-slurm bench timing report snapshot clean
 
 install: $(VENV)/.installed
 
@@ -18,7 +18,11 @@ $(VENV)/.installed: pyproject.toml constraints.txt
 	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[workflow,test,baselines]'
 	touch $@
 
-run: install
+# The install and the workflow, timed together (workflow/scripts/timed.py prints wall and CPU time at the end).
+run:
+	@$(PYTHON) workflow/scripts/timed.py "make run" $(MAKE) --no-print-directory workflow
+
+workflow: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/snakemake --profile profiles/default --cores $(CORES)
 
 # The tests and the library's `>>>` docstring examples (pyproject.toml: testpaths, --doctest-modules).
