@@ -107,6 +107,12 @@ def test_plots_render_inline_in_the_html(plotting_run):
     assert stat.S_IMODE(html.stat().st_mode) == 0o644
 
 
+def test_the_page_is_titled_by_its_job(plotting_run):
+    """The rendered page's title is the job's name (the HTML file's), not nbconvert's default "Notebook"."""
+    _, _, html = plotting_run
+    assert f"<title>{html.stem}</title>" in html.read_text()
+
+
 
 
 def test_progress_bars_do_not_warn_in_a_notebook(plotting_run):

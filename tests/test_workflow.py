@@ -509,6 +509,14 @@ def test_completed_run_has_the_research_tables_and_the_report_section(completed_
         assert (completed_run / "results" / "figures" / f"{figure}.png").stat().st_size > 0, figure
 
 
+def test_every_rendered_page_is_titled_by_its_job(completed_run):
+    """Each stage's page in results/notebooks/ carries its job's name as its title."""
+    pages = sorted((completed_run / "results" / "notebooks").glob("*.html"))
+    assert len(pages) > 10
+    for page in pages:
+        assert f"<title>{page.stem}</title>" in page.read_text(), page.name
+
+
 def pd_read_csv(path: Path):
     import pandas as pd
 

@@ -182,7 +182,8 @@ def main(source: str, executed: str, html: str, parameters: str | dict, stderr_l
                 progress_bar=False,
                 log_output=False,
             ))
-            body, _ = HTMLExporter().from_notebook_node(result)
+            # The page's title is its job's name (the HTML file's: results/notebooks/<job>.html), not "Notebook".
+            body, _ = HTMLExporter().from_notebook_node(result, resources={"metadata": {"name": Path(html).stem}})
             library_io().write_text(html, body)
         except Exception as error:  # noqa: BLE001 - every failure is reported the same way, cause first
             noise = output()
