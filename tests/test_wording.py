@@ -7,7 +7,7 @@ import re
 
 import pytest
 
-from wording import ROOT, SELF, VERBATIM, forbidden_in, offences, tracked_files
+from wording import ROOT, SELF, VERBATIM, forbidden_in, history_in, offences, tracked_files
 
 
 def test_no_tracked_file_speaks_of_issues_stops_or_outside_documents():
@@ -33,6 +33,35 @@ def test_a_planted_word_is_found(tmp_path, planted, found):
                                    "iVBORw0KGgoissue5AAAA"])
 def test_ordinary_words_pass(clean):
     assert forbidden_in(clean) == []
+
+
+def documentation_pages() -> list:
+    """The README and every page under docs/ but the measurement logs and snapshots of docs/results/."""
+    results = ROOT / "docs" / "results"
+    return [ROOT / "README.md", *(page for page in sorted((ROOT / "docs").rglob("*.md")) if results not in page.parents)]
+
+
+def test_the_pages_state_the_method_not_its_history():
+    pages = documentation_pages()
+    assert len(pages) >= 12
+    assert offences(pages, ROOT, history_in) == []
+
+
+@pytest.mark.parametrize("planted, found", [
+    ("measured at commit 0123abc on runs 60-119", "at commit 0123abc"), ("A first version ran", "A first version"),
+    ("depth_zoom=1, now the default", "now the default"), ("as the passes were then", "were then")])
+def test_a_planted_history_phrase_is_found(tmp_path, planted, found):
+    """The negative control: a history phrase planted in a method page is reported with its line and words."""
+    path = tmp_path / "method" / "floor.md"
+    path.parent.mkdir()
+    path.write_text(f"# The floor\n{planted}.\n")
+    assert offences([path], tmp_path, history_in) == [f"method/floor.md:2: {found!r}"]
+
+
+@pytest.mark.parametrize("clean", ["the commit and date of each figure", "the first version of the paper's rule",
+                                   "then the kernel narrows", "the default is 2"])
+def test_method_words_pass_the_history_check(clean):
+    assert history_in(clean) == []
 
 
 #: A Markdown link or image: [text](target) or ![alt](target).

@@ -23,6 +23,14 @@ FORBIDDEN = re.compile(
     r"|\bmethod[- ]notes\b|\bnotes, section\b|\bshared/(?:paper|design)\b",  # documents outside the repository
     re.IGNORECASE)
 
+#: Case-insensitive. How a page came to be, which belongs to git or to the measurement logs under docs/results/, not
+#: to a page that states the method: a commit as the place of a result, earlier versions, what is "now" or "then".
+HISTORY = re.compile(
+    r"\bat commit [0-9a-f]{7,40}\b"           # at commit d6a70b4
+    r"|\ba first version\b|\bnow the default\b"
+    r"|\b(?:was|were) then\b",               # as the passes were then
+    re.IGNORECASE)
+
 #: Third-party texts kept verbatim (a licence may speak of "issue tracking systems").
 VERBATIM = re.compile(r"(^|/)LICEN[CS]E[^/]*$")
 
@@ -33,6 +41,11 @@ SELF = {"tests/wording.py", "tests/test_wording.py"}
 def forbidden_in(text: str) -> list[tuple[int, str]]:
     """``(line number, matched words)`` for each forbidden phrase of ``text``."""
     return [(text.count("\n", 0, match.start()) + 1, match.group(0)) for match in FORBIDDEN.finditer(text)]
+
+
+def history_in(text: str) -> list[tuple[int, str]]:
+    """``(line number, matched words)`` for each phrase of ``text`` that tells its history (:data:`HISTORY`)."""
+    return [(text.count("\n", 0, match.start()) + 1, match.group(0)) for match in HISTORY.finditer(text)]
 
 
 def readable_text(path: Path) -> str | None:
@@ -46,14 +59,14 @@ def readable_text(path: Path) -> str | None:
         return None
 
 
-def offences(paths: list[Path], root: Path) -> list[str]:
-    """``file:line: words`` for each forbidden phrase in the text files among ``paths``."""
+def offences(paths: list[Path], root: Path, find=forbidden_in) -> list[str]:
+    """``file:line: words`` for each phrase ``find`` reports in the text files among ``paths``."""
     found = []
     for path in paths:
         text = readable_text(path)
         if text is None:
             continue
-        found += [f"{path.relative_to(root).as_posix()}:{line}: {words!r}" for line, words in forbidden_in(text)]
+        found += [f"{path.relative_to(root).as_posix()}:{line}: {words!r}" for line, words in find(text)]
     return found
 
 
