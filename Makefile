@@ -61,4 +61,4 @@ snapshot:
 	$(PYTHON) workflow/scripts/snapshot.py take
 
 clean:
-	rm -rf results logs benchmarks/*.tsv benchmarks/calibration report.html .snakemake
+	rm -rf results benchmarks/calibration report.html .snakemake

@@ -9,7 +9,7 @@ exist), then runs there, one after another, each under a wall clock:
 2. ``make bench`` (the layer's speed, ``benchmarks/bench_sdm.py``);
 3. ``make test``  (the test suite).
 
-It then reads the default run's per-job times from the clone's ``benchmarks/<job>.tsv`` (Snakemake's
+It then reads the default run's per-job times from the clone's ``results/benchmarks/<job>.tsv`` (Snakemake's
 ``benchmark:`` files: wall seconds ``s`` and ``cpu_time``) and rewrites docs/results/timing.md here, whole:
 the current figures only, each with its command, the commit and the date. A command that fails is written
 as failed, with its exit status. The clone is deleted afterwards unless ``--keep``.
@@ -113,7 +113,7 @@ def page(results: list[dict], jobs: list[tuple[str, float, float]], commit: str,
     ]
     if jobs:
         lines += [
-            "From `benchmarks/<job>.tsv` of that `make run` (Snakemake's `benchmark:` files), longest first.",
+            "From `results/benchmarks/<job>.tsv` of that `make run` (Snakemake's `benchmark:` files), longest first.",
             f"All jobs together: {minutes(sum(job[1] for job in jobs))} of wall time, "
             f"{minutes(sum(job[2] for job in jobs))} of CPU time.",
             "",
@@ -145,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"timing `{command}` in {clone} ...", flush=True)
             results.append(run_timed(command, clone, clone.parent / f"{command.replace(' ', '_')}.log"))
             print(f"  {minutes(results[-1]['seconds'])}, exit status {results[-1]['status']}", flush=True)
-        jobs = job_times(clone / "benchmarks")
+        jobs = job_times(clone / "results" / "benchmarks")
     finally:
         if not args.keep and not args.clone:
             shutil.rmtree(clone.parent, ignore_errors=True)

@@ -1,8 +1,8 @@
 """The Snakemake workflow: lint, format, dry runs, config errors that name the key, and end-to-end runs.
 
 Every test runs Snakemake in a temporary directory of its own (``--directory``), with the
-project's Snakefile, so nothing depends on what a previous run left in ``results/``,
-``logs/`` or ``benchmarks/`` of the working tree.
+project's Snakefile, so nothing depends on what a previous run left in ``results/`` of the
+working tree.
 
 The end-to-end run of the tiny ``.test`` config is a session fixture (about a minute on
 two cores); the tests that need a completed run share it.

@@ -11,13 +11,10 @@ from pathlib import Path
 from code_deps import CodeDepsError, fingerprint
 
 # Every output lives under the results root (config key results_dir, "results" by default), so that
-# runs on different data never overwrite each other. Logs and benchmarks of the default run stay in
-# logs/ and benchmarks/; another results root gets its own beside its results.
+# runs on different data never overwrite each other. The jobs' logs and Snakemake's benchmark files go
+# there too (<root>/logs/, <root>/benchmarks/): the project's benchmarks/ folder holds source only.
 RESULTS = config["results_dir"].rstrip("/")
-if RESULTS == "results":
-    LOGS, BENCHMARKS = "logs", "benchmarks"
-else:
-    LOGS, BENCHMARKS = f"{RESULTS}/logs", f"{RESULTS}/benchmarks"
+LOGS, BENCHMARKS = f"{RESULTS}/logs", f"{RESULTS}/benchmarks"
 
 # The Sky dataset file written by sdm.data.write_sky_file.
 SKY_FILE = f"{RESULTS}/sky/sky.bin"
