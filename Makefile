@@ -15,7 +15,7 @@ $(VENV)/.installed: pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	$(if $(TORCH_INDEX),$(BIN)/python -m pip install --quiet --no-deps -c constraints.txt --index-url $(TORCH_INDEX) torch)
-	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[workflow,test,baselines]'
+	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[experiments,workflow,test,baselines]'
 	touch $@
 
 # The install and the workflow, timed together (workflow/scripts/timed.py prints wall and CPU time at the end).

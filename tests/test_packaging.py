@@ -23,6 +23,7 @@ from __future__ import annotations
 import importlib.metadata
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -148,3 +149,47 @@ def test_negative_control_an_exact_torch_pin_would_replace_it(researchers_enviro
     project = _project_copy(scratch / "pinned", f"torch=={OFFERED_TORCH}")
     plan = _planned_installs(python, project, wheels, scratch / "pinned.json")
     assert plan.get("torch") == OFFERED_TORCH and PROJECT in plan, plan
+
+
+#: Blocks pandas and matplotlib (any of their modules) in a fresh interpreter before anything is imported.
+BLOCK_REPORT_STACK = """
+import importlib.abc, sys
+class Block(importlib.abc.MetaPathFinder):
+    def find_spec(self, name, path, target=None):
+        if name.split(".")[0] in ("pandas", "matplotlib"):
+            raise ImportError(f"{name} is blocked: the layer must not need it")
+sys.meta_path.insert(0, Block())
+"""
+
+
+def _run_blocked(code: str) -> subprocess.CompletedProcess:
+    env = os.environ | {"PYTHONPATH": str(ROOT / "src")}
+    return subprocess.run([sys.executable, "-c", BLOCK_REPORT_STACK + code], capture_output=True, text=True,
+                          env=env, timeout=300)
+
+
+def test_the_layer_imports_and_trains_without_pandas_or_matplotlib():
+    """`import sdm` and the README's quick start run with pandas and matplotlib blocked: the layer's own
+    dependencies (pyproject.toml) are torch, numpy and tqdm."""
+    readme = (ROOT / "README.md").read_text()
+    quick_start = re.search(r"## Use the layer: quick start\n\n```python\n(.*?)```", readme, re.S).group(1)
+    done = _run_blocked("import sdm, sdm.train, sdm.mapping, sdm.sharing, sdm.depth\n" + quick_start)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "(0.5" in done.stdout  # the quick start prints the recovered shift
+
+
+def test_the_block_catches_a_module_that_needs_pandas():
+    """The negative control: the experiments' drivers need pandas, and the block stops them."""
+    done = _run_blocked("import sdm.experiments")
+    assert done.returncode != 0 and "pandas is blocked" in done.stderr
+
+
+def test_the_declared_dependencies_are_the_layers():
+    """pyproject.toml: the core needs torch, numpy and tqdm; pandas and matplotlib come with `experiments`."""
+    import tomllib
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    core = {re.split(r"[<>=!~ ]", requirement)[0] for requirement in project["dependencies"]}
+    assert core == {"torch", "numpy", "tqdm"}
+    extra = {re.split(r"[<>=!~ ]", requirement)[0] for requirement in project["optional-dependencies"]["experiments"]}
+    assert {"pandas", "matplotlib"} <= extra
