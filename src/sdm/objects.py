@@ -24,6 +24,11 @@ The methods (:data:`METHODS`):
 * ``floor``: each configuration's exact-mismatch minimiser nearest theta*
   (:func:`sdm.baselines.rows.floor_configurations`).
 
+The do-nothing references (:data:`REFERENCES`), scored on the same units: ``start``, the paper's rule's shared
+start that SDM's paper-rule rows, CMA-ES and the silhouette are given, and ``prior``, theta*'s mean (the centre
+of :class:`sdm.sharing.TruthDistribution`, a guess that looks at no pixel). Every record carries the distance of
+its own method's start on its unit (``start``), so that each method's error reads as a paired fraction of it.
+
 CPU seconds per configuration: the method's process time for the run over the configurations that own
 units (SDM's and the per-configuration baselines' shared start included in each method that uses it).
 """
@@ -44,6 +49,8 @@ from .train import TrainSettings, parse_schedule, rates_per_point, refine_runs, 
 
 #: The methods of Table 6, in its row order.
 METHODS = ("sdm_paper", "sdm_schedule", "cmaes", "silhouette", "floor")
+#: The do-nothing references of Table 6, scored beside the methods (no fit; see the module's text).
+REFERENCES = ("start", "prior")
 #: The sharing levels Table 6 runs (the shared level is Table 2's runs, quoted).
 SHARINGS = ("configuration", "car", "camera+car")
 
@@ -118,6 +125,15 @@ def _start_table(sharing: S.Sharing, shared: torch.Tensor) -> torch.Tensor:
     return start
 
 
+def prior_totals(truth: S.TruthDistribution, n_units: int) -> torch.Tensor:
+    """``(n_units, 2)`` float64 metres: theta*'s mean total per unit, the guess that looks at no pixel.
+
+    Every level's rows are drawn around ``truth.centre`` (a camera's residuals around 0), so each unit's total has
+    mean ``truth.centre``.
+    """
+    return torch.tensor([float(v) for v in truth.centre], dtype=torch.float64).expand(n_units, 2).clone()
+
+
 def paired_targets(data: ConfigurationSet, sharing: S.Sharing, units: S.Units, noise: int, run: int, seed: int,
                    truth: S.TruthDistribution) -> tuple[int, torch.Tensor, torch.Tensor]:
     """Run ``run``'s seed ``run_seed(seed, noise, run)``, its targets ``(N, H, W)`` bool (theta* drawn from ``truth``
@@ -141,12 +157,13 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
         data: the configurations (with their points' cars for the car levels).
         level: one of :data:`SHARINGS`; noise: the noise level of the targets (Table 2's).
         n_cars: ``(N,)`` cars per configuration (on screen, hidden or not), to count the hidden ones.
-        methods: a subset of :data:`METHODS`.
+        methods: a subset of :data:`METHODS`; the :data:`REFERENCES` are always scored.
 
     Returns:
         A DataFrame with columns ``sharing, level, run, seed, method, config, car, unit, a, b, a_true, b_true,
-        distance, cpu_s`` (``car`` -1 for a configuration's unit; ``cpu_s`` the run's CPU seconds per
-        configuration with units), and per run a row of method ``"hidden"`` whose ``unit`` counts the cars
+        distance, start, cpu_s`` (``car`` -1 for a configuration's unit; ``start`` the distance of the method's
+        start on the unit, the paper's shared start for the floor and the references; ``cpu_s`` the run's CPU
+        seconds per configuration with units), and per run a row of method ``"hidden"`` whose ``unit`` counts the cars
         that own no point (no row, nothing to estimate; left out of every mean).
     """
     from tqdm.std import tqdm
@@ -169,14 +186,15 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
         noisy = data.with_targets(targets)
         estimates = {}
         # the paper's rule's shared start: SDM's paper-rule rows and the per-configuration baselines start there
-        paper_start = (shared_start(data, targets, own_seed, settings)
-                       if {"sdm_paper", "cmaes", "silhouette"} & set(methods) else None)
+        paper_start = shared_start(data, targets, own_seed, settings)
         for method in methods:
             if method in ("sdm_paper", "sdm_schedule"):
                 paper = method == "sdm_paper"
-                theta, _, seconds, _ = sdm_rows(data, targets, sharing, own_seed, settings,
-                                                None if paper else settings.schedule, paper_start if paper else None)
-                estimates[method] = (S.unit_totals(theta, units), seconds)
+                theta, shared, seconds, _ = sdm_rows(data, targets, sharing, own_seed, settings,
+                                                     None if paper else settings.schedule,
+                                                     paper_start if paper else None)
+                estimates[method] = (S.unit_totals(theta, units), seconds,
+                                     S.unit_totals(_start_table(sharing, shared), units))
             elif method in ("cmaes", "silhouette"):
                 start, shared_seconds = paper_start
                 table = _start_table(sharing, start)
@@ -188,28 +206,34 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
                     result = silhouette.fit(noisy, settings.silhouette, own_seed, theta0=table,
                                             param_index=sharing.param_index)
                     totals = S.unit_totals(torch.as_tensor(result.theta, dtype=torch.float64), units)
-                estimates[method] = (totals, _cpu() - began + shared_seconds)
+                estimates[method] = (totals, _cpu() - began + shared_seconds, S.unit_totals(table, units))
             elif method == "floor":
                 began = _cpu()
                 floor = floor_configurations(noisy, units, true_totals, settings.floor, own_seed)
-                estimates[method] = (floor.totals, _cpu() - began)
-        for method, (totals, seconds) in estimates.items():
+                estimates[method] = (floor.totals, _cpu() - began, None)
+        start_totals = S.unit_totals(_start_table(sharing, paper_start[0]), units)
+        estimates["start"] = (start_totals, paper_start[1], start_totals)
+        estimates["prior"] = (prior_totals(settings.truth, len(units)), 0.0, start_totals)
+        for method, (totals, seconds, given) in estimates.items():
             distance = (totals - true_totals).norm(dim=1)
+            # the floor is given theta* itself: its row reads against the start the others are given
+            start_distance = ((start_totals if given is None else given) - true_totals).norm(dim=1)
             for u in range(len(units)):
                 records.append({"sharing": level, "level": noise, "run": run, "seed": own_seed, "method": method,
                                 "config": int(units.config[u]), "car": int(unit_car[u]), "unit": u,
                                 "a": float(totals[u, 0]), "b": float(totals[u, 1]),
                                 "a_true": float(true_totals[u, 0]), "b_true": float(true_totals[u, 1]),
-                                "distance": float(distance[u]), "cpu_s": seconds / owners})
+                                "distance": float(distance[u]), "start": float(start_distance[u]),
+                                "cpu_s": seconds / owners})
         records.append({"sharing": level, "level": noise, "run": run, "seed": own_seed, "method": "hidden",
                         "config": -1, "car": -1, "unit": int(sharing.hidden.shape[0]), "a": 0.0, "b": 0.0,
-                        "a_true": 0.0, "b_true": 0.0, "distance": 0.0, "cpu_s": 0.0})
+                        "a_true": 0.0, "b_true": 0.0, "distance": 0.0, "start": 0.0, "cpu_s": 0.0})
     return pd.DataFrame.from_records(records, columns=RUN_COLUMNS)
 
 
 #: The columns of :func:`objects_runs`' records.
 RUN_COLUMNS = ["sharing", "level", "run", "seed", "method", "config", "car", "unit", "a", "b", "a_true", "b_true",
-               "distance", "cpu_s"]
+               "distance", "start", "cpu_s"]
 
 
 def _unit_cars(sharing: S.Sharing, units: S.Units) -> torch.Tensor:
@@ -225,11 +249,13 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
 
     Images with exactly ``n_cars`` cars each (:func:`sdm.data.set_with_cars`), one row per car. SDM (the
     paper's rule, :func:`sdm_rows`) runs with ``n_epoch`` in ``epochs`` for its rows; CMA-ES with
-    ``evaluations_per_unknown`` in ``budgets``, from SDM's shared start.
+    ``evaluations_per_unknown`` in ``budgets``, from SDM's shared start. The do-nothing references
+    (:data:`REFERENCES`: the shared start both are given, theta*'s mean) are scored per run with budget 0.
 
     Returns:
-        A DataFrame with columns ``cars, level, run, method, budget, mean, median, cpu_s`` (distances in
-        metres over the run's cars; ``cpu_s`` per configuration).
+        A DataFrame with columns ``cars, level, run, method, budget, mean, median, start, closer, cpu_s``
+        (distances in metres over the run's cars; ``start`` the mean distance of the shared start over the same
+        cars, ``closer`` the share of cars that end closer than the start; ``cpu_s`` per configuration).
     """
     from tqdm.std import tqdm
 
@@ -241,30 +267,38 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
     for run in tqdm(list(runs), desc=f"{n_cars} cars", unit="run", disable=not progress, leave=False):
         own_seed, targets, true_totals = paired_targets(data, sharing, units, noise, run, seed, settings.truth)
         start, shared_seconds = paper_start = shared_start(data, targets, own_seed, settings)
+        start_totals = S.unit_totals(_start_table(sharing, start), units)
+        start_error = start_totals - true_totals
+
+        def record(method, budget, totals, seconds):
+            records.append(_scaling_record(n_cars, noise, run, method, budget, totals - true_totals, start_error,
+                                           seconds / len(data)))
+
+        record("start", 0, start_totals, shared_seconds)
+        record("prior", 0, prior_totals(settings.truth, len(units)), 0.0)
         for n_epoch in epochs:
             theta, _, seconds, _ = sdm_rows(
                 data, targets, sharing, own_seed, replace(settings, rows=replace(settings.rows, n_epoch=int(n_epoch))),
                 None, paper_start)
-            records.append(_scaling_record(n_cars, noise, run, "sdm_paper", n_epoch,
-                                           S.unit_totals(theta, units) - true_totals, seconds / len(data)))
+            record("sdm_paper", n_epoch, S.unit_totals(theta, units), seconds)
         for budget in budgets:
             began = _cpu()
             fit = fit_configurations(data.with_targets(targets), units,
                                      replace(settings.cmaes, evaluations_per_unknown=int(budget)), own_seed,
-                                     theta0=S.unit_totals(_start_table(sharing, start), units))
-            records.append(_scaling_record(n_cars, noise, run, "cmaes", budget, fit.totals - true_totals,
-                                           (_cpu() - began + shared_seconds) / len(data)))
+                                     theta0=start_totals)
+            record("cmaes", budget, fit.totals, _cpu() - began + shared_seconds)
     return pd.DataFrame.from_records(records, columns=SCALING_COLUMNS)
 
 
 #: The columns of :func:`scaling_runs`' records.
-SCALING_COLUMNS = ["cars", "level", "run", "method", "budget", "mean", "median", "cpu_s"]
+SCALING_COLUMNS = ["cars", "level", "run", "method", "budget", "mean", "median", "start", "closer", "cpu_s"]
 
 
-def _scaling_record(n_cars, noise, run, method, budget, error, cpu_s) -> dict:
-    distance = error.norm(dim=1)
+def _scaling_record(n_cars, noise, run, method, budget, error, start_error, cpu_s) -> dict:
+    distance, start = error.norm(dim=1), start_error.norm(dim=1)
     return {"cars": int(n_cars), "level": int(noise), "run": int(run), "method": method, "budget": int(budget),
-            "mean": float(distance.mean()), "median": float(distance.median()), "cpu_s": float(cpu_s)}
+            "mean": float(distance.mean()), "median": float(distance.median()), "start": float(start.mean()),
+            "closer": float((distance < start).to(torch.float64).mean()), "cpu_s": float(cpu_s)}
 
 
 def search_settings(warm: dict, rows: dict, schedule: str, cmaes: dict, s: int, batch_size: int,
