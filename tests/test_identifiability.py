@@ -7,8 +7,11 @@ import pytest
 import torch
 
 from sdm import sharing as S
+from sdm.batch import ConfigurationSet
+from sdm.camera import APOLLO_CAMERA_5
 from sdm.errors import SDMInputError
 from sdm.identifiability import exact_sets, scan_offsets
+from sdm.sky import CIRCLE_RADIUS, SKY_SHIFT, build_configuration, circle_offsets, rescaled_configuration, scaled_camera
 
 from sharing_scenes import car_grid_scene
 
@@ -72,3 +75,54 @@ def test_a_narrow_scan_is_clipped_and_bad_input_named():
         exact_sets(data, units, truth[:1])
     with pytest.raises(SDMInputError, match="reach and step"):
         scan_offsets(0.0, 0.01)
+
+
+
+@pytest.mark.parametrize("disc", ["pixels", "metres"])
+def test_a_finer_screen_shrinks_the_cell_with_its_pixels(disc):
+    camera = APOLLO_CAMERA_5
+    centres = camera.backproject(torch.tensor([[40.5, 60.5], [70.5, 180.5]], dtype=torch.float64),
+                                 torch.tensor([18.0, 33.0], dtype=torch.float64))
+    config = build_configuration(centres, SKY_SHIFT, camera)
+    assert rescaled_configuration(config, camera, 1, disc) is config
+    fine = rescaled_configuration(config, camera, 2, disc)
+    scaled = scaled_camera(camera, 2)
+    assert scaled.screen_shape == (256, 512) and fine.target.shape == (256, 512)
+    assert torch.equal(fine.centres, 2 * config.centres + 1) and torch.equal(fine.centre_depth, config.centre_depth)
+    assert fine.num_points == (config.num_points if disc == "pixels" else len(circle_offsets(2 * CIRCLE_RADIUS)) * 2)
+    extents = []
+    for built, cam in ((config, camera), (fine, scaled)):
+        data = ConfigurationSet.from_configurations([built], cam)
+        sharing = S.sharing("car", data)
+        units = S.units(data, sharing.param_index, sharing.n_rows)
+        theta = torch.zeros(sharing.n_rows, 2, dtype=torch.float64)
+        data = data.with_targets(S.render_targets(data, theta, sharing.param_index))
+        extents.append(exact_sets(data, units, S.unit_totals(theta, units), reach=0.15, step=STEP).extent)
+    assert extents[1].reshape(-1).tolist() == pytest.approx((extents[0] / 2).reshape(-1).tolist(), abs=STEP)
+    with pytest.raises(SDMInputError, match="disc must be one of"):
+        rescaled_configuration(config, camera, 2, "points")
+    with pytest.raises(SDMInputError, match="screen scale must be a positive integer"):
+        scaled_camera(camera, 0)
+
+
+def test_the_windowed_scan_is_the_whole_screens_rendering_among_overlapping_cars():
+    from sharing_scenes import road_set
+
+    data, cars, n_cars = road_set(2, seed=3, mean_cars=9)
+    sharing = S.sharing("car", data, cars, n_cars)
+    units = S.units(data, sharing.param_index, sharing.n_rows)
+    theta = S.draw_truth(sharing, 11)
+    clean = data.with_targets(S.render_targets(data, theta, sharing.param_index))
+    truth = S.unit_totals(theta, units)
+    step, reach = 0.07, 0.35
+    sets = exact_sets(clean, units, truth, scan=range(len(units)), reach=reach, step=step)
+    grid = scan_offsets(reach, step)
+    for u in range(len(units)):
+        brute = []
+        for offset in grid:
+            moved = theta.clone()
+            moved[int(units.rows[u, 0])] += offset
+            brute.append(torch.equal(S.render_targets(data, moved, sharing.param_index), clean.targets))
+        brute = grid[torch.tensor(brute)]
+        assert int(sets.points[u]) == brute.shape[0]
+        assert float(sets.distance[u]) == pytest.approx(float(brute.norm(dim=1).mean()))

@@ -19,12 +19,14 @@ from dataclasses import dataclass
 
 import torch
 
-from .baselines.rows import configuration_objective
+from .baselines.rows import ConfigurationMismatch, configuration_objective
 from .batch import ConfigurationSet
 from .errors import SDMInputError
+from .representation import screen_pixels
 from .sharing import Units
+from .sky import shift_vector
 
-#: Cells of the mismatch's stamp buffer one pass may use (candidates x screen pixels): about 256 MB of int64.
+#: Cells of the mismatch's stamp buffer one pass may use (candidates x window pixels): about 256 MB of int64.
 STAMP_CELLS = 1 << 25
 
 
@@ -91,30 +93,61 @@ def exact_sets(data: ConfigurationSet, units: Units, truth: torch.Tensor, scan=N
         raise SDMInputError(f"scan must name units in [0, {len(units)}), got {chosen.tolist()}")
     truth = truth.to(device=data.device, dtype=torch.float64)
     offsets = scan_offsets(reach, step, device=data.device)
-    cells = data.camera.screen_shape[0] * data.camera.screen_shape[1] + 1
-    chunk = max(1, STAMP_CELLS // cells)
     config_of = units.config.cpu()
-    objectives = {}
+    checked = set()
     rows = []
     for unit in chosen.tolist():
         index = int(config_of[unit])
-        if index not in objectives:
-            objective = configuration_objective(data, units, index)
-            own = truth[int(units.offsets[index]):int(units.offsets[index + 1])]
-            if int(objective.counts(own.unsqueeze(0))[0]) != 0:
+        first, last = int(units.offsets[index]), int(units.offsets[index + 1])
+        if index not in checked:
+            if int(configuration_objective(data, units, index).counts(truth[first:last].unsqueeze(0))[0]) != 0:
                 raise SDMInputError(f"truth: configuration {index}'s target is not its exact rendering at truth "
                                     "(give the noise-free targets rendered at theta*)")
-            objectives[index] = (objective, own)
-        objective, own = objectives[index]
-        local = unit - int(units.offsets[index])
+            checked.add(index)
+        objective = _unit_objective(data, units, truth, index, unit, reach)
+        start = truth[unit].expand(1, 1, 2)
+        chunk = max(1, STAMP_CELLS // objective.cells)
         found = []
         for begin in range(0, offsets.shape[0], chunk):
             part = offsets[begin:begin + chunk]
-            shifts = own.unsqueeze(0).repeat(part.shape[0], 1, 1)
-            shifts[:, local] += part
+            shifts = torch.cat((start + part.unsqueeze(1), part.new_zeros(part.shape[0], 1, 2)), 1)
             found.append(part[objective.counts(shifts) == 0])
         rows.append(torch.cat(found))
     return _summary(chosen, rows, reach, step)
+
+
+def _unit_objective(data: ConfigurationSet, units: Units, truth: torch.Tensor, index: int, unit: int,
+                    reach: float) -> ConfigurationMismatch:
+    """The exact mismatch of configuration ``index`` as a function of ``unit``'s shift alone, in a window.
+
+    Two units: 0 the scanned unit's points (unshifted), 1 the configuration's other points moved by their
+    units' theta* beforehand (to be given shift 0, so they land exactly where theta* puts them). The window
+    holds every pixel the scanned unit can reach within ``reach`` metres of any shift of the scan; the other
+    points outside it never change a pixel the scan can, so the count within it is the whole mismatch.
+    """
+    begin, end = int(data.offsets[index]), int(data.offsets[index + 1])
+    points = data.points[begin:end]
+    mine = units.point_unit[begin:end] == unit
+    moved = points + shift_vector(truth.index_select(0, units.point_unit[begin:end]), points)
+    camera = data.camera
+    pixels, _ = screen_pixels(camera.project(moved, validate=False), camera)
+    nearest = float(points[mine, 2].min())
+    reach_px = (math.ceil(reach * camera.fy * camera.rows_per_image_pixel / nearest) + 2,
+                math.ceil(reach * camera.fx * camera.cols_per_image_pixel / nearest) + 2)
+    height, width = camera.screen_shape
+    low = (pixels[mine].min(0).values - torch.tensor(reach_px, device=pixels.device)).tolist()
+    high = (pixels[mine].max(0).values + torch.tensor(reach_px, device=pixels.device)).tolist()
+    top, left = max(low[0], 0), max(low[1], 0)
+    bottom, right = min(high[0], height - 1), min(high[1], width - 1)
+    if bottom < top or right < left:  # the unit is off screen wherever the scan moves it
+        top, left, bottom, right = 0, 0, 0, 0
+    near = (~mine) & (pixels[:, 0] >= top) & (pixels[:, 0] <= bottom) & (pixels[:, 1] >= left) \
+        & (pixels[:, 1] <= right)
+    kept = torch.cat((points[mine], moved[near]))
+    which = torch.cat((torch.zeros(int(mine.sum()), dtype=torch.int64, device=points.device),
+                       torch.ones(int(near.sum()), dtype=torch.int64, device=points.device)))
+    return ConfigurationMismatch(kept, which, data.targets[index], camera,
+                                 window=(top, left, bottom - top + 1, right - left + 1))
 
 
 def _summary(chosen: torch.Tensor, sets: list[torch.Tensor], reach: float, step: float) -> ExactSets:

@@ -56,6 +56,10 @@ class ConfigurationMismatch:
         unit: ``(p,)`` int64 each point's unit in ``[0, U)``.
         target: ``(H, W)`` bool the configuration's (possibly noisy) target.
         camera: camera and screen.
+        window: ``(row, col, height, width)`` screen pixels, or None (the whole screen): count the mismatch within
+            this window only, pixels outside it counted as off screen. For a caller that knows no candidate
+            changes a pixel outside it (:func:`sdm.identifiability.exact_sets`); the stamp buffer then needs a cell
+            per window pixel, not per screen pixel.
 
     A candidate is ``2 U`` numbers: unit ``u``'s shift ``(a, b)`` at ``[2u, 2u + 1]``.
 
@@ -64,7 +68,8 @@ class ConfigurationMismatch:
         n_units: ``U``.
     """
 
-    def __init__(self, points: torch.Tensor, unit: torch.Tensor, target: torch.Tensor, camera: Camera) -> None:
+    def __init__(self, points: torch.Tensor, unit: torch.Tensor, target: torch.Tensor, camera: Camera,
+                 window: tuple[int, int, int, int] | None = None) -> None:
         if points.ndim != 2 or points.shape[1] != 3 or unit.shape != points.shape[:1]:
             raise SDMInputError(f"points must be (p, 3) and unit (p,), got {tuple(points.shape)} and "
                                 f"{tuple(unit.shape)}")
@@ -72,7 +77,14 @@ class ConfigurationMismatch:
             raise SDMInputError(f"target must be {camera.screen_shape}, got {tuple(target.shape)}")
         self.points, self.unit, self.camera = points, unit.to(torch.int64), camera
         self.n_units = int(unit.max()) + 1 if unit.numel() else 0
-        height, width = camera.screen_shape
+        if window is None:
+            window = (0, 0) + tuple(camera.screen_shape)
+        top, left, height, width = (int(v) for v in window)
+        if top < 0 or left < 0 or height < 1 or width < 1 or top + height > camera.screen_shape[0] \
+                or left + width > camera.screen_shape[1]:
+            raise SDMInputError(f"window must lie on the {camera.screen_shape} screen, got {window!r}")
+        self._window = (top, left, height, width)
+        target = target[top:top + height, left:left + width]
         self._cells = height * width
         # weight per pixel (+1 off target, -1 on target), then a spare cell of weight 0 for off-screen points
         weight = torch.ones(self._cells + 1, dtype=torch.int64, device=points.device)
@@ -86,13 +98,20 @@ class ConfigurationMismatch:
     def __call__(self, candidate) -> int:
         return self.many([candidate])[0]
 
+    @property
+    def cells(self) -> int:
+        """Stamp cells one candidate takes: the window's pixels and a spare one."""
+        return self._cells + 1
+
     def counts(self, shifts: torch.Tensor) -> torch.Tensor:
         """``(C,)`` int64 mismatches of ``(C, U, 2)`` float64 unit shifts (metres), one pass for all ``C``."""
         n_candidates, n_points = shifts.shape[0], self.points.shape[0]
         per_point = shifts.index_select(1, self.unit)  # (C, p, 2)
         pixels, on = screen_pixels(project_shifted(self.points, per_point, self.camera), self.camera)
-        width = self.camera.screen_shape[1]
-        cell = torch.where(on, pixels[..., 0] * width + pixels[..., 1], self._cells)  # (C, p), spare off screen
+        top, left, height, width = self._window
+        row, col = pixels[..., 0] - top, pixels[..., 1] - left
+        on = on & (row >= 0) & (row < height) & (col >= 0) & (col < width)
+        cell = torch.where(on, row * width + col, self._cells)  # (C, p), spare off screen (or off the window)
         stride = self._cells + 1
         ids = (cell + torch.arange(n_candidates, device=cell.device).unsqueeze(1) * stride).reshape(-1)
         if self._stamp.numel() < n_candidates * stride:
