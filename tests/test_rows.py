@@ -109,10 +109,11 @@ def test_floor_per_configuration_is_in_theta_stars_region(scene):
                                                                                      extent_tol=1e-4))
     floor = rows.floor_configurations(data, units, totals, settings, seed=0, configs=[0, 2])
     assert floor.min_mismatch.tolist() == [0, 0, 0, 0, 0] and floor.mismatch_at_truth[[0, 2]].tolist() == [0, 0]
-    for index in (0, 2):  # without noise theta* is a minimiser: the floor is its region's centre
+    for index in (0, 2):  # without noise theta* is a minimiser: the floor is theta* itself
         objective = rows.configuration_objective(data, units, index)
         first, last = int(units.offsets[index]), int(units.offsets[index + 1])
-        assert objective(floor.totals[first:last].reshape(-1).tolist()) == 0
+        assert torch.equal(floor.totals[first:last], totals[first:last])
+        assert objective(floor.centre_totals[first:last].reshape(-1).tolist()) == 0  # the region's centre too
         assert floor.evaluations[index] > 0
     untouched = slice(int(units.offsets[1]), int(units.offsets[2]))
     assert torch.equal(floor.totals[untouched], totals[untouched])
@@ -120,6 +121,14 @@ def test_floor_per_configuration_is_in_theta_stars_region(scene):
                                            for i, t in enumerate(data.targets)]))
     noisy_floor = rows.floor_configurations(noisy, units, totals, settings, seed=0, configs=[0])
     assert int(noisy_floor.min_mismatch[0]) <= int(noisy_floor.mismatch_at_truth[0])
+    objective = rows.configuration_objective(noisy, units, 0)
+    own = slice(0, int(units.offsets[1]))
+    least = int(noisy_floor.min_mismatch[0])
+    assert objective(noisy_floor.totals[own].reshape(-1).tolist()) == least  # a minimiser the search knows
+    gap = (noisy_floor.totals[own] - totals[own]).norm()
+    for other in (noisy_floor.centre_totals, noisy_floor.search_totals):  # the nearest to theta* of those at least
+        if objective(other[own].reshape(-1).tolist()) == least:
+            assert gap <= (other[own] - totals[own]).norm()
 
 
 def test_settings_and_arguments_checked(scene):

@@ -695,6 +695,8 @@ def _objects_cases() -> dict[str, tuple[dict, str | None]]:
         "runs": (2, "objects_runs"),
         "configurations": (32, "objects_runs"),
         "batch_size": (4, "objects_runs"),
+        "screen.scale": (2, "objects_runs"),
+        "screen.disc": ("metres", "objects_runs"),
         "truth.camera_sd": (0.1, "objects_runs"),
         "truth.car_sd": (0.1, "objects_runs"),
         "truth.residual_sd": (0.01, "objects_runs"),

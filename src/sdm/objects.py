@@ -22,7 +22,7 @@ The methods (:data:`METHODS`):
   started from SDM's shared estimate (the same start as SDM's rows).
 * ``silhouette``: the soft-silhouette baseline on the rows, from the same start.
 * ``floor``: each configuration's exact-mismatch minimiser nearest theta*
-  (:func:`sdm.baselines.rows.floor_configurations`).
+  (:func:`sdm.baselines.rows.floor_configurations`; theta* itself without noise).
 
 The do-nothing references (:data:`REFERENCES`), scored on the same units: ``start``, the paper's rule's shared
 start that SDM's paper-rule rows, CMA-ES and the silhouette are given, and ``prior``, theta*'s mean (the centre

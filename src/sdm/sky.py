@@ -248,6 +248,14 @@ def scaled_camera(camera: Camera, scale: int) -> Camera:
                   screen_width=camera.screen_width * int(scale))
 
 
+def disc_radius(scale: int, disc: str) -> float:
+    """A car's disc radius in screen pixels on the screen scaled ``scale`` times: the paper's ``3 ln 4`` for
+    ``disc = "pixels"``, ``scale`` times it for ``"metres"`` (the car's size in metres kept)."""
+    if disc not in DISCS:
+        raise SDMInputError(f"disc must be one of {', '.join(DISCS)}, got {disc!r}")
+    return CIRCLE_RADIUS * (int(scale) if disc == "metres" else 1)
+
+
 def rescaled_configuration(config: SkyConfiguration, camera: Camera, scale: int, disc: str = "pixels",
                            shift: tuple[float, float] = SKY_SHIFT) -> SkyConfiguration:
     """``config``'s cars rebuilt on the screen ``scaled_camera(camera, scale)``.
@@ -265,13 +273,11 @@ def rescaled_configuration(config: SkyConfiguration, camera: Camera, scale: int,
         SDMInputError: naming ``disc`` unless it is one of :data:`DISCS`; naming the scale unless it is a
             positive integer.
     """
-    if disc not in DISCS:
-        raise SDMInputError(f"disc must be one of {', '.join(DISCS)}, got {disc!r}")
+    radius = disc_radius(scale, disc)
     scaled = scaled_camera(camera, scale)
     if scaled is camera:
         return config
     centres = pixel_centre_points(config.centres, config.centre_depth, camera)
-    radius = CIRCLE_RADIUS * (int(scale) if disc == "metres" else 1)
     return build_configuration(centres, shift, scaled, config.image_id, radius)
 
 

@@ -290,13 +290,18 @@ class RowsFloor:
     """The floor of each configuration, per unit.
 
     Attributes:
-        totals: ``(U, 2)`` float64 the floor's total shift of each unit (the minimal region's centre), metres.
+        totals: ``(U, 2)`` float64 the floor's total shift of each unit, metres: the exact-mismatch minimiser
+            nearest theta* of those the search knows (:func:`nearest_minimiser`): theta* itself wherever it
+            attains the least count (always without noise), else the nearer to it of the search's point and the
+            minimal region's centre among those at the least count.
+        centre_totals: ``(U, 2)`` the minimal region's centre.
         search_totals: ``(U, 2)`` where the search itself stopped.
         min_mismatch: ``(N,)`` int64 the count at the floor; mismatch_at_truth: ``(N,)`` the count at theta*.
         evaluations, seconds: ``(N,)`` counts and CPU seconds per configuration.
     """
 
     totals: torch.Tensor
+    centre_totals: torch.Tensor
     search_totals: torch.Tensor
     min_mismatch: torch.Tensor
     mismatch_at_truth: torch.Tensor
@@ -317,19 +322,37 @@ def floor_configurations(data: ConfigurationSet, units: Units, truth: torch.Tens
         raise SDMInputError(f"settings must be RowsFloorSettings, got {type(settings).__name__}")
     _check_units(data, units)
     truth = _start(truth, units, "truth")
-    totals, search_totals = truth.clone(), truth.clone()
+    totals, centre_totals, search_totals = truth.clone(), truth.clone(), truth.clone()
     min_mismatch, evaluations, seconds = _per_configuration(len(data))
     at_truth = torch.zeros(len(data), dtype=torch.int64)
     for index, own, objective, start, began in _each_configuration(data, units, configs, truth):
         result = floor_search(objective, configuration_seed(seed, index), settings.settings(len(start)),
                               theta0=start, truth=start)
-        seconds[index] = time.process_time() - began
-        totals[own] = torch.tensor(result.theta, dtype=torch.float64).view(-1, 2)
+        centre_totals[own] = torch.tensor(result.theta, dtype=torch.float64).view(-1, 2)
         search_totals[own] = torch.tensor(result.search_theta, dtype=torch.float64).view(-1, 2)
-        min_mismatch[index], at_truth[index] = result.min_mismatch, result.mismatch_at_truth
+        nearest, least = nearest_minimiser(objective, start, (result.search_theta, result.theta))
+        totals[own] = torch.tensor(nearest, dtype=torch.float64).view(-1, 2)
+        min_mismatch[index], at_truth[index] = least, result.mismatch_at_truth
         evaluations[index] = result.evaluations
-    return RowsFloor(totals, search_totals, min_mismatch, at_truth, evaluations, seconds)
+        seconds[index] = time.process_time() - began
+    return RowsFloor(totals, centre_totals, search_totals, min_mismatch, at_truth, evaluations, seconds)
+
+
+def nearest_minimiser(objective: ConfigurationMismatch, truth, candidates) -> tuple[list[float], int]:
+    """Of theta* and ``candidates`` (each ``2 U`` numbers), the one nearest theta* among those at the least count.
+
+    Returns:
+        ``(theta, count)``: the chosen point (theta* itself wherever it attains the least count) and that count.
+    """
+    truth = [float(v) for v in truth]
+    points = [truth] + [[float(v) for v in point] for point in candidates]
+    counts = objective.many(points)
+    least = min(counts)
+    at_least = [point for point, count in zip(points, counts) if count == least]
+    nearest = min(at_least, key=lambda point: sum((p - t) ** 2 for p, t in zip(point, truth)))
+    return nearest, int(least)
 
 
 __all__ = ["ConfigurationMismatch", "RowsCMAESSettings", "RowsFloor", "RowsFloorSettings", "RowsResult",
-           "configuration_objective", "configuration_seed", "fit_configurations", "floor_configurations"]
+           "configuration_objective", "configuration_seed", "fit_configurations", "floor_configurations",
+           "nearest_minimiser"]
