@@ -90,8 +90,8 @@ def test_scaling_gives_one_point_per_budget(data):
 
     cars = set_with_cars(16, 2, seed=0)
     frame = scaling_runs(cars, 2, 0, [0], seed=1, settings=SETTINGS, epochs=[1, 2], budgets=[5])
-    assert sorted(zip(frame["method"], frame["budget"])) == [("cmaes", 5), ("prior", 0), ("sdm_paper", 1),
-                                                              ("sdm_paper", 2), ("start", 0)]
+    assert sorted(zip(frame["method"], frame["budget"])) == [("cmaes", 5), ("cmaes_car", 5), ("prior", 0),
+                                                              ("sdm_paper", 1), ("sdm_paper", 2), ("start", 0)]
     fitted = frame[~frame["method"].isin(["prior"])]
     assert (fitted["cpu_s"] > 0).all()
     start = frame[frame["method"] == "start"].iloc[0]

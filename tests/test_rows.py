@@ -146,3 +146,26 @@ def test_settings_and_arguments_checked(scene):
     with pytest.raises(SDMInputError, match="configs"):
         rows.fit_configurations(data, units, configs=[len(data)])
     assert rows.RowsCMAESSettings(evaluations_per_unknown=10).cmaes(6).budget == 60
+
+
+def test_block_sweeps_spend_the_joint_budget_and_never_count_more(scene):
+    data, units, totals = scene
+    settings = rows.RowsCMAESSettings(evaluations_per_unknown=30, sigma0=0.1)
+    start = (totals + 0.2).clone()
+    blocks = rows.fit_blocks(data, units, settings, seed=4, theta0=start, sweeps=2)
+    again = rows.fit_blocks(data, units, settings, seed=4, theta0=start, sweeps=2)
+    assert torch.equal(blocks.totals, again.totals)
+    for index in range(len(data)):
+        first, last = int(units.offsets[index]), int(units.offsets[index + 1])
+        objective = rows.configuration_objective(data, units, index)
+        at_start = objective(start[first:last].reshape(-1).tolist())
+        assert int(blocks.mismatch[index]) <= at_start  # each block keeps its start unless it counts less
+        assert int(blocks.mismatch[index]) == objective(blocks.totals[first:last].reshape(-1).tolist())
+        n_units = last - first
+        # each of the 2 U block searches gets 30 counts, at most one generation more, plus its start's count
+        assert int(blocks.evaluations[index]) <= 2 * n_units * (30 + 6 + 1) + 1
+    assert int(blocks.mismatch.sum()) < sum(
+        rows.configuration_objective(data, units, i)(start[int(units.offsets[i]):int(units.offsets[i + 1])]
+                                                     .reshape(-1).tolist()) for i in range(len(data)))
+    with pytest.raises(SDMInputError, match="sweeps must be a positive integer"):
+        rows.fit_blocks(data, units, settings, sweeps=0)

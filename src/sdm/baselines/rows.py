@@ -237,6 +237,66 @@ def fit_configurations(data: ConfigurationSet, units: Units, settings: RowsCMAES
     return RowsResult(totals, mismatch, evaluations, seconds)
 
 
+class _Block:
+    """One unit's 2 unknowns of a configuration's count, the other units held at ``current`` (a list of 2 U floats,
+    read at each count: the sweep writes a block's result into it before the next block)."""
+
+    def __init__(self, objective: ConfigurationMismatch, current: list[float], unit: int) -> None:
+        self.objective, self.current, self.unit = objective, current, unit
+
+    @property
+    def evaluations(self) -> int:
+        return self.objective.evaluations
+
+    def _full(self, candidate) -> list[float]:
+        full = list(self.current)
+        full[2 * self.unit:2 * self.unit + 2] = [float(candidate[0]), float(candidate[1])]
+        return full
+
+    def __call__(self, candidate) -> int:
+        return self.objective.many([self._full(candidate)])[0]
+
+    def many(self, candidates) -> list[int]:
+        return self.objective.many([self._full(candidate) for candidate in candidates])
+
+
+def fit_blocks(data: ConfigurationSet, units: Units, settings: RowsCMAESSettings = RowsCMAESSettings(),
+               seed: int = 0, theta0=None, configs=None, sweeps: int = 2) -> RowsResult:
+    """CMA-ES per unit: block sweeps over each configuration's units, each unit's 2 unknowns in turn with the others
+    fixed, on the configuration's whole exact pixel mismatch (:class:`ConfigurationMismatch`).
+
+    The budget is :func:`fit_configurations`'s (``evaluations_per_unknown x 2U`` per configuration), split evenly
+    over ``sweeps`` sweeps of its ``U`` units: each block search gets ``2 x evaluations_per_unknown / sweeps``
+    counts (at least one generation). Block ``(sweep, u)`` of configuration ``i`` is seeded from
+    ``(seed, i, sweep, u)``; a block keeps its start unless a candidate counts less.
+
+    Returns:
+        :class:`RowsResult`. Deterministic: the same arguments give the same totals.
+    """
+    if not isinstance(settings, RowsCMAESSettings):
+        raise SDMInputError(f"settings must be RowsCMAESSettings, got {type(settings).__name__}")
+    if isinstance(sweeps, bool) or not isinstance(sweeps, int) or sweeps < 1:
+        raise SDMInputError(f"sweeps must be a positive integer, got {sweeps!r}")
+    _check_units(data, units)
+    totals = _start(theta0, units, "theta0")
+    mismatch, evaluations, seconds = _per_configuration(len(data))
+    block = replace(settings, evaluations_per_unknown=max(1, (2 * settings.evaluations_per_unknown) // sweeps))
+    for index, own, objective, start, began in _each_configuration(data, units, configs, totals):
+        current = list(start)
+        for sweep in range(sweeps):
+            for unit in range(len(current) // 2):
+                block_seed = int(np.random.SeedSequence([int(seed), int(index), sweep, unit]).generate_state(
+                    1, dtype=np.uint32)[0])
+                result = _search(_Block(objective, current, unit), block.cmaes(1), block_seed,
+                                 current[2 * unit:2 * unit + 2])
+                current[2 * unit:2 * unit + 2] = [float(v) for v in result.theta]
+        evaluations[index] = objective.evaluations
+        mismatch[index] = objective(current)
+        seconds[index] = time.process_time() - began
+        totals[own] = torch.tensor(current, dtype=torch.float64).view(-1, 2)
+    return RowsResult(totals, mismatch, evaluations, seconds)
+
+
 def _per_configuration(n_configs: int):
     return (torch.zeros(n_configs, dtype=torch.int64), torch.zeros(n_configs, dtype=torch.int64),
             torch.zeros(n_configs, dtype=torch.float64))
@@ -354,5 +414,6 @@ def nearest_minimiser(objective: ConfigurationMismatch, truth, candidates) -> tu
 
 
 __all__ = ["ConfigurationMismatch", "RowsCMAESSettings", "RowsFloor", "RowsFloorSettings", "RowsResult",
-           "configuration_objective", "configuration_seed", "fit_configurations", "floor_configurations",
+           "configuration_objective", "configuration_seed", "fit_blocks", "fit_configurations",
+           "floor_configurations",
            "nearest_minimiser"]
