@@ -169,3 +169,24 @@ def test_block_sweeps_spend_the_joint_budget_and_never_count_more(scene):
                                                      .reshape(-1).tolist()) for i in range(len(data)))
     with pytest.raises(SDMInputError, match="sweeps must be a positive integer"):
         rows.fit_blocks(data, units, settings, sweeps=0)
+
+
+def test_the_regularised_search_stays_near_its_start(scene):
+    data, units, totals = scene
+    start = (totals + 0.15).clone()
+    plain = rows.fit_configurations(data, units, rows.RowsCMAESSettings(evaluations_per_unknown=40), seed=1,
+                                    theta0=start)
+    zero = rows.fit_configurations(data, units, rows.RowsCMAESSettings(evaluations_per_unknown=40, penalty=0.0),
+                                   seed=1, theta0=start)
+    assert torch.equal(plain.totals, zero.totals)
+    heavy = rows.fit_configurations(data, units, rows.RowsCMAESSettings(evaluations_per_unknown=40, penalty=1e6),
+                                    seed=1, theta0=start)
+    moved = lambda fit: float((fit.totals - start).norm(dim=1).mean())  # noqa: E731
+    assert moved(heavy) < 0.1 * moved(plain)
+    objective = rows.configuration_objective(data, units, 0)
+    base = totals[:int(units.offsets[1])].reshape(-1).tolist()
+    away = [base[0] + 0.1] + base[1:]
+    penalised = rows.Penalised(objective, base, 2.0)
+    assert penalised(away) == pytest.approx(objective(away) + 2.0)  # (0.1 m)^2 away: one weight
+    with pytest.raises(SDMInputError, match="penalty"):
+        rows.RowsCMAESSettings(penalty=-1.0)

@@ -23,6 +23,9 @@ The methods (:data:`METHODS`):
 * ``cmaes_car``: CMA-ES per unit (:func:`sdm.baselines.rows.fit_blocks`): block sweeps over each configuration's
   units, each unit's 2 unknowns with the others fixed, on the whole image's exact mismatch, with the same total
   evaluations as ``cmaes`` and from the same start.
+* ``cmaes_reg``: the regularised search: ``cmaes`` on the count plus ``research.objects.cmaes.penalty`` per unit per
+  ``(0.1 m)^2`` of its squared distance from its start (:class:`sdm.baselines.rows.Penalised`), the answer to
+  the count's minimisers fitting the noise. ``cmaes`` and ``cmaes_car`` search the count alone.
 * ``silhouette``: the soft-silhouette baseline on the rows, from the same start.
 * ``floor``: each configuration's exact-mismatch minimiser nearest theta*
   (:func:`sdm.baselines.rows.floor_configurations`; theta* itself without noise).
@@ -51,7 +54,7 @@ from .experiments import noisy_targets, run_seed
 from .train import TrainSettings, parse_schedule, rates_per_point, refine_runs, train_runs
 
 #: The methods of Table 6, in its row order.
-METHODS = ("sdm_paper", "sdm_schedule", "cmaes", "cmaes_car", "silhouette", "floor")
+METHODS = ("sdm_paper", "sdm_schedule", "cmaes", "cmaes_car", "cmaes_reg", "silhouette", "floor")
 #: The do-nothing references of Table 6, scored beside the methods (no fit; see the module's text).
 REFERENCES = ("start", "prior")
 #: The sharing levels Table 6 runs (the shared level is Table 2's runs, quoted).
@@ -198,13 +201,15 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
                                                      paper_start if paper else None)
                 estimates[method] = (S.unit_totals(theta, units), seconds,
                                      S.unit_totals(_start_table(sharing, shared), units))
-            elif method in ("cmaes", "cmaes_car", "silhouette"):
+            elif method in ("cmaes", "cmaes_car", "cmaes_reg", "silhouette"):
                 start, shared_seconds = paper_start
                 table = _start_table(sharing, start)
                 began = _cpu()
-                if method in ("cmaes", "cmaes_car"):
-                    search = fit_configurations if method == "cmaes" else fit_blocks
-                    fit = search(noisy, units, settings.cmaes, own_seed, theta0=S.unit_totals(table, units))
+                if method in ("cmaes", "cmaes_car", "cmaes_reg"):
+                    search = fit_blocks if method == "cmaes_car" else fit_configurations
+                    penalty = settings.cmaes.penalty if method == "cmaes_reg" else 0.0
+                    fit = search(noisy, units, replace(settings.cmaes, penalty=penalty), own_seed,
+                                 theta0=S.unit_totals(table, units))
                     totals = fit.totals
                 else:
                     result = silhouette.fit(noisy, settings.silhouette, own_seed, theta0=table,
@@ -290,7 +295,7 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
             for budget in budgets:
                 began = _cpu()
                 fit = search(data.with_targets(targets), units,
-                             replace(settings.cmaes, evaluations_per_unknown=int(budget)), own_seed,
+                             replace(settings.cmaes, evaluations_per_unknown=int(budget), penalty=0.0), own_seed,
                              theta0=start_totals)
                 record(method, budget, fit.totals, _cpu() - began + shared_seconds)
     return pd.DataFrame.from_records(records, columns=SCALING_COLUMNS)
@@ -318,7 +323,8 @@ def search_settings(warm: dict, rows: dict, schedule: str, cmaes: dict, s: int, 
     return ObjectsSettings(
         warm=TrainSettings(lr=float(warm["lr"]), n_epoch=int(warm["n_epoch"]), s=int(s), **common),
         rows=TrainSettings(lr=float(rows["lr"]), n_epoch=int(rows["n_epoch"]), s=int(rows["s"]), **common),
-        schedule=str(schedule), cmaes=RowsCMAESSettings(evaluations_per_unknown=int(cmaes["evaluations_per_unknown"])),
+        schedule=str(schedule), cmaes=RowsCMAESSettings(evaluations_per_unknown=int(cmaes["evaluations_per_unknown"]),
+                                                        penalty=float(cmaes.get("penalty", 0.0))),
         floor=None, silhouette=None)
 
 

@@ -44,7 +44,7 @@ from ..errors import SDMInputError
 from ..representation import screen_pixels
 from ..sharing import Units, check_theta
 from .cmaes import CMAESSettings, _search
-from .common import check_positive, check_positive_int, project_shifted
+from .common import check_positive, check_positive_int, field_error, project_shifted
 from .floor import FloorSettings, floor_search
 
 
@@ -150,15 +150,21 @@ class RowsCMAESSettings:
         sigma0: initial step size, metres (theta* is about 0.6 m from the start (0, 0)).
         popsize: candidates per generation; 0 = pycma's default ``4 + floor(3 ln 2U)``.
         tolx: stop when the search distribution is narrower than this, metres.
+        penalty: the regularised search's weight: the count plus ``penalty`` per unit per ``(0.1 m)^2`` of its squared
+            distance from its start (:class:`Penalised`); 0 searches the count alone.
     """
 
     evaluations_per_unknown: int = 150
     sigma0: float = 0.3
     popsize: int = 0
     tolx: float = 1e-5
+    penalty: float = 0.0
 
     def __post_init__(self) -> None:
         check_positive(self, ("sigma0", "tolx"))
+        if isinstance(self.penalty, bool) or not isinstance(self.penalty, (int, float)) or not self.penalty >= 0 \
+                or self.penalty == float("inf"):
+            raise field_error(self, "penalty", f"must be a non-negative number, got {self.penalty!r}")
         check_positive_int(self, ("evaluations_per_unknown",))
         check_positive_int(self, ("popsize",), allow_zero=("popsize",))
 
@@ -215,7 +221,8 @@ def fit_configurations(data: ConfigurationSet, units: Units, settings: RowsCMAES
     Args:
         data: the configurations and their (possibly noisy) targets.
         units: :func:`sdm.sharing.units` of ``data`` under the parameter index.
-        settings: the budget rule and step size.
+        settings: the budget rule and step size; ``settings.penalty > 0``: the regularised search, the count plus a
+            penalty on the distance from the start (:class:`Penalised`).
         seed: the run's seed; configuration ``i`` is searched with :func:`configuration_seed` ``(seed, i)``.
         theta0: ``(U, 2)`` start totals, metres (default zeros: where SDM starts).
         configs: the configurations to search (default all); the others keep their start, 0 counts.
@@ -229,12 +236,39 @@ def fit_configurations(data: ConfigurationSet, units: Units, settings: RowsCMAES
     totals = _start(theta0, units, "theta0")
     mismatch, evaluations, seconds = _per_configuration(len(data))
     for index, own, objective, start, began in _each_configuration(data, units, configs, totals):
-        result = _search(objective, settings.cmaes(len(start)), configuration_seed(seed, index), start)
+        searched = Penalised(objective, start, settings.penalty) if settings.penalty else objective
+        result = _search(searched, settings.cmaes(len(start)), configuration_seed(seed, index), start)
         mismatch[index] = objective(result.theta)
         seconds[index] = time.process_time() - began
         evaluations[index] = objective.evaluations - 1  # the closing count is not the search's
         totals[own] = torch.tensor(result.theta, dtype=torch.float64).view(-1, 2)
     return RowsResult(totals, mismatch, evaluations, seconds)
+
+
+class Penalised:
+    """A count plus ``weight`` per ``(0.1 m)^2`` of the candidate's squared distance from ``start`` (2 U floats).
+
+    The regularised exact-mismatch search: under noise the count's minimisers fit the noise, and a practitioner
+    keeps the search near its start. ``weight`` 0 is the count itself.
+    """
+
+    def __init__(self, objective, start, weight: float) -> None:
+        self.objective, self.start, self.weight = objective, np.asarray(start, dtype=np.float64), float(weight)
+
+    @property
+    def evaluations(self) -> int:
+        return self.objective.evaluations
+
+    def _penalty(self, candidates) -> np.ndarray:
+        gap = np.asarray(candidates, dtype=np.float64) - self.start
+        return self.weight * (gap**2).sum(-1) / 0.01
+
+    def __call__(self, candidate) -> float:
+        return self.many([candidate])[0]
+
+    def many(self, candidates) -> list[float]:
+        counts = np.asarray(self.objective.many(candidates), dtype=np.float64)
+        return (counts + self._penalty(candidates)).tolist() if self.weight else counts.tolist()
 
 
 class _Block:
@@ -268,7 +302,8 @@ def fit_blocks(data: ConfigurationSet, units: Units, settings: RowsCMAESSettings
     The budget is :func:`fit_configurations`'s (``evaluations_per_unknown x 2U`` per configuration), split evenly
     over ``sweeps`` sweeps of its ``U`` units: each block search gets ``2 x evaluations_per_unknown / sweeps``
     counts (at least one generation). Block ``(sweep, u)`` of configuration ``i`` is seeded from
-    ``(seed, i, sweep, u)``; a block keeps its start unless a candidate counts less.
+    ``(seed, i, sweep, u)``; a block keeps its start unless a candidate counts less (with ``settings.penalty``, the
+    count plus the unit's penalty from its start, :class:`Penalised`).
 
     Returns:
         :class:`RowsResult`. Deterministic: the same arguments give the same totals.
@@ -287,8 +322,10 @@ def fit_blocks(data: ConfigurationSet, units: Units, settings: RowsCMAESSettings
             for unit in range(len(current) // 2):
                 block_seed = int(np.random.SeedSequence([int(seed), int(index), sweep, unit]).generate_state(
                     1, dtype=np.uint32)[0])
-                result = _search(_Block(objective, current, unit), block.cmaes(1), block_seed,
-                                 current[2 * unit:2 * unit + 2])
+                own_start = start[2 * unit:2 * unit + 2]
+                searched = _Block(objective, current, unit)
+                searched = Penalised(searched, own_start, settings.penalty) if settings.penalty else searched
+                result = _search(searched, block.cmaes(1), block_seed, current[2 * unit:2 * unit + 2])
                 current[2 * unit:2 * unit + 2] = [float(v) for v in result.theta]
         evaluations[index] = objective.evaluations
         mismatch[index] = objective(current)
@@ -413,7 +450,7 @@ def nearest_minimiser(objective: ConfigurationMismatch, truth, candidates) -> tu
     return nearest, int(least)
 
 
-__all__ = ["ConfigurationMismatch", "RowsCMAESSettings", "RowsFloor", "RowsFloorSettings", "RowsResult",
+__all__ = ["ConfigurationMismatch", "Penalised", "RowsCMAESSettings", "RowsFloor", "RowsFloorSettings", "RowsResult",
            "configuration_objective", "configuration_seed", "fit_blocks", "fit_configurations",
            "floor_configurations",
            "nearest_minimiser"]

@@ -17,6 +17,7 @@ LABELS = {
     "sdm_schedule": "SDM, the recommended schedule",
     "cmaes": "CMA-ES per configuration",
     "cmaes_car": "CMA-ES per car (block sweeps)",
+    "cmaes_reg": "CMA-ES, regularised toward its start",
     "silhouette": "soft silhouette",
     "floor": "floor (nearest minimiser)",
     "start": "do nothing: the shared start",
@@ -25,7 +26,7 @@ LABELS = {
 #: Table 6's rows per (sharing, level): the do-nothing references first, then the methods.
 ROWS = REFERENCES + METHODS
 #: The black-box peers SDM is compared with (the floor is a reference, not a peer).
-PEERS = ("cmaes", "cmaes_car", "silhouette")
+PEERS = ("cmaes", "cmaes_car", "cmaes_reg", "silhouette")
 #: The sharing levels in table order; "shared" is Table 2's runs.
 SHARING_ORDER = ("shared", "configuration", "car", "camera+car")
 #: How a unit reads per sharing level.
