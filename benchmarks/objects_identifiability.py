@@ -35,8 +35,9 @@ from sdm.sky import rescaled_configuration, scaled_camera
 DEPTHS = ((0.0, 30.0), (30.0, 60.0), (60.0, 1e9))
 
 
-def measure(configs, camera, scale: int, disc: str, runs: int, seed: int, settings) -> dict:
-    """One scale: the exact-match sets of every car over ``runs`` draws, and SDM's rows' CPU time."""
+def measure(configs, camera, scale: int, disc: str, runs: int, seed: int, settings, scan: bool = True) -> dict:
+    """One scale: the exact-match sets of every car over ``runs`` draws (unless not ``scan``: NaN), and SDM's rows'
+    CPU time."""
     scaled = scaled_camera(camera, scale)
     built = [rescaled_configuration(config, camera, scale, disc) for config in configs]
     data = ConfigurationSet.from_configurations(built, scaled)
@@ -52,7 +53,7 @@ def measure(configs, camera, scale: int, disc: str, runs: int, seed: int, settin
         truth = S.unit_totals(theta, units)
         clean = data.with_targets(S.render_targets(data, theta, sharing.param_index))
         began = time.process_time()
-        sets = exact_sets(clean, units, truth, reach=0.6 / scale, step=0.01 / scale)
+        sets = exact_sets(clean, units, truth, reach=0.6 / scale, step=0.01 / scale, scan=None if scan else [])
         scan_s += time.process_time() - began
         extents.append(sets.extent)
         distances.append(sets.distance)
@@ -62,15 +63,18 @@ def measure(configs, camera, scale: int, disc: str, runs: int, seed: int, settin
         prior_start = (objects.prior_totals(settings.truth, 1)[0], 0.0)
         _, _, seconds, _ = objects.sdm_rows(data, clean.targets, sharing, own_seed, settings, None, prior_start)
         sdm_s += seconds
-    extent, depth = torch.cat(extents), torch.cat(depths)
-    row = {"scale": scale, "screen": f"{scaled.screen_height} x {scaled.screen_width}", "cars": int(extent.shape[0]),
-           "a": float(extent[:, 0].median()), "b": float(extent[:, 1].median())}
+    extent = torch.cat(extents)
+    depth = torch.cat(depths) if scan else torch.zeros(0, dtype=torch.float64)
+    nan = float("nan")
+    row = {"scale": scale, "screen": f"{scaled.screen_height} x {scaled.screen_width}", "cars": len(units) * runs,
+           "a": float(extent[:, 0].median()) if scan else nan, "b": float(extent[:, 1].median()) if scan else nan}
     for low, high in DEPTHS:
         near = (depth >= low) & (depth < high)
         row[f"{low:.0f}"] = (float(extent[near, 0].median()), float(extent[near, 1].median()), int(near.sum())) \
             if bool(near.any()) else None
-    row |= {"set_distance": float(torch.cat(distances).mean()), "prior": float(torch.cat(prior).mean()),
-            "clipped": float(torch.cat(clipped).to(torch.float64).mean()),
+    row |= {"set_distance": float(torch.cat(distances).mean()) if scan else nan,
+            "prior": float(torch.cat(prior).mean()),
+            "clipped": float(torch.cat(clipped).to(torch.float64).mean()) if scan else nan,
             "points_per_car": data.points.shape[0] / max(len(units), 1), "sdm_ms": 1e3 * sdm_s / runs / len(data),
             "scan_s": scan_s}
     return row
@@ -107,6 +111,7 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--disc", default="pixels")
     parser.add_argument("--out", default=None)
+    parser.add_argument("--no-scan", action="store_true", help="the costs alone: no exact-match sets")
     args = parser.parse_args(argv)
     single_thread(1)
     config = yaml.safe_load(open(args.config))
@@ -122,7 +127,7 @@ def main(argv=None) -> int:
     rows = []
     for scale in args.scales:
         began, wall = time.process_time(), time.perf_counter()
-        rows.append(measure(configs, camera, scale, args.disc, args.runs, args.seed, settings))
+        rows.append(measure(configs, camera, scale, args.disc, args.runs, args.seed, settings, not args.no_scan))
         print(f"scale {scale}: {time.process_time() - began:.1f} CPU s, {time.perf_counter() - wall:.1f} s wall "
               f"(the scan {rows[-1]['scan_s']:.1f} CPU s)", file=sys.stderr, flush=True)
     text = markdown(rows, float(section["truth"]["car_sd"]), args.disc)
