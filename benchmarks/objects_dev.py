@@ -2,12 +2,13 @@
 
     PYTHONPATH=src python benchmarks/objects_dev.py SKY SPLIT [--config config.yaml] [--scale 1] [--disc pixels]
         [--sharing car] [--levels 0 2] [--runs 3] [--first 8] [--configurations 8] [--seed 1000]
-        [--methods sdm_paper sdm_schedule cmaes cmaes_car floor] [--sigma0 S]
+        [--methods sdm_paper sdm_schedule cmaes cmaes_car floor] [--sigma0 S] [--penalty W] [--rows LR N_EPOCH S]
 
 Protocol: :func:`sdm.objects.objects_runs` with the config's ``research.objects`` settings on training
 configurations ``first .. first + configurations - 1`` (Table 6 takes the first ones), rebuilt on the screen
 scaled ``--scale`` times (:func:`sdm.sky.rescaled_configuration`), runs ``0 .. runs - 1`` seeded from ``--seed``
-(Table 6 from ``noise.seed``). ``--sigma0`` replaces CMA-ES's initial step (metres). Prints Table 6's rows
+(Table 6 from ``noise.seed``). ``--sigma0`` replaces CMA-ES's initial step (metres), ``--penalty`` the regularised
+search's weight, ``--rows`` SDM's rows' schedule. Prints Table 6's rows
 (:func:`sdm.report.objects.table6`: each method's mean against its start's, 1e-3 m) and the CPU seconds.
 """
 from __future__ import annotations
@@ -44,6 +45,9 @@ def main(argv=None) -> int:
     parser.add_argument("--seed", type=int, default=1000)
     parser.add_argument("--methods", nargs="+", default=["sdm_paper", "sdm_schedule", "cmaes", "cmaes_car", "floor"])
     parser.add_argument("--sigma0", type=float, default=None)
+    parser.add_argument("--penalty", type=float, default=None)
+    parser.add_argument("--rows", type=float, nargs=3, default=None, metavar=("LR", "N_EPOCH", "S"),
+                        help="SDM's rows' rate, epochs per level and levels")
     args = parser.parse_args(argv)
     single_thread(1)
     config = yaml.safe_load(open(args.config))
@@ -53,6 +57,11 @@ def main(argv=None) -> int:
         section["silhouette"], training["s"], section["batch_size"], training["lr_decay"])
     if args.sigma0 is not None:
         settings = replace(settings, cmaes=replace(settings.cmaes, sigma0=args.sigma0))
+    if args.penalty is not None:
+        settings = replace(settings, cmaes=replace(settings.cmaes, penalty=args.penalty))
+    if args.rows is not None:
+        lr, n_epoch, s = args.rows
+        settings = replace(settings, rows=replace(settings.rows, lr=lr, n_epoch=int(n_epoch), s=int(s)))
     chosen = read_json(args.split)["train"][args.first:args.first + args.configurations]
     with SkyFile(args.sky) as sky:
         configs = [sky[i] for i in chosen]
@@ -70,7 +79,8 @@ def main(argv=None) -> int:
     table = table6(frames)
     shown = table.assign(mean=1e3 * table["mean_m"], start=1e3 * table["start_m"])
     print(f"scale {args.scale} ({args.disc}), {args.sharing}, {args.runs} runs of {len(data)} configurations, "
-          f"sigma0 {settings.cmaes.sigma0}")
+          f"sigma0 {settings.cmaes.sigma0}, penalty {settings.cmaes.penalty}, rows {settings.rows.lr} "
+          f"x {settings.rows.n_epoch} epochs, s {settings.rows.s}")
     print(shown[["level", "method", "units", "mean", "start", "of_start", "closer", "cpu_ms"]]
           .to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     return 0

@@ -708,6 +708,8 @@ def _objects_cases() -> dict[str, tuple[dict, str | None]]:
         "schedule": ('paper', "objects_runs"),
         "cmaes.evaluations_per_unknown": (20, "objects_runs"),
         "cmaes.penalty": (2.0, "objects_runs"),
+        "cmaes.step": (0.05, "objects_runs"),
+        "cmaes.car_step": (0.05, "objects_runs"),
         "floor.evaluations_per_unknown": (20, "objects_runs"),
         "floor.restarts": (4, "objects_runs"),
         "silhouette.lr": (0.2, "objects_runs"),

@@ -71,6 +71,7 @@ class ObjectsSettings:
         schedule: the recommended schedule's name (``"RULE+REFINE:E"``, :func:`sdm.train.parse_schedule`).
         cmaes, floor, silhouette: the baselines' settings (``sdm.baselines``).
         truth: how theta* is drawn.
+        car_sigma0: CMA-ES per car's initial step, metres (``cmaes.sigma0`` is the joint and regularised searches').
     """
 
     warm: TrainSettings
@@ -80,6 +81,7 @@ class ObjectsSettings:
     floor: object
     silhouette: object
     truth: S.TruthDistribution = S.TruthDistribution()
+    car_sigma0: float = 0.3
 
 
 def _cpu() -> float:
@@ -121,6 +123,20 @@ def sdm_rows(data: ConfigurationSet, targets: torch.Tensor, sharing: S.Sharing, 
         history = refine_runs(data, [targets], rows, history, refine, param_index=sharing.param_index,
                               row_rate=row_rate)
     return history.theta[-1, 0], shared, _cpu() - began + shared_seconds, shared_seconds
+
+
+def search_units(method: str, data: ConfigurationSet, units: S.Units, settings: ObjectsSettings, seed: int,
+                 theta0: torch.Tensor):
+    """One of the black-box searches on every configuration's exact count, from ``theta0`` ``(U, 2)`` metres:
+    ``cmaes`` (joint, the count alone), ``cmaes_car`` (block sweeps, ``settings.car_sigma0``) or ``cmaes_reg``
+    (joint, with ``settings.cmaes.penalty``). Returns :class:`sdm.baselines.rows.RowsResult`."""
+    from .baselines.rows import fit_blocks, fit_configurations
+
+    if method == "cmaes_car":
+        return fit_blocks(data, units, replace(settings.cmaes, penalty=0.0, sigma0=settings.car_sigma0), seed,
+                          theta0=theta0)
+    penalty = settings.cmaes.penalty if method == "cmaes_reg" else 0.0
+    return fit_configurations(data, units, replace(settings.cmaes, penalty=penalty), seed, theta0=theta0)
 
 
 def _start_table(sharing: S.Sharing, shared: torch.Tensor) -> torch.Tensor:
@@ -175,7 +191,7 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
     from tqdm.std import tqdm
 
     from .baselines import silhouette
-    from .baselines.rows import fit_blocks, fit_configurations, floor_configurations
+    from .baselines.rows import floor_configurations
 
     if level not in SHARINGS:
         raise SDMInputError(f"level must be one of {', '.join(SHARINGS)}, got {level!r}")
@@ -206,10 +222,7 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
                 table = _start_table(sharing, start)
                 began = _cpu()
                 if method in ("cmaes", "cmaes_car", "cmaes_reg"):
-                    search = fit_blocks if method == "cmaes_car" else fit_configurations
-                    penalty = settings.cmaes.penalty if method == "cmaes_reg" else 0.0
-                    fit = search(noisy, units, replace(settings.cmaes, penalty=penalty), own_seed,
-                                 theta0=S.unit_totals(table, units))
+                    fit = search_units(method, noisy, units, settings, own_seed, S.unit_totals(table, units))
                     totals = fit.totals
                 else:
                     result = silhouette.fit(noisy, settings.silhouette, own_seed, theta0=table,
@@ -269,8 +282,6 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
     """
     from tqdm.std import tqdm
 
-    from .baselines.rows import fit_blocks, fit_configurations
-
     sharing = S.sharing("car", data)
     units = S.units(data, sharing.param_index, sharing.n_rows)
     records = []
@@ -291,12 +302,11 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
                 data, targets, sharing, own_seed, replace(settings, rows=replace(settings.rows, n_epoch=int(n_epoch))),
                 None, paper_start)
             record("sdm_paper", n_epoch, S.unit_totals(theta, units), seconds)
-        for method, search in (("cmaes", fit_configurations), ("cmaes_car", fit_blocks)):
+        for method in ("cmaes", "cmaes_car"):
             for budget in budgets:
                 began = _cpu()
-                fit = search(data.with_targets(targets), units,
-                             replace(settings.cmaes, evaluations_per_unknown=int(budget), penalty=0.0), own_seed,
-                             theta0=start_totals)
+                budgeted = replace(settings, cmaes=replace(settings.cmaes, evaluations_per_unknown=int(budget)))
+                fit = search_units(method, data.with_targets(targets), units, budgeted, own_seed, start_totals)
                 record(method, budget, fit.totals, _cpu() - began + shared_seconds)
     return pd.DataFrame.from_records(records, columns=SCALING_COLUMNS)
 
@@ -324,7 +334,9 @@ def search_settings(warm: dict, rows: dict, schedule: str, cmaes: dict, s: int, 
         warm=TrainSettings(lr=float(warm["lr"]), n_epoch=int(warm["n_epoch"]), s=int(s), **common),
         rows=TrainSettings(lr=float(rows["lr"]), n_epoch=int(rows["n_epoch"]), s=int(rows["s"]), **common),
         schedule=str(schedule), cmaes=RowsCMAESSettings(evaluations_per_unknown=int(cmaes["evaluations_per_unknown"]),
-                                                        penalty=float(cmaes.get("penalty", 0.0))),
+                                                        penalty=float(cmaes.get("penalty", 0.0)),
+                                                        sigma0=float(cmaes.get("step", 0.3))),
+        car_sigma0=float(cmaes.get("car_step", cmaes.get("step", 0.3))),
         floor=None, silhouette=None)
 
 
