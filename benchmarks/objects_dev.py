@@ -7,7 +7,7 @@
 Protocol: :func:`sdm.objects.objects_runs` with the config's ``research.objects`` settings on training
 configurations ``first .. first + configurations - 1`` (Table 6 takes the first ones), rebuilt on the screen
 scaled ``--scale`` times (:func:`sdm.sky.rescaled_configuration`), runs ``0 .. runs - 1`` seeded from ``--seed``
-(Table 6 from ``noise.seed``). ``--sigma0`` replaces CMA-ES's initial step (metres), ``--penalty`` the regularised
+(Table 6 from ``noise.seed``). ``--sigma0`` replaces every search's initial step (metres), ``--penalty`` the regularised
 search's weight, ``--rows`` SDM's rows' schedule. Prints Table 6's rows
 (:func:`sdm.report.objects.table6`: each method's mean against its start's, 1e-3 m) and the CPU seconds.
 """
@@ -55,8 +55,8 @@ def main(argv=None) -> int:
     settings = objects.settings_from_config(
         section["truth"], section["warm"], section["rows"], section["schedule"], section["cmaes"], section["floor"],
         section["silhouette"], training["s"], section["batch_size"], training["lr_decay"])
-    if args.sigma0 is not None:
-        settings = replace(settings, cmaes=replace(settings.cmaes, sigma0=args.sigma0))
+    if args.sigma0 is not None:  # every search's initial step
+        settings = replace(settings, cmaes=replace(settings.cmaes, sigma0=args.sigma0), car_sigma0=args.sigma0)
     if args.penalty is not None:
         settings = replace(settings, cmaes=replace(settings.cmaes, penalty=args.penalty))
     if args.rows is not None:
