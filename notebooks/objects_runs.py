@@ -36,6 +36,7 @@ schedule = "closed_centred_r1+group_crossing:4"
 cmaes = {"evaluations_per_unknown": 150}
 floor = {"evaluations_per_unknown": 50, "restarts": 2}
 silhouette = {"lr": 0.1, "sigma": 0.5, "batch_size": 8, "steps": 27}
+screen = {"scale": 1, "disc": "pixels"}  # the screen scale (128 x 256 is 1) and the disc rule (sdm.sky)
 seed = 0  # noise.seed: run r at level n draws theta*, its noise and its seeds from (seed, n, r)
 s = 4
 batch_size = 8
@@ -51,12 +52,15 @@ from sdm.experiments import single_thread
 from sdm.io import read_json, write_csv
 from sdm.batch import ConfigurationSet
 from sdm.objects import objects_runs, settings_from_config
+from sdm.sky import rescaled_configuration, scaled_camera
 
 single_thread(threads)
 chosen = read_json(split)["train"][:configurations]
 with SkyFile(sky) as file:
     configs = [file[i] for i in chosen]
     camera = file.camera
+configs = [rescaled_configuration(config, camera, int(screen["scale"]), screen["disc"]) for config in configs]
+camera = scaled_camera(camera, int(screen["scale"]))
 data = ConfigurationSet.from_configurations(configs, camera)
 n_cars = torch.tensor([int(config.centres.shape[0]) for config in configs], dtype=torch.int64)
 settings = settings_from_config(truth, warm, rows, schedule, cmaes, floor, silhouette, s, batch_size, lr_decay)

@@ -30,6 +30,7 @@ schedule = "closed_centred_r1+group_crossing:4"
 cmaes = {"evaluations_per_unknown": 150}
 floor = {"evaluations_per_unknown": 50, "restarts": 2}
 silhouette = {"lr": 0.1, "sigma": 0.5, "batch_size": 8, "steps": 27}
+screen = {"scale": 1, "disc": "pixels"}  # the screen scale (128 x 256 is 1) and the disc rule (sdm.sky)
 seed = 0
 s = 4
 batch_size = 8
@@ -39,14 +40,19 @@ threads = 1
 # %%
 from IPython.display import display
 
+from sdm.camera import APOLLO_CAMERA_5
 from sdm.data import set_with_cars
 from sdm.experiments import single_thread
 from sdm.io import write_csv
 from sdm.objects import scaling_runs, settings_from_config
+from sdm.sky import disc_radius, scaled_camera
 
 single_thread(threads)
-data = set_with_cars(int(scaling["n_images"]), cars, int(scaling["seed"]), n_images_name="research.objects.scaling.n_images",
-                     n_cars_name="research.objects.scaling.cars", seed_name="research.objects.scaling.seed")
+data = set_with_cars(int(scaling["n_images"]), cars, int(scaling["seed"]),
+                     camera=scaled_camera(APOLLO_CAMERA_5, int(screen["scale"])),
+                     n_images_name="research.objects.scaling.n_images", n_cars_name="research.objects.scaling.cars",
+                     seed_name="research.objects.scaling.seed",
+                     radius=disc_radius(int(screen["scale"]), screen["disc"]))
 settings = settings_from_config(truth, warm, rows, schedule, cmaes, floor, silhouette, s, batch_size, lr_decay)
 print(f"{len(data)} images with {cars} cars each, {data.points.shape[0]} points")
 

@@ -165,3 +165,9 @@ def test_table7_words_follow_the_numbers():
     assert "level 0: 1.33x CMA-ES's mean at 1/500 of its CPU time" in words
     assert "100x less CPU time: met" in words
     assert "1.67-2.33x supervised regression's test mean" in verdict_sentence(table)
+    assert "the error of doing nothing" not in verdict_sentence(table)  # no reference, no words about it
+    nothing = dict(prior=0.2, start=0.1)
+    table = table7([_frame(dict(nets, **nothing), 0, cpu), _frame(dict(worse, **nothing), 2, cpu)], curves)
+    assert list(table["method"][:3]) == ["start", "prior", "net:sdm_paper"]
+    assert "level 0: 200.0e-3 m, the networks at 0.15-0.45x of it" in table7_summary(table, 4, 16, 3000)
+    assert "0.25-0.35x the error of doing nothing" in verdict_sentence(table)

@@ -10,8 +10,8 @@ import torch
 from sdm.baselines.rows import RowsCMAESSettings, RowsFloorSettings
 from sdm.baselines.silhouette import SilhouetteSettings
 from sdm.errors import SDMInputError
-from sdm.objects import METHODS, ObjectsSettings, objects_runs, scaling_runs
-from sdm.report.objects import table6, table6_summary, verdict_sentence
+from sdm.objects import METHODS, REFERENCES, ObjectsSettings, objects_runs, scaling_runs
+from sdm.report.objects import scaling_table, table6, table6_summary, verdict_sentence
 from sdm.train import TrainSettings
 
 from sdm.batch import ConfigurationSet
@@ -33,13 +33,31 @@ def data():
 def test_every_method_scores_the_same_units_of_a_run(data):
     runs = objects_runs(data, "car", 2, [0], seed=3, settings=SETTINGS)
     scored = runs[runs["method"] != "hidden"]
-    assert set(scored["method"]) == set(METHODS)
+    assert set(scored["method"]) == set(METHODS) | set(REFERENCES)
     per_method = scored.groupby("method")
     assert per_method["unit"].apply(sorted).apply(tuple).nunique() == 1  # the same units for every method
     assert per_method[["a_true", "b_true"]].apply(lambda f: tuple(f.to_numpy().ravel())).nunique() == 1
-    assert (scored["distance"] >= 0).all() and (scored["cpu_s"] > 0).all()
+    assert (scored["distance"] >= 0).all() and (scored.loc[scored["method"] != "prior", "cpu_s"] > 0).all()
     again = objects_runs(data, "car", 2, [0], seed=3, settings=SETTINGS)
     pd.testing.assert_frame_equal(runs.drop(columns="cpu_s"), again.drop(columns="cpu_s"))  # seeded
+
+
+def test_do_nothing_references_are_paired_with_each_method(data):
+    runs = objects_runs(data, "camera+car", 0, [0], seed=3, settings=SETTINGS, methods=["sdm_schedule", "cmaes"])
+    by = {method: frame.set_index("unit") for method, frame in runs.groupby("method")}
+    start, prior = by["start"], by["prior"]
+    assert (start["distance"] == start["start"]).all()  # the shared start is its own start
+    centre = torch.tensor(SETTINGS.truth.centre, dtype=torch.float64)
+    truth = torch.tensor(prior[["a_true", "b_true"]].to_numpy())
+    assert torch.allclose(torch.tensor(prior["distance"].to_numpy()), (truth - centre).norm(dim=1))
+    assert (prior[["a", "b"]].to_numpy() == list(SETTINGS.truth.centre)).all()
+    assert (by["cmaes"]["start"] == start["distance"]).all()  # CMA-ES is given the paper's shared start
+    # the schedule is given its own rule's shared start: a camera row at it, every residual at zero
+    table = table6([runs])
+    row = table[table["method"] == "cmaes"].iloc[0]
+    assert row["of_start"] == pytest.approx(by["cmaes"]["distance"].mean() / start["distance"].mean())
+    assert row["closer"] == pytest.approx((by["cmaes"]["distance"] < start["distance"]).mean())
+    assert table[table["method"] == "start"].iloc[0]["of_start"] == pytest.approx(1.0)
 
 
 def test_sdm_moves_every_configuration_towards_its_own_shift(data):
@@ -58,12 +76,15 @@ def test_table6_and_its_words(data):
     shared = table[table["sharing"] == "shared"].set_index("level")
     assert shared.loc[0, "mean_m"] == pytest.approx(2e-3) and shared.loc[0, "units"] == 2
     rows = table[(table["sharing"] == "configuration") & (table["level"] == 1)].set_index("method")
-    assert list(rows.index) == list(METHODS)
+    assert list(rows.index) == list(REFERENCES) + list(METHODS)
     own = frames[1][frames[1]["method"] == "cmaes"]["distance"]
     assert rows.loc["cmaes", "mean_m"] == pytest.approx(own.mean())
     words = table6_summary(table, None)
-    assert "A configuration's shift" in words and "CMA-ES's mean" in words
-    assert "CMA-ES's mean distance" in verdict_sentence(table)
+    assert "A configuration's shift" in words and "of its start's error" in words
+    assert "the best peer" in verdict_sentence(table)
+    old = table.drop(columns=["start_m", "of_start", "closer"])  # a snapshot made before the references
+    old = old[old["method"].isin(METHODS) | (old["sharing"] == "shared")]
+    assert "CMA-ES's mean distance" in verdict_sentence(old)
 
 
 def test_scaling_gives_one_point_per_budget(data):
@@ -71,8 +92,13 @@ def test_scaling_gives_one_point_per_budget(data):
 
     cars = set_with_cars(16, 2, seed=0)
     frame = scaling_runs(cars, 2, 0, [0], seed=1, settings=SETTINGS, epochs=[1, 2], budgets=[5])
-    assert sorted(zip(frame["method"], frame["budget"])) == [("cmaes", 5), ("sdm_paper", 1), ("sdm_paper", 2)]
-    assert (frame["cpu_s"] > 0).all()
+    assert sorted(zip(frame["method"], frame["budget"])) == [("cmaes", 5), ("cmaes_car", 5), ("prior", 0),
+                                                              ("sdm_paper", 1), ("sdm_paper", 2), ("start", 0)]
+    fitted = frame[~frame["method"].isin(["prior"])]
+    assert (fitted["cpu_s"] > 0).all()
+    start = frame[frame["method"] == "start"].iloc[0]
+    assert (frame["start"] == start["mean"]).all() and start["closer"] == 0.0
+    assert "doing nothing" in table6_summary(table6([]), scaling_table([frame]))
 
 
 def test_bad_level_and_method_are_named(data):

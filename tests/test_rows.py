@@ -109,10 +109,11 @@ def test_floor_per_configuration_is_in_theta_stars_region(scene):
                                                                                      extent_tol=1e-4))
     floor = rows.floor_configurations(data, units, totals, settings, seed=0, configs=[0, 2])
     assert floor.min_mismatch.tolist() == [0, 0, 0, 0, 0] and floor.mismatch_at_truth[[0, 2]].tolist() == [0, 0]
-    for index in (0, 2):  # without noise theta* is a minimiser: the floor is its region's centre
+    for index in (0, 2):  # without noise theta* is a minimiser: the floor is theta* itself
         objective = rows.configuration_objective(data, units, index)
         first, last = int(units.offsets[index]), int(units.offsets[index + 1])
-        assert objective(floor.totals[first:last].reshape(-1).tolist()) == 0
+        assert torch.equal(floor.totals[first:last], totals[first:last])
+        assert objective(floor.centre_totals[first:last].reshape(-1).tolist()) == 0  # the region's centre too
         assert floor.evaluations[index] > 0
     untouched = slice(int(units.offsets[1]), int(units.offsets[2]))
     assert torch.equal(floor.totals[untouched], totals[untouched])
@@ -120,6 +121,14 @@ def test_floor_per_configuration_is_in_theta_stars_region(scene):
                                            for i, t in enumerate(data.targets)]))
     noisy_floor = rows.floor_configurations(noisy, units, totals, settings, seed=0, configs=[0])
     assert int(noisy_floor.min_mismatch[0]) <= int(noisy_floor.mismatch_at_truth[0])
+    objective = rows.configuration_objective(noisy, units, 0)
+    own = slice(0, int(units.offsets[1]))
+    least = int(noisy_floor.min_mismatch[0])
+    assert objective(noisy_floor.totals[own].reshape(-1).tolist()) == least  # a minimiser the search knows
+    gap = (noisy_floor.totals[own] - totals[own]).norm()
+    for other in (noisy_floor.centre_totals, noisy_floor.search_totals):  # the nearest to theta* of those at least
+        if objective(other[own].reshape(-1).tolist()) == least:
+            assert gap <= (other[own] - totals[own]).norm()
 
 
 def test_settings_and_arguments_checked(scene):
@@ -137,3 +146,47 @@ def test_settings_and_arguments_checked(scene):
     with pytest.raises(SDMInputError, match="configs"):
         rows.fit_configurations(data, units, configs=[len(data)])
     assert rows.RowsCMAESSettings(evaluations_per_unknown=10).cmaes(6).budget == 60
+
+
+def test_block_sweeps_spend_the_joint_budget_and_never_count_more(scene):
+    data, units, totals = scene
+    settings = rows.RowsCMAESSettings(evaluations_per_unknown=30, sigma0=0.1)
+    start = (totals + 0.2).clone()
+    blocks = rows.fit_blocks(data, units, settings, seed=4, theta0=start, sweeps=2)
+    again = rows.fit_blocks(data, units, settings, seed=4, theta0=start, sweeps=2)
+    assert torch.equal(blocks.totals, again.totals)
+    for index in range(len(data)):
+        first, last = int(units.offsets[index]), int(units.offsets[index + 1])
+        objective = rows.configuration_objective(data, units, index)
+        at_start = objective(start[first:last].reshape(-1).tolist())
+        assert int(blocks.mismatch[index]) <= at_start  # each block keeps its start unless it counts less
+        assert int(blocks.mismatch[index]) == objective(blocks.totals[first:last].reshape(-1).tolist())
+        n_units = last - first
+        # each of the 2 U block searches gets 30 counts, at most one generation more, plus its start's count
+        assert int(blocks.evaluations[index]) <= 2 * n_units * (30 + 6 + 1) + 1
+    assert int(blocks.mismatch.sum()) < sum(
+        rows.configuration_objective(data, units, i)(start[int(units.offsets[i]):int(units.offsets[i + 1])]
+                                                     .reshape(-1).tolist()) for i in range(len(data)))
+    with pytest.raises(SDMInputError, match="sweeps must be a positive integer"):
+        rows.fit_blocks(data, units, settings, sweeps=0)
+
+
+def test_the_regularised_search_stays_near_its_start(scene):
+    data, units, totals = scene
+    start = (totals + 0.15).clone()
+    plain = rows.fit_configurations(data, units, rows.RowsCMAESSettings(evaluations_per_unknown=40), seed=1,
+                                    theta0=start)
+    zero = rows.fit_configurations(data, units, rows.RowsCMAESSettings(evaluations_per_unknown=40, penalty=0.0),
+                                   seed=1, theta0=start)
+    assert torch.equal(plain.totals, zero.totals)
+    heavy = rows.fit_configurations(data, units, rows.RowsCMAESSettings(evaluations_per_unknown=40, penalty=1e6),
+                                    seed=1, theta0=start)
+    moved = lambda fit: float((fit.totals - start).norm(dim=1).mean())  # noqa: E731
+    assert moved(heavy) < 0.1 * moved(plain)
+    objective = rows.configuration_objective(data, units, 0)
+    base = totals[:int(units.offsets[1])].reshape(-1).tolist()
+    away = [base[0] + 0.1] + base[1:]
+    penalised = rows.Penalised(objective, base, 2.0)
+    assert penalised(away) == pytest.approx(objective(away) + 2.0)  # (0.1 m)^2 away: one weight
+    with pytest.raises(SDMInputError, match="penalty"):
+        rows.RowsCMAESSettings(penalty=-1.0)

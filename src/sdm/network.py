@@ -503,7 +503,10 @@ def test_methods(test: ShiftSet, level: int, networks: dict[str, ShiftNet], refi
     * ``cmaes``: CMA-ES per configuration on its exact pixel mismatch (:func:`sdm.baselines.rows.fit_configurations`),
       started from SDM's shared start, as in Table 6;
     * ``sdm_zero``: SDM per configuration from zero: the shared start, then one row per configuration with the
-      recommended schedule (:func:`sdm.objects.sdm_rows`, Table 6's ``sdm_schedule``).
+      recommended schedule (:func:`sdm.objects.sdm_rows`, Table 6's ``sdm_schedule``);
+    * the do-nothing references: ``prior``, theta*'s mean for every configuration (the centre of the
+      distribution the shifts are drawn from, :func:`sdm.objects.prior_totals`; no pixel looked at), and
+      ``start``, the shared start that CMA-ES is given.
 
     ``cpu_s`` is each method's CPU (process) seconds per configuration: the forward passes (and the refinement)
     over the set divided by its size; a search's own seconds per configuration plus its share of the shared start.
@@ -517,7 +520,7 @@ def test_methods(test: ShiftSet, level: int, networks: dict[str, ShiftNet], refi
         seed: seeds the searches.
     """
     from .baselines.rows import fit_configurations
-    from .objects import sdm_rows, shared_start
+    from .objects import prior_totals, sdm_rows, shared_start
 
     n_configs = len(test)
     frames = []
@@ -540,6 +543,8 @@ def test_methods(test: ShiftSet, level: int, networks: dict[str, ShiftNet], refi
     units = S.units(test.data, sharing.param_index, sharing.n_rows)
     targets = test.data.targets
     start = shared_start(test.data, targets, seed, objects_settings)
+    record("prior", prior_totals(objects_settings.truth, n_configs), 0.0)
+    record("start", start[0].expand(n_configs, 2), start[1] / n_configs)
     theta, _, seconds, _ = sdm_rows(test.data, targets, sharing, seed, objects_settings, objects_settings.schedule)
     record("sdm_zero", theta, seconds / n_configs)
     result = fit_configurations(test.data, units, objects_settings.cmaes, seed,

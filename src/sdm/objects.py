@@ -20,9 +20,20 @@ The methods (:data:`METHODS`):
   refinement on the rows).
 * ``cmaes``: CMA-ES per configuration over all of its units (:func:`sdm.baselines.rows.fit_configurations`),
   started from SDM's shared estimate (the same start as SDM's rows).
+* ``cmaes_car``: CMA-ES per unit (:func:`sdm.baselines.rows.fit_blocks`): block sweeps over each configuration's
+  units, each unit's 2 unknowns with the others fixed, on the whole image's exact mismatch, with the same total
+  evaluations as ``cmaes`` and from the same start.
+* ``cmaes_reg``: the regularised search: ``cmaes`` on the count plus ``research.objects.cmaes.penalty`` per unit per
+  ``(0.1 m)^2`` of its squared distance from its start (:class:`sdm.baselines.rows.Penalised`), the answer to
+  the count's minimisers fitting the noise. ``cmaes`` and ``cmaes_car`` search the count alone.
 * ``silhouette``: the soft-silhouette baseline on the rows, from the same start.
 * ``floor``: each configuration's exact-mismatch minimiser nearest theta*
-  (:func:`sdm.baselines.rows.floor_configurations`).
+  (:func:`sdm.baselines.rows.floor_configurations`; theta* itself without noise).
+
+The do-nothing references (:data:`REFERENCES`), scored on the same units: ``start``, the paper's rule's shared
+start that SDM's paper-rule rows, CMA-ES and the silhouette are given, and ``prior``, theta*'s mean (the centre
+of :class:`sdm.sharing.TruthDistribution`, a guess that looks at no pixel). Every record carries the distance of
+its own method's start on its unit (``start``), so that each method's error reads as a paired fraction of it.
 
 CPU seconds per configuration: the method's process time for the run over the configurations that own
 units (SDM's and the per-configuration baselines' shared start included in each method that uses it).
@@ -43,7 +54,9 @@ from .experiments import noisy_targets, run_seed
 from .train import TrainSettings, parse_schedule, rates_per_point, refine_runs, train_runs
 
 #: The methods of Table 6, in its row order.
-METHODS = ("sdm_paper", "sdm_schedule", "cmaes", "silhouette", "floor")
+METHODS = ("sdm_paper", "sdm_schedule", "cmaes", "cmaes_car", "cmaes_reg", "silhouette", "floor")
+#: The do-nothing references of Table 6, scored beside the methods (no fit; see the module's text).
+REFERENCES = ("start", "prior")
 #: The sharing levels Table 6 runs (the shared level is Table 2's runs, quoted).
 SHARINGS = ("configuration", "car", "camera+car")
 
@@ -58,6 +71,7 @@ class ObjectsSettings:
         schedule: the recommended schedule's name (``"RULE+REFINE:E"``, :func:`sdm.train.parse_schedule`).
         cmaes, floor, silhouette: the baselines' settings (``sdm.baselines``).
         truth: how theta* is drawn.
+        car_sigma0: CMA-ES per car's initial step, metres (``cmaes.sigma0`` is the joint and regularised searches').
     """
 
     warm: TrainSettings
@@ -67,6 +81,7 @@ class ObjectsSettings:
     floor: object
     silhouette: object
     truth: S.TruthDistribution = S.TruthDistribution()
+    car_sigma0: float = 0.3
 
 
 def _cpu() -> float:
@@ -110,12 +125,35 @@ def sdm_rows(data: ConfigurationSet, targets: torch.Tensor, sharing: S.Sharing, 
     return history.theta[-1, 0], shared, _cpu() - began + shared_seconds, shared_seconds
 
 
+def search_units(method: str, data: ConfigurationSet, units: S.Units, settings: ObjectsSettings, seed: int,
+                 theta0: torch.Tensor):
+    """One of the black-box searches on every configuration's exact count, from ``theta0`` ``(U, 2)`` metres:
+    ``cmaes`` (joint, the count alone), ``cmaes_car`` (block sweeps, ``settings.car_sigma0``) or ``cmaes_reg``
+    (joint, with ``settings.cmaes.penalty``). Returns :class:`sdm.baselines.rows.RowsResult`."""
+    from .baselines.rows import fit_blocks, fit_configurations
+
+    if method == "cmaes_car":
+        return fit_blocks(data, units, replace(settings.cmaes, penalty=0.0, sigma0=settings.car_sigma0), seed,
+                          theta0=theta0)
+    penalty = settings.cmaes.penalty if method == "cmaes_reg" else 0.0
+    return fit_configurations(data, units, replace(settings.cmaes, penalty=penalty), seed, theta0=theta0)
+
+
 def _start_table(sharing: S.Sharing, shared: torch.Tensor) -> torch.Tensor:
     """``(K, 2)`` rows starting from the shared estimate: every row at it, a camera's residuals at 0."""
     start = shared.to(torch.float64).expand(sharing.n_rows, 2).clone()
     if sharing.level == "camera+car":
         start[sharing.rows[:, 1].cpu() != S.NO_INDEX] = 0.0  # residual rows: the camera row carries the shift
     return start
+
+
+def prior_totals(truth: S.TruthDistribution, n_units: int) -> torch.Tensor:
+    """``(n_units, 2)`` float64 metres: theta*'s mean total per unit, the guess that looks at no pixel.
+
+    Every level's rows are drawn around ``truth.centre`` (a camera's residuals around 0), so each unit's total has
+    mean ``truth.centre``.
+    """
+    return torch.tensor([float(v) for v in truth.centre], dtype=torch.float64).expand(n_units, 2).clone()
 
 
 def paired_targets(data: ConfigurationSet, sharing: S.Sharing, units: S.Units, noise: int, run: int, seed: int,
@@ -141,18 +179,19 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
         data: the configurations (with their points' cars for the car levels).
         level: one of :data:`SHARINGS`; noise: the noise level of the targets (Table 2's).
         n_cars: ``(N,)`` cars per configuration (on screen, hidden or not), to count the hidden ones.
-        methods: a subset of :data:`METHODS`.
+        methods: a subset of :data:`METHODS`; the :data:`REFERENCES` are always scored.
 
     Returns:
         A DataFrame with columns ``sharing, level, run, seed, method, config, car, unit, a, b, a_true, b_true,
-        distance, cpu_s`` (``car`` -1 for a configuration's unit; ``cpu_s`` the run's CPU seconds per
-        configuration with units), and per run a row of method ``"hidden"`` whose ``unit`` counts the cars
+        distance, start, cpu_s`` (``car`` -1 for a configuration's unit; ``start`` the distance of the method's
+        start on the unit, the paper's shared start for the floor and the references; ``cpu_s`` the run's CPU
+        seconds per configuration with units), and per run a row of method ``"hidden"`` whose ``unit`` counts the cars
         that own no point (no row, nothing to estimate; left out of every mean).
     """
     from tqdm.std import tqdm
 
     from .baselines import silhouette
-    from .baselines.rows import fit_configurations, floor_configurations
+    from .baselines.rows import floor_configurations
 
     if level not in SHARINGS:
         raise SDMInputError(f"level must be one of {', '.join(SHARINGS)}, got {level!r}")
@@ -169,47 +208,54 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
         noisy = data.with_targets(targets)
         estimates = {}
         # the paper's rule's shared start: SDM's paper-rule rows and the per-configuration baselines start there
-        paper_start = (shared_start(data, targets, own_seed, settings)
-                       if {"sdm_paper", "cmaes", "silhouette"} & set(methods) else None)
+        paper_start = shared_start(data, targets, own_seed, settings)
         for method in methods:
             if method in ("sdm_paper", "sdm_schedule"):
                 paper = method == "sdm_paper"
-                theta, _, seconds, _ = sdm_rows(data, targets, sharing, own_seed, settings,
-                                                None if paper else settings.schedule, paper_start if paper else None)
-                estimates[method] = (S.unit_totals(theta, units), seconds)
-            elif method in ("cmaes", "silhouette"):
+                theta, shared, seconds, _ = sdm_rows(data, targets, sharing, own_seed, settings,
+                                                     None if paper else settings.schedule,
+                                                     paper_start if paper else None)
+                estimates[method] = (S.unit_totals(theta, units), seconds,
+                                     S.unit_totals(_start_table(sharing, shared), units))
+            elif method in ("cmaes", "cmaes_car", "cmaes_reg", "silhouette"):
                 start, shared_seconds = paper_start
                 table = _start_table(sharing, start)
                 began = _cpu()
-                if method == "cmaes":
-                    fit = fit_configurations(noisy, units, settings.cmaes, own_seed, theta0=S.unit_totals(table, units))
+                if method in ("cmaes", "cmaes_car", "cmaes_reg"):
+                    fit = search_units(method, noisy, units, settings, own_seed, S.unit_totals(table, units))
                     totals = fit.totals
                 else:
                     result = silhouette.fit(noisy, settings.silhouette, own_seed, theta0=table,
                                             param_index=sharing.param_index)
                     totals = S.unit_totals(torch.as_tensor(result.theta, dtype=torch.float64), units)
-                estimates[method] = (totals, _cpu() - began + shared_seconds)
+                estimates[method] = (totals, _cpu() - began + shared_seconds, S.unit_totals(table, units))
             elif method == "floor":
                 began = _cpu()
                 floor = floor_configurations(noisy, units, true_totals, settings.floor, own_seed)
-                estimates[method] = (floor.totals, _cpu() - began)
-        for method, (totals, seconds) in estimates.items():
+                estimates[method] = (floor.totals, _cpu() - began, None)
+        start_totals = S.unit_totals(_start_table(sharing, paper_start[0]), units)
+        estimates["start"] = (start_totals, paper_start[1], start_totals)
+        estimates["prior"] = (prior_totals(settings.truth, len(units)), 0.0, start_totals)
+        for method, (totals, seconds, given) in estimates.items():
             distance = (totals - true_totals).norm(dim=1)
+            # the floor is given theta* itself: its row reads against the start the others are given
+            start_distance = ((start_totals if given is None else given) - true_totals).norm(dim=1)
             for u in range(len(units)):
                 records.append({"sharing": level, "level": noise, "run": run, "seed": own_seed, "method": method,
                                 "config": int(units.config[u]), "car": int(unit_car[u]), "unit": u,
                                 "a": float(totals[u, 0]), "b": float(totals[u, 1]),
                                 "a_true": float(true_totals[u, 0]), "b_true": float(true_totals[u, 1]),
-                                "distance": float(distance[u]), "cpu_s": seconds / owners})
+                                "distance": float(distance[u]), "start": float(start_distance[u]),
+                                "cpu_s": seconds / owners})
         records.append({"sharing": level, "level": noise, "run": run, "seed": own_seed, "method": "hidden",
                         "config": -1, "car": -1, "unit": int(sharing.hidden.shape[0]), "a": 0.0, "b": 0.0,
-                        "a_true": 0.0, "b_true": 0.0, "distance": 0.0, "cpu_s": 0.0})
+                        "a_true": 0.0, "b_true": 0.0, "distance": 0.0, "start": 0.0, "cpu_s": 0.0})
     return pd.DataFrame.from_records(records, columns=RUN_COLUMNS)
 
 
 #: The columns of :func:`objects_runs`' records.
 RUN_COLUMNS = ["sharing", "level", "run", "seed", "method", "config", "car", "unit", "a", "b", "a_true", "b_true",
-               "distance", "cpu_s"]
+               "distance", "start", "cpu_s"]
 
 
 def _unit_cars(sharing: S.Sharing, units: S.Units) -> torch.Tensor:
@@ -224,16 +270,17 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
     """Error against CPU time per configuration, one row per car, for SDM and CMA-ES at several budgets.
 
     Images with exactly ``n_cars`` cars each (:func:`sdm.data.set_with_cars`), one row per car. SDM (the
-    paper's rule, :func:`sdm_rows`) runs with ``n_epoch`` in ``epochs`` for its rows; CMA-ES with
-    ``evaluations_per_unknown`` in ``budgets``, from SDM's shared start.
+    paper's rule, :func:`sdm_rows`) runs with ``n_epoch`` in ``epochs`` for its rows; CMA-ES jointly (``cmaes``)
+    and per car (``cmaes_car``, block sweeps) with ``evaluations_per_unknown`` in ``budgets``, from SDM's shared
+    start. The do-nothing references
+    (:data:`REFERENCES`: the shared start both are given, theta*'s mean) are scored per run with budget 0.
 
     Returns:
-        A DataFrame with columns ``cars, level, run, method, budget, mean, median, cpu_s`` (distances in
-        metres over the run's cars; ``cpu_s`` per configuration).
+        A DataFrame with columns ``cars, level, run, method, budget, mean, median, start, closer, cpu_s``
+        (distances in metres over the run's cars; ``start`` the mean distance of the shared start over the same
+        cars, ``closer`` the share of cars that end closer than the start; ``cpu_s`` per configuration).
     """
     from tqdm.std import tqdm
-
-    from .baselines.rows import fit_configurations
 
     sharing = S.sharing("car", data)
     units = S.units(data, sharing.param_index, sharing.n_rows)
@@ -241,30 +288,38 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
     for run in tqdm(list(runs), desc=f"{n_cars} cars", unit="run", disable=not progress, leave=False):
         own_seed, targets, true_totals = paired_targets(data, sharing, units, noise, run, seed, settings.truth)
         start, shared_seconds = paper_start = shared_start(data, targets, own_seed, settings)
+        start_totals = S.unit_totals(_start_table(sharing, start), units)
+        start_error = start_totals - true_totals
+
+        def record(method, budget, totals, seconds):
+            records.append(_scaling_record(n_cars, noise, run, method, budget, totals - true_totals, start_error,
+                                           seconds / len(data)))
+
+        record("start", 0, start_totals, shared_seconds)
+        record("prior", 0, prior_totals(settings.truth, len(units)), 0.0)
         for n_epoch in epochs:
             theta, _, seconds, _ = sdm_rows(
                 data, targets, sharing, own_seed, replace(settings, rows=replace(settings.rows, n_epoch=int(n_epoch))),
                 None, paper_start)
-            records.append(_scaling_record(n_cars, noise, run, "sdm_paper", n_epoch,
-                                           S.unit_totals(theta, units) - true_totals, seconds / len(data)))
-        for budget in budgets:
-            began = _cpu()
-            fit = fit_configurations(data.with_targets(targets), units,
-                                     replace(settings.cmaes, evaluations_per_unknown=int(budget)), own_seed,
-                                     theta0=S.unit_totals(_start_table(sharing, start), units))
-            records.append(_scaling_record(n_cars, noise, run, "cmaes", budget, fit.totals - true_totals,
-                                           (_cpu() - began + shared_seconds) / len(data)))
+            record("sdm_paper", n_epoch, S.unit_totals(theta, units), seconds)
+        for method in ("cmaes", "cmaes_car"):
+            for budget in budgets:
+                began = _cpu()
+                budgeted = replace(settings, cmaes=replace(settings.cmaes, evaluations_per_unknown=int(budget)))
+                fit = search_units(method, data.with_targets(targets), units, budgeted, own_seed, start_totals)
+                record(method, budget, fit.totals, _cpu() - began + shared_seconds)
     return pd.DataFrame.from_records(records, columns=SCALING_COLUMNS)
 
 
 #: The columns of :func:`scaling_runs`' records.
-SCALING_COLUMNS = ["cars", "level", "run", "method", "budget", "mean", "median", "cpu_s"]
+SCALING_COLUMNS = ["cars", "level", "run", "method", "budget", "mean", "median", "start", "closer", "cpu_s"]
 
 
-def _scaling_record(n_cars, noise, run, method, budget, error, cpu_s) -> dict:
-    distance = error.norm(dim=1)
+def _scaling_record(n_cars, noise, run, method, budget, error, start_error, cpu_s) -> dict:
+    distance, start = error.norm(dim=1), start_error.norm(dim=1)
     return {"cars": int(n_cars), "level": int(noise), "run": int(run), "method": method, "budget": int(budget),
-            "mean": float(distance.mean()), "median": float(distance.median()), "cpu_s": float(cpu_s)}
+            "mean": float(distance.mean()), "median": float(distance.median()), "start": float(start.mean()),
+            "closer": float((distance < start).to(torch.float64).mean()), "cpu_s": float(cpu_s)}
 
 
 def search_settings(warm: dict, rows: dict, schedule: str, cmaes: dict, s: int, batch_size: int,
@@ -278,7 +333,10 @@ def search_settings(warm: dict, rows: dict, schedule: str, cmaes: dict, s: int, 
     return ObjectsSettings(
         warm=TrainSettings(lr=float(warm["lr"]), n_epoch=int(warm["n_epoch"]), s=int(s), **common),
         rows=TrainSettings(lr=float(rows["lr"]), n_epoch=int(rows["n_epoch"]), s=int(rows["s"]), **common),
-        schedule=str(schedule), cmaes=RowsCMAESSettings(evaluations_per_unknown=int(cmaes["evaluations_per_unknown"])),
+        schedule=str(schedule), cmaes=RowsCMAESSettings(evaluations_per_unknown=int(cmaes["evaluations_per_unknown"]),
+                                                        penalty=float(cmaes.get("penalty", 0.0)),
+                                                        sigma0=float(cmaes.get("step", 0.3))),
+        car_sigma0=float(cmaes.get("car_step", cmaes.get("step", 0.3))),
         floor=None, silhouette=None)
 
 

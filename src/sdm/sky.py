@@ -186,6 +186,7 @@ def build_configuration(
     shift: tuple[float, float] = SKY_SHIFT,
     camera: Camera = APOLLO_CAMERA_5,
     image_id: str = "",
+    radius: float = CIRCLE_RADIUS,
 ) -> SkyConfiguration:
     """Build one Sky configuration from an image's car centres.
 
@@ -197,6 +198,7 @@ def build_configuration(
             and give it the depth targets of :func:`sdm.depth.depth_targets` (as Table 5 does).
         camera: camera and screen.
         image_id: name of the source image, kept for provenance.
+        radius: the disc radius of a car in screen pixels (the paper's ``3 ln 4``).
 
     Returns:
         The configuration. An image with no car on screen gives an *empty*
@@ -214,7 +216,7 @@ def build_configuration(
         )
     shift = check_shift(shift)
     centre_image = render_centres(centres, camera).to(torch.float64)
-    circles, owner = paint_circles(centre_image)
+    circles, owner = paint_circles(centre_image, radius)
     pixels = circles.nonzero()
     depth = circles[pixels[:, 0], pixels[:, 1]]
     target = shifted_target(pixel_centre_points(pixels, depth, camera), shift, camera)
@@ -228,6 +230,55 @@ def build_configuration(
         centre_depth=centre_image[centre_pixels[:, 0], centre_pixels[:, 1]],
         cars=owner[pixels[:, 0], pixels[:, 1]],
     )
+
+
+#: How a car's disc follows the screen scale (:func:`rescaled_configuration`).
+DISCS = ("pixels", "metres")
+
+
+def scaled_camera(camera: Camera, scale: int) -> Camera:
+    """``camera`` with a screen of ``scale`` times its rows and columns: the same image and intrinsics, so the
+    screen pixels per image pixel (and per metre at any depth) grow ``scale`` times. Scale 1 is ``camera``."""
+    if isinstance(scale, bool) or int(scale) != scale or scale < 1:
+        raise SDMInputError(f"screen scale must be a positive integer, got {scale!r}")
+    if scale == 1:
+        return camera
+    return Camera(fx=camera.fx, fy=camera.fy, cx=camera.cx, cy=camera.cy, image_width=camera.image_width,
+                  image_height=camera.image_height, screen_height=camera.screen_height * int(scale),
+                  screen_width=camera.screen_width * int(scale))
+
+
+def disc_radius(scale: int, disc: str) -> float:
+    """A car's disc radius in screen pixels on the screen scaled ``scale`` times: the paper's ``3 ln 4`` for
+    ``disc = "pixels"``, ``scale`` times it for ``"metres"`` (the car's size in metres kept)."""
+    if disc not in DISCS:
+        raise SDMInputError(f"disc must be one of {', '.join(DISCS)}, got {disc!r}")
+    return CIRCLE_RADIUS * (int(scale) if disc == "metres" else 1)
+
+
+def rescaled_configuration(config: SkyConfiguration, camera: Camera, scale: int, disc: str = "pixels",
+                           shift: tuple[float, float] = SKY_SHIFT) -> SkyConfiguration:
+    """``config``'s cars rebuilt on the screen ``scaled_camera(camera, scale)``.
+
+    Each car's centre is its pixel's centre on ``camera``'s screen, back-projected at its depth; the
+    configuration is then built anew (:func:`build_configuration`, target at ``shift``). Scale 1 returns
+    ``config`` itself.
+
+    Args:
+        disc: ``"pixels"``: a car's disc keeps its radius in screen pixels (the same points per car, covering
+            ``1 / scale`` of the metres); ``"metres"``: the radius grows with the screen (the same size in metres,
+            ``scale**2`` times the points).
+
+    Raises:
+        SDMInputError: naming ``disc`` unless it is one of :data:`DISCS`; naming the scale unless it is a
+            positive integer.
+    """
+    radius = disc_radius(scale, disc)
+    scaled = scaled_camera(camera, scale)
+    if scaled is camera:
+        return config
+    centres = pixel_centre_points(config.centres, config.centre_depth, camera)
+    return build_configuration(centres, shift, scaled, config.image_id, radius)
 
 
 def add_target_noise(target: torch.Tensor, level: int, generator: torch.Generator | None = None,

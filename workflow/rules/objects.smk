@@ -11,7 +11,8 @@ OBJECT_CARS = [int(k) for k in OBJECTS.get("scaling", {}).get("cars", [])] if OB
 
 def objects_settings():
     """The settings every Table 6 stage reads (its section of the config, in name order)."""
-    return {key: OBJECTS[key] for key in ("truth", "warm", "rows", "schedule", "cmaes", "floor", "silhouette")}
+    keys = ("truth", "warm", "rows", "schedule", "cmaes", "floor", "silhouette", "screen")
+    return {key: OBJECTS[key] for key in keys}
 
 
 notebook_stage(

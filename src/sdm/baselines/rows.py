@@ -44,7 +44,7 @@ from ..errors import SDMInputError
 from ..representation import screen_pixels
 from ..sharing import Units, check_theta
 from .cmaes import CMAESSettings, _search
-from .common import check_positive, check_positive_int, project_shifted
+from .common import check_positive, check_positive_int, field_error, project_shifted
 from .floor import FloorSettings, floor_search
 
 
@@ -56,6 +56,10 @@ class ConfigurationMismatch:
         unit: ``(p,)`` int64 each point's unit in ``[0, U)``.
         target: ``(H, W)`` bool the configuration's (possibly noisy) target.
         camera: camera and screen.
+        window: ``(row, col, height, width)`` screen pixels, or None (the whole screen): count the mismatch within
+            this window only, pixels outside it counted as off screen. For a caller that knows no candidate
+            changes a pixel outside it (:func:`sdm.identifiability.exact_sets`); the stamp buffer then needs a cell
+            per window pixel, not per screen pixel.
 
     A candidate is ``2 U`` numbers: unit ``u``'s shift ``(a, b)`` at ``[2u, 2u + 1]``.
 
@@ -64,7 +68,8 @@ class ConfigurationMismatch:
         n_units: ``U``.
     """
 
-    def __init__(self, points: torch.Tensor, unit: torch.Tensor, target: torch.Tensor, camera: Camera) -> None:
+    def __init__(self, points: torch.Tensor, unit: torch.Tensor, target: torch.Tensor, camera: Camera,
+                 window: tuple[int, int, int, int] | None = None) -> None:
         if points.ndim != 2 or points.shape[1] != 3 or unit.shape != points.shape[:1]:
             raise SDMInputError(f"points must be (p, 3) and unit (p,), got {tuple(points.shape)} and "
                                 f"{tuple(unit.shape)}")
@@ -72,7 +77,14 @@ class ConfigurationMismatch:
             raise SDMInputError(f"target must be {camera.screen_shape}, got {tuple(target.shape)}")
         self.points, self.unit, self.camera = points, unit.to(torch.int64), camera
         self.n_units = int(unit.max()) + 1 if unit.numel() else 0
-        height, width = camera.screen_shape
+        if window is None:
+            window = (0, 0) + tuple(camera.screen_shape)
+        top, left, height, width = (int(v) for v in window)
+        if top < 0 or left < 0 or height < 1 or width < 1 or top + height > camera.screen_shape[0] \
+                or left + width > camera.screen_shape[1]:
+            raise SDMInputError(f"window must lie on the {camera.screen_shape} screen, got {window!r}")
+        self._window = (top, left, height, width)
+        target = target[top:top + height, left:left + width]
         self._cells = height * width
         # weight per pixel (+1 off target, -1 on target), then a spare cell of weight 0 for off-screen points
         weight = torch.ones(self._cells + 1, dtype=torch.int64, device=points.device)
@@ -86,13 +98,20 @@ class ConfigurationMismatch:
     def __call__(self, candidate) -> int:
         return self.many([candidate])[0]
 
+    @property
+    def cells(self) -> int:
+        """Stamp cells one candidate takes: the window's pixels and a spare one."""
+        return self._cells + 1
+
     def counts(self, shifts: torch.Tensor) -> torch.Tensor:
         """``(C,)`` int64 mismatches of ``(C, U, 2)`` float64 unit shifts (metres), one pass for all ``C``."""
         n_candidates, n_points = shifts.shape[0], self.points.shape[0]
         per_point = shifts.index_select(1, self.unit)  # (C, p, 2)
         pixels, on = screen_pixels(project_shifted(self.points, per_point, self.camera), self.camera)
-        width = self.camera.screen_shape[1]
-        cell = torch.where(on, pixels[..., 0] * width + pixels[..., 1], self._cells)  # (C, p), spare off screen
+        top, left, height, width = self._window
+        row, col = pixels[..., 0] - top, pixels[..., 1] - left
+        on = on & (row >= 0) & (row < height) & (col >= 0) & (col < width)
+        cell = torch.where(on, row * width + col, self._cells)  # (C, p), spare off screen (or off the window)
         stride = self._cells + 1
         ids = (cell + torch.arange(n_candidates, device=cell.device).unsqueeze(1) * stride).reshape(-1)
         if self._stamp.numel() < n_candidates * stride:
@@ -131,15 +150,21 @@ class RowsCMAESSettings:
         sigma0: initial step size, metres (theta* is about 0.6 m from the start (0, 0)).
         popsize: candidates per generation; 0 = pycma's default ``4 + floor(3 ln 2U)``.
         tolx: stop when the search distribution is narrower than this, metres.
+        penalty: the regularised search's weight: the count plus ``penalty`` per unit per ``(0.1 m)^2`` of its squared
+            distance from its start (:class:`Penalised`); 0 searches the count alone.
     """
 
     evaluations_per_unknown: int = 150
     sigma0: float = 0.3
     popsize: int = 0
     tolx: float = 1e-5
+    penalty: float = 0.0
 
     def __post_init__(self) -> None:
         check_positive(self, ("sigma0", "tolx"))
+        if isinstance(self.penalty, bool) or not isinstance(self.penalty, (int, float)) or not self.penalty >= 0 \
+                or self.penalty == float("inf"):
+            raise field_error(self, "penalty", f"must be a non-negative number, got {self.penalty!r}")
         check_positive_int(self, ("evaluations_per_unknown",))
         check_positive_int(self, ("popsize",), allow_zero=("popsize",))
 
@@ -196,7 +221,8 @@ def fit_configurations(data: ConfigurationSet, units: Units, settings: RowsCMAES
     Args:
         data: the configurations and their (possibly noisy) targets.
         units: :func:`sdm.sharing.units` of ``data`` under the parameter index.
-        settings: the budget rule and step size.
+        settings: the budget rule and step size; ``settings.penalty > 0``: the regularised search, the count plus a
+            penalty on the distance from the start (:class:`Penalised`).
         seed: the run's seed; configuration ``i`` is searched with :func:`configuration_seed` ``(seed, i)``.
         theta0: ``(U, 2)`` start totals, metres (default zeros: where SDM starts).
         configs: the configurations to search (default all); the others keep their start, 0 counts.
@@ -210,11 +236,101 @@ def fit_configurations(data: ConfigurationSet, units: Units, settings: RowsCMAES
     totals = _start(theta0, units, "theta0")
     mismatch, evaluations, seconds = _per_configuration(len(data))
     for index, own, objective, start, began in _each_configuration(data, units, configs, totals):
-        result = _search(objective, settings.cmaes(len(start)), configuration_seed(seed, index), start)
+        searched = Penalised(objective, start, settings.penalty) if settings.penalty else objective
+        result = _search(searched, settings.cmaes(len(start)), configuration_seed(seed, index), start)
         mismatch[index] = objective(result.theta)
         seconds[index] = time.process_time() - began
         evaluations[index] = objective.evaluations - 1  # the closing count is not the search's
         totals[own] = torch.tensor(result.theta, dtype=torch.float64).view(-1, 2)
+    return RowsResult(totals, mismatch, evaluations, seconds)
+
+
+class Penalised:
+    """A count plus ``weight`` per ``(0.1 m)^2`` of the candidate's squared distance from ``start`` (2 U floats).
+
+    The regularised exact-mismatch search: under noise the count's minimisers fit the noise, and a practitioner
+    keeps the search near its start. ``weight`` 0 is the count itself.
+    """
+
+    def __init__(self, objective, start, weight: float) -> None:
+        self.objective, self.start, self.weight = objective, np.asarray(start, dtype=np.float64), float(weight)
+
+    @property
+    def evaluations(self) -> int:
+        return self.objective.evaluations
+
+    def _penalty(self, candidates) -> np.ndarray:
+        gap = np.asarray(candidates, dtype=np.float64) - self.start
+        return self.weight * (gap**2).sum(-1) / 0.01
+
+    def __call__(self, candidate) -> float:
+        return self.many([candidate])[0]
+
+    def many(self, candidates) -> list[float]:
+        counts = np.asarray(self.objective.many(candidates), dtype=np.float64)
+        return (counts + self._penalty(candidates)).tolist() if self.weight else counts.tolist()
+
+
+class _Block:
+    """One unit's 2 unknowns of a configuration's count, the other units held at ``current`` (a list of 2 U floats,
+    read at each count: the sweep writes a block's result into it before the next block)."""
+
+    def __init__(self, objective: ConfigurationMismatch, current: list[float], unit: int) -> None:
+        self.objective, self.current, self.unit = objective, current, unit
+
+    @property
+    def evaluations(self) -> int:
+        return self.objective.evaluations
+
+    def _full(self, candidate) -> list[float]:
+        full = list(self.current)
+        full[2 * self.unit:2 * self.unit + 2] = [float(candidate[0]), float(candidate[1])]
+        return full
+
+    def __call__(self, candidate) -> int:
+        return self.objective.many([self._full(candidate)])[0]
+
+    def many(self, candidates) -> list[int]:
+        return self.objective.many([self._full(candidate) for candidate in candidates])
+
+
+def fit_blocks(data: ConfigurationSet, units: Units, settings: RowsCMAESSettings = RowsCMAESSettings(),
+               seed: int = 0, theta0=None, configs=None, sweeps: int = 2) -> RowsResult:
+    """CMA-ES per unit: block sweeps over each configuration's units, each unit's 2 unknowns in turn with the others
+    fixed, on the configuration's whole exact pixel mismatch (:class:`ConfigurationMismatch`).
+
+    The budget is :func:`fit_configurations`'s (``evaluations_per_unknown x 2U`` per configuration), split evenly
+    over ``sweeps`` sweeps of its ``U`` units: each block search gets ``2 x evaluations_per_unknown / sweeps``
+    counts (at least one generation). Block ``(sweep, u)`` of configuration ``i`` is seeded from
+    ``(seed, i, sweep, u)``; a block keeps its start unless a candidate counts less (with ``settings.penalty``, the
+    count plus the unit's penalty from its start, :class:`Penalised`).
+
+    Returns:
+        :class:`RowsResult`. Deterministic: the same arguments give the same totals.
+    """
+    if not isinstance(settings, RowsCMAESSettings):
+        raise SDMInputError(f"settings must be RowsCMAESSettings, got {type(settings).__name__}")
+    if isinstance(sweeps, bool) or not isinstance(sweeps, int) or sweeps < 1:
+        raise SDMInputError(f"sweeps must be a positive integer, got {sweeps!r}")
+    _check_units(data, units)
+    totals = _start(theta0, units, "theta0")
+    mismatch, evaluations, seconds = _per_configuration(len(data))
+    block = replace(settings, evaluations_per_unknown=max(1, (2 * settings.evaluations_per_unknown) // sweeps))
+    for index, own, objective, start, began in _each_configuration(data, units, configs, totals):
+        current = list(start)
+        for sweep in range(sweeps):
+            for unit in range(len(current) // 2):
+                block_seed = int(np.random.SeedSequence([int(seed), int(index), sweep, unit]).generate_state(
+                    1, dtype=np.uint32)[0])
+                own_start = start[2 * unit:2 * unit + 2]
+                searched = _Block(objective, current, unit)
+                searched = Penalised(searched, own_start, settings.penalty) if settings.penalty else searched
+                result = _search(searched, block.cmaes(1), block_seed, current[2 * unit:2 * unit + 2])
+                current[2 * unit:2 * unit + 2] = [float(v) for v in result.theta]
+        evaluations[index] = objective.evaluations
+        mismatch[index] = objective(current)
+        seconds[index] = time.process_time() - began
+        totals[own] = torch.tensor(current, dtype=torch.float64).view(-1, 2)
     return RowsResult(totals, mismatch, evaluations, seconds)
 
 
@@ -271,13 +387,18 @@ class RowsFloor:
     """The floor of each configuration, per unit.
 
     Attributes:
-        totals: ``(U, 2)`` float64 the floor's total shift of each unit (the minimal region's centre), metres.
+        totals: ``(U, 2)`` float64 the floor's total shift of each unit, metres: the exact-mismatch minimiser
+            nearest theta* of those the search knows (:func:`nearest_minimiser`): theta* itself wherever it
+            attains the least count (always without noise), else the nearer to it of the search's point and the
+            minimal region's centre among those at the least count.
+        centre_totals: ``(U, 2)`` the minimal region's centre.
         search_totals: ``(U, 2)`` where the search itself stopped.
         min_mismatch: ``(N,)`` int64 the count at the floor; mismatch_at_truth: ``(N,)`` the count at theta*.
         evaluations, seconds: ``(N,)`` counts and CPU seconds per configuration.
     """
 
     totals: torch.Tensor
+    centre_totals: torch.Tensor
     search_totals: torch.Tensor
     min_mismatch: torch.Tensor
     mismatch_at_truth: torch.Tensor
@@ -298,19 +419,38 @@ def floor_configurations(data: ConfigurationSet, units: Units, truth: torch.Tens
         raise SDMInputError(f"settings must be RowsFloorSettings, got {type(settings).__name__}")
     _check_units(data, units)
     truth = _start(truth, units, "truth")
-    totals, search_totals = truth.clone(), truth.clone()
+    totals, centre_totals, search_totals = truth.clone(), truth.clone(), truth.clone()
     min_mismatch, evaluations, seconds = _per_configuration(len(data))
     at_truth = torch.zeros(len(data), dtype=torch.int64)
     for index, own, objective, start, began in _each_configuration(data, units, configs, truth):
         result = floor_search(objective, configuration_seed(seed, index), settings.settings(len(start)),
                               theta0=start, truth=start)
-        seconds[index] = time.process_time() - began
-        totals[own] = torch.tensor(result.theta, dtype=torch.float64).view(-1, 2)
+        centre_totals[own] = torch.tensor(result.theta, dtype=torch.float64).view(-1, 2)
         search_totals[own] = torch.tensor(result.search_theta, dtype=torch.float64).view(-1, 2)
-        min_mismatch[index], at_truth[index] = result.min_mismatch, result.mismatch_at_truth
+        nearest, least = nearest_minimiser(objective, start, (result.search_theta, result.theta))
+        totals[own] = torch.tensor(nearest, dtype=torch.float64).view(-1, 2)
+        min_mismatch[index], at_truth[index] = least, result.mismatch_at_truth
         evaluations[index] = result.evaluations
-    return RowsFloor(totals, search_totals, min_mismatch, at_truth, evaluations, seconds)
+        seconds[index] = time.process_time() - began
+    return RowsFloor(totals, centre_totals, search_totals, min_mismatch, at_truth, evaluations, seconds)
 
 
-__all__ = ["ConfigurationMismatch", "RowsCMAESSettings", "RowsFloor", "RowsFloorSettings", "RowsResult",
-           "configuration_objective", "configuration_seed", "fit_configurations", "floor_configurations"]
+def nearest_minimiser(objective: ConfigurationMismatch, truth, candidates) -> tuple[list[float], int]:
+    """Of theta* and ``candidates`` (each ``2 U`` numbers), the one nearest theta* among those at the least count.
+
+    Returns:
+        ``(theta, count)``: the chosen point (theta* itself wherever it attains the least count) and that count.
+    """
+    truth = [float(v) for v in truth]
+    points = [truth] + [[float(v) for v in point] for point in candidates]
+    counts = objective.many(points)
+    least = min(counts)
+    at_least = [point for point, count in zip(points, counts) if count == least]
+    nearest = min(at_least, key=lambda point: sum((p - t) ** 2 for p, t in zip(point, truth)))
+    return nearest, int(least)
+
+
+__all__ = ["ConfigurationMismatch", "Penalised", "RowsCMAESSettings", "RowsFloor", "RowsFloorSettings", "RowsResult",
+           "configuration_objective", "configuration_seed", "fit_blocks", "fit_configurations",
+           "floor_configurations",
+           "nearest_minimiser"]

@@ -10,7 +10,7 @@ from tqdm.std import tqdm
 from ..batch import ConfigurationSet
 from ..camera import APOLLO_CAMERA_5, Camera
 from ..errors import SDMInputError
-from ..sky import SKY_SHIFT, SkyConfiguration, build_configuration
+from ..sky import CIRCLE_RADIUS, SKY_SHIFT, SkyConfiguration, build_configuration
 from .readers import ImageCars
 from .synthetic import DEFAULT_MODEL, SceneModel, images_with_cars
 
@@ -86,6 +86,7 @@ def build_configurations(
     shift: tuple[float, float] = SKY_SHIFT,
     camera: Camera = APOLLO_CAMERA_5,
     progress: bool = True,
+    radius: float = CIRCLE_RADIUS,
 ) -> list[SkyConfiguration]:
     """One Sky configuration per image, in the given order (no sampling: the images are already chosen).
 
@@ -94,6 +95,7 @@ def build_configurations(
         shift: the true shift ``(a, b)`` in metres.
         camera: camera and screen.
         progress: show a progress bar (tqdm, on stderr).
+        radius: a car's disc radius in screen pixels (:func:`sdm.sky.build_configuration`).
 
     Returns:
         ``len(images)`` configurations; an image with no car on screen gives an empty configuration.
@@ -105,7 +107,7 @@ def build_configurations(
     for index, image in enumerate(images):
         if not isinstance(image, ImageCars):
             raise SDMInputError(f"images[{index}] must be ImageCars, got {type(image).__name__}")
-    return [build_configuration(image.centres, shift, camera, image_id=image.image_id)
+    return [build_configuration(image.centres, shift, camera, image_id=image.image_id, radius=radius)
             for image in tqdm(images, desc="Sky configurations", unit="image", disable=not progress)]
 
 
@@ -121,6 +123,7 @@ def set_with_cars(
     n_images_name: str = "n_images",
     n_cars_name: str = "n_cars",
     seed_name: str = "seed",
+    radius: float = CIRCLE_RADIUS,
 ) -> ConfigurationSet:
     """Sky configurations of synthetic images with exactly ``n_cars`` visible cars each, packed.
 
@@ -137,4 +140,4 @@ def set_with_cars(
     """
     images = images_with_cars(n_images, n_cars, seed, model=model, camera=camera, n_images_name=n_images_name,
                               n_cars_name=n_cars_name, seed_name=seed_name)
-    return ConfigurationSet.from_configurations(build_configurations(images, shift, camera, progress), camera)
+    return ConfigurationSet.from_configurations(build_configurations(images, shift, camera, progress, radius), camera)

@@ -8,6 +8,7 @@ import numpy as np
 import pandas as pd
 
 from ..network import LOSSES
+from ..objects import REFERENCES
 from ..network import SDM_RULES as SDM_RULE_NAMES
 from .tables import TableFormat, write_table
 
@@ -49,12 +50,14 @@ def method_label(method: str) -> str:
         return f"network ({LOSS_LABELS[method[4:]]})"
     if method.startswith("net+k:"):
         return f"network ({LOSS_LABELS[method[6:]]}) + k SDM steps"
-    return {"cmaes": "CMA-ES per configuration", "sdm_zero": "SDM per configuration from zero"}[method]
+    return {"cmaes": "CMA-ES per configuration", "sdm_zero": "SDM per configuration from zero",
+            "prior": "do nothing: theta*'s mean", "start": "do nothing: the shared start"}[method]
 
 
 def method_order(losses: Sequence[str]) -> list[str]:
-    """Table 7's methods in row order: each network alone, then each with k steps, then the searches."""
-    return [f"net:{loss}" for loss in losses] + [f"net+k:{loss}" for loss in losses] + ["cmaes", "sdm_zero"]
+    """Table 7's methods in row order: doing nothing, each network alone, then each with k steps, the searches."""
+    return (list(REFERENCES) + [f"net:{loss}" for loss in losses] + [f"net+k:{loss}" for loss in losses]
+            + ["cmaes", "sdm_zero"])
 
 
 def table7(test_frames: Sequence[pd.DataFrame], curves: Sequence[pd.DataFrame]) -> pd.DataFrame:
@@ -110,6 +113,9 @@ def table7_summary(table: pd.DataFrame, steps: int, train_epochs: int, n_train: 
         lines.append(f"- **{LOSS_LABELS[loss]} against the image losses**: " + _against_images(table, loss, levels))
     for loss in (loss for loss in SDM_LOSSES if loss in trained):
         lines.append(f"- **{LOSS_LABELS[loss]} + k SDM steps against CMA-ES**: " + _moonshot(table, loss, levels))
+    reference = _against_nothing(table, trained, levels)
+    if reference:
+        lines.append(reference)
     best = {level: min(((row["mean_m"], row["method"]) for _, row in table[table["level"] == level].iterrows()))
             for level in levels}
     if bias is not None and len(bias):
@@ -118,6 +124,20 @@ def table7_summary(table: pd.DataFrame, steps: int, train_epochs: int, n_train: 
         f"level {level}: {method_label(method)} ({1e3 * mean:.1f}e-3 m)" for level, (mean, method) in best.items())
         + ".")
     return "\n".join(lines) + "\n"
+
+
+def _against_nothing(table: pd.DataFrame, trained: Sequence[str], levels: Sequence[int]) -> str:
+    """Every network against doing nothing (theta*'s mean for every configuration), per level; empty without it."""
+    parts = []
+    for level in levels:
+        prior = _at(table, level, "prior")
+        if prior is None:
+            continue
+        ratios = [float(_at(table, level, f"net:{loss}")["mean_m"] / prior["mean_m"]) for loss in trained]
+        if ratios:
+            parts.append(f"level {level}: {1e3 * prior['mean_m']:.1f}e-3 m, the networks at "
+                         f"{min(ratios):.2f}-{max(ratios):.2f}x of it")
+    return ("- **Doing nothing** (theta*'s mean for every configuration): " + "; ".join(parts) + ".") if parts else ""
 
 
 def _bias_words(bias: pd.DataFrame) -> str:
@@ -228,6 +248,10 @@ def verdict_sentence(table: pd.DataFrame) -> str:
         ratios, speeds = [r for r, _ in refined], [s for _, s in refined]
         parts.append(f"and with k SDM steps after it ends at {min(ratios):.2f}-{max(ratios):.2f}x CMA-ES's mean at "
                      f"1/{min(speeds):.0f} to 1/{max(speeds):.0f} of its CPU time per configuration")
+    nothing = [_ratio(table, level, f"net:{loss}", "prior") for level in levels]
+    nothing = [found[0] for found in nothing if found is not None]
+    if nothing:
+        parts.insert(1, f"ends at {min(nothing):.2f}-{max(nothing):.2f}x the error of doing nothing (theta*'s mean)")
     levels_words = f"noise levels {levels[0]}-{levels[-1]}" if len(levels) > 1 else f"noise level {levels[0]}"
     subject, said = parts[0], parts[1:]
     return f"{subject} {', '.join(said[:-1])} {said[-1]} ({levels_words}; docs/results/network/)."
