@@ -317,38 +317,9 @@ def train_runs(
     >>> [round(distance(theta), 2) for theta in runs.final_theta]  # noise-free, noisy: metres from SKY_SHIFT
     [0.02, 0.03]
     """
-    settings = list(settings)
-    n_runs = len(settings)
-    if n_runs == 0 or len(targets) != n_runs:
-        raise SDMInputError(f"train_runs needs one target set per run: {len(targets)} target sets, {n_runs} settings")
-    shared = {replace(one, seed=0) for one in settings}
-    if len(shared) != 1:
-        raise SDMInputError(f"the runs' settings may differ only in seed, got {sorted(map(str, shared))}")
-    common = settings[0]
-    if method not in METHODS:
-        raise SDMInputError(f"method must be one of {sorted(METHODS)}, got {method!r}")
-    if method == "dense" and n_runs > 1:
-        raise SDMInputError(f"method 'dense' (the grid reference) trains one run at a time, got {n_runs} runs")
-    camera = camera or train_set.camera
-    own_targets = [run_targets is train_set.targets for run_targets in targets]
-    if device is not None:
-        train_set = train_set.to(_usable_device(device))
-    device = train_set.device
-    check_divisible(camera.screen_shape, common.s)  # before anything is zoomed out
+    runs = _checked_runs(train_set, targets, settings, camera, device, theta0, method, param_index, row_rate)
+    train_set, settings, common, rows, starts = runs.train_set, runs.settings, runs.common, runs.rows, runs.starts
     n_configs, batch_size = len(train_set), common.batch_size
-    if n_configs < batch_size:
-        raise SDMInputError(f"the training set has {n_configs} configurations, fewer than one batch of {batch_size}")
-    for run, run_targets in enumerate(targets):
-        if tuple(run_targets.shape) != tuple(train_set.targets.shape) or run_targets.dtype != torch.bool:
-            raise SDMInputError(f"targets[{run}] must be bool of shape {tuple(train_set.targets.shape)}, "
-                                f"got {run_targets.dtype} {tuple(run_targets.shape)}")
-    rows = None if param_index is None else check_param_index(param_index, train_set, _theta0_rows(theta0))
-    if rows is not None and (common.fit_depth or method == "dense"):
-        raise SDMInputError("param_index: parameters attached to points train the shift (a, b) with method 'fast'; "
-                            f"got fit_depth={common.fit_depth}, method={method!r}")
-    starts = _starts(theta0, n_runs, common.fit_depth, device,
-                     n_rows=None if rows is None else int(rows.max()) + 1)
-    row_rate = _row_rate(row_rate, rows, device)
 
     levels = list(range(common.s, common.zoom - 1, -1))
     rates, rate = [], common.lr
@@ -365,10 +336,65 @@ def train_runs(
 
     record_every = 1 if rows is None else n_configs // batch_size  # rows: after every epoch
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
-        thetas, losses = _train_program(train_set, targets, own_targets, settings, camera, method, levels, rates,
-                                        orders, starts, bar, rows, record_every, row_rate)
+        thetas, losses = _train_program(train_set, targets, runs.own_targets, settings, runs.camera, method, levels,
+                                        rates, orders, starts, bar, rows, record_every, runs.row_rate)
     return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings,
                        torch.arange(0, total + 1, record_every, dtype=torch.int64))
+
+
+@dataclass
+class _Runs:
+    """The arguments of :func:`train_runs` (and :func:`refine_runs`) after :func:`_checked_runs`."""
+
+    train_set: ConfigurationSet  # on the training device
+    settings: list[TrainSettings]
+    common: TrainSettings  # settings[0]: every field but seed is every run's
+    camera: Camera
+    own_targets: list[bool]  # run r trains on the set's own targets
+    rows: torch.Tensor | None  # the checked (P, G) param_index
+    starts: torch.Tensor  # (R, 2), (R, 3) with fit_depth, (R, K, 2) with rows; float64 on the device
+    row_rate: torch.Tensor | None  # (K,) float64 on the device
+
+
+def _checked_runs(train_set, targets, settings, camera, device, theta0, method, param_index, row_rate) -> _Runs:
+    """The one check of the runs' arguments, shared by :func:`train_runs` and :func:`refine_runs`: what one
+    accepts, the other does. :class:`SDMInputError` naming the argument (see :func:`train_runs`)."""
+    settings = list(settings)
+    n_runs = len(settings)
+    if n_runs == 0 or len(targets) != n_runs:
+        raise SDMInputError(f"targets: one target set per run is needed: {len(targets)} target sets, "
+                            f"{n_runs} settings")
+    if not all(isinstance(one, TrainSettings) for one in settings):
+        raise SDMInputError(f"settings must be TrainSettings, got {sorted({type(one).__name__ for one in settings})}")
+    shared = {replace(one, seed=0) for one in settings}
+    if len(shared) != 1:
+        raise SDMInputError(f"settings: the runs' settings may differ only in seed, got {sorted(map(str, shared))}")
+    common = settings[0]
+    if method not in METHODS:
+        raise SDMInputError(f"method must be one of {sorted(METHODS)}, got {method!r}")
+    if method == "dense" and n_runs > 1:
+        raise SDMInputError(f"method 'dense' (the grid reference) trains one run at a time, got {n_runs} runs")
+    camera = camera or train_set.camera
+    own_targets = [run_targets is train_set.targets for run_targets in targets]  # before the set moves
+    if device is not None:
+        train_set = train_set.to(_usable_device(device))
+    device = train_set.device
+    check_divisible(camera.screen_shape, common.s)  # before anything is zoomed out
+    n_configs, batch_size = len(train_set), common.batch_size
+    if n_configs < batch_size:
+        raise SDMInputError(f"the training set has {n_configs} configurations, fewer than one batch of {batch_size}")
+    for run, run_targets in enumerate(targets):
+        if (not isinstance(run_targets, torch.Tensor) or tuple(run_targets.shape) != tuple(train_set.targets.shape)
+                or run_targets.dtype != torch.bool):
+            raise SDMInputError(f"targets[{run}] must be bool of shape {tuple(train_set.targets.shape)}, got "
+                                f"{getattr(run_targets, 'dtype', type(run_targets).__name__)} "
+                                f"{tuple(getattr(run_targets, 'shape', ()))}")
+    rows = None if param_index is None else check_param_index(param_index, train_set, _theta0_rows(theta0))
+    if rows is not None and (common.fit_depth or method == "dense"):
+        raise SDMInputError("param_index: parameters attached to points train the shift (a, b) with method 'fast'; "
+                            f"got fit_depth={common.fit_depth}, method={method!r}")
+    starts = _starts(theta0, n_runs, common.fit_depth, device, n_rows=None if rows is None else int(rows.max()) + 1)
+    return _Runs(train_set, settings, common, camera, own_targets, rows, starts, _row_rate(row_rate, rows, device))
 
 
 def rates_per_point(param_index: torch.Tensor) -> torch.Tensor:
@@ -540,14 +566,24 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     :attr:`Refinement.steps`. ``param_index``: that of :func:`train_runs` (the passes move the same rows, with
     ``row_rate``; their theta is recorded after every step).
     """
-    settings = list(settings)
+    if not isinstance(history, RunsHistory):
+        raise SDMInputError(f"history must be the RunsHistory of train_runs, got {type(history).__name__}")
+    trained_rows = history.theta.dim() == 4  # (steps + 1, R, K, 2): trained with param_index
+    if trained_rows != (param_index is not None):
+        raise SDMInputError(
+            "param_index: the history was trained with parameters attached to points "
+            f"({history.theta.shape[2]} rows a run); pass its param_index" if trained_rows else
+            "param_index: the history was trained with one shift a run (no param_index); refine it without one")
+    if history.theta.dim() < 3 or history.theta.shape[1] != len(settings):
+        raise SDMInputError(f"history holds {history.theta.shape[1] if history.theta.dim() > 1 else 0} runs, "
+                            f"settings {len(settings)}: refine the runs it trained")
+    runs = _checked_runs(train_set, targets, settings, camera, device, history.theta[-1], "fast", param_index,
+                         row_rate)
+    train_set, settings, camera, rows, row_rate = runs.train_set, runs.settings, runs.camera, runs.rows, runs.row_rate
+    own_targets, theta = runs.own_targets, runs.starts
     passes = [replace(one, n_epoch=1, flow=refinement.flow,
                       depth_zoom=one.zoom if refinement.moves_c else one.depth_zoom) for one in settings]
     common = passes[0]
-    camera = camera or train_set.camera
-    own_targets = [run_targets is train_set.targets for run_targets in targets]  # before the set moves
-    if device is not None:
-        train_set = train_set.to(_usable_device(device))
     per_epoch = len(train_set) // common.batch_size
     epochs_per_pass = -(-refinement.pass_steps // per_epoch)
     orders = _shufflings([refine_seed(one.seed) for one in settings], len(train_set),
@@ -555,9 +591,6 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     rates, widths = refinement.rates(common), refinement.widths
     whole = refinement.pass_steps % per_epoch == 0  # no step cut: every pass in one program
     programs = [range(refinement.passes)] if whole else [range(i, i + 1) for i in range(refinement.passes)]
-    theta = history.theta[-1].to(train_set.device)
-    rows = None if param_index is None else check_param_index(param_index, train_set, theta.shape[1])
-    row_rate = _row_rate(row_rate, rows, train_set.device)
     thetas, losses = [], []
     for program in programs:
         epochs = [i * epochs_per_pass + j for i in program for j in range(epochs_per_pass)]
