@@ -36,6 +36,14 @@ from .sky import shift_vector
 from .zoom import check_divisible, target_pyramid
 
 
+#: The largest shift a run may reach or start from, metres per component of theta (docs/library.md,
+#: "Divergence"). The paper's shift is 0.6 m long and Table 6 draws rows 0.15 m apart; a shift of 10 m moves a car
+#: 20 m away by a third of the 256-pixel screen (fx * cols_per_image_pixel = 174 pixels per unit of x / z).
+#: A theta beyond it is no estimate but a run that diverged (a learning rate too large) or a start the flow
+#: cannot correct.
+THETA_BOUND = 10.0
+
+
 @dataclass(frozen=True)
 class TrainSettings:
     """Hyper-parameters of one training run.
@@ -301,7 +309,9 @@ def train_runs(
 
     Raises:
         SDMInputError: naming the argument, for mismatched runs, targets or starts, a set smaller than one
-            batch, an unusable ``device``, a theta that became non-finite (naming the run and the step), or a
+            batch, an unusable ``device``, a theta that became non-finite or left :data:`THETA_BOUND` (naming the
+            run, the step and the setting), a start beyond it, a run whose every point is off the screen, a
+            target set without an active pixel (docs/library.md, "Divergence"), or a
             ``param_index`` that is not an integer tensor of ``P`` rows, holds a negative entry, leaves a row
             with no point, or comes with ``fit_depth`` or ``method="dense"``.
 
@@ -338,8 +348,9 @@ def train_runs(
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
         thetas, losses = _train_program(train_set, targets, runs.own_targets, settings, runs.camera, method, levels,
                                         rates, orders, starts, bar, rows, record_every, runs.row_rate)
-    return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings,
-                       torch.arange(0, total + 1, record_every, dtype=torch.int64))
+    theta_steps = torch.arange(0, total + 1, record_every, dtype=torch.int64)
+    _check_divergence(thetas.cpu(), theta_steps, step_rates, runs)
+    return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings, theta_steps)
 
 
 @dataclass
@@ -394,7 +405,54 @@ def _checked_runs(train_set, targets, settings, camera, device, theta0, method, 
         raise SDMInputError("param_index: parameters attached to points train the shift (a, b) with method 'fast'; "
                             f"got fit_depth={common.fit_depth}, method={method!r}")
     starts = _starts(theta0, n_runs, common.fit_depth, device, n_rows=None if rows is None else int(rows.max()) + 1)
-    return _Runs(train_set, settings, common, camera, own_targets, rows, starts, _row_rate(row_rate, rows, device))
+    beyond = (starts.abs().reshape(n_runs, -1) > THETA_BOUND).any(1)
+    if bool(beyond.any()):
+        run = int(beyond.nonzero()[0])
+        raise SDMInputError(f"theta0[{run}] lies beyond the bound of {THETA_BOUND} m per component (THETA_BOUND): "
+                            f"{starts[run].tolist()} is no start the flow can correct")
+    for run, run_targets in enumerate(targets):
+        if train_set.points.shape[0] and not bool(run_targets.any()):  # (a set without points trains to zero)
+            raise SDMInputError(f"targets[{run}] holds no active pixel: the flow vanishes for every point of run {run}")
+    runs = _Runs(train_set, settings, common, camera, own_targets, rows, starts, _row_rate(row_rate, rows, device))
+    _check_on_screen(runs, starts.cpu(), "theta0", "its start")
+    return runs
+
+
+def _check_divergence(thetas: torch.Tensor, theta_steps: torch.Tensor, step_rates: torch.Tensor, runs: _Runs) -> None:
+    """:class:`SDMInputError` naming the run, the step and the setting to change where a run diverged: its theta
+    left :data:`THETA_BOUND`, or every point of its set is off the screen at its last theta.
+
+    ``thetas`` ``(records, R, ...)`` CPU float64, recorded after ``theta_steps`` steps; ``step_rates`` ``(steps,)``
+    the learning rate of each step."""
+    beyond = (thetas.abs().reshape(thetas.shape[0], thetas.shape[1], -1) > THETA_BOUND).any(2)
+    if bool(beyond.any()):
+        record, run = (int(i) for i in beyond.nonzero()[0])
+        step = int(theta_steps[record])
+        rate = float(step_rates[max(step - 1, 0)]) if step_rates.numel() else float("nan")
+        setting = "lr" if runs.row_rate is None else "lr or row_rate"
+        raise SDMInputError(f"theta of run {run} left the bound of {THETA_BOUND} m per component (THETA_BOUND) by "
+                            f"step {step} (rate {rate!r}): the run diverged; lower {setting}")
+    _check_on_screen(runs, thetas[-1], "theta", f"step {int(theta_steps[-1])}")
+
+
+def _check_on_screen(runs: _Runs, theta: torch.Tensor, name: str, when: str) -> None:
+    """:class:`SDMInputError` naming ``name`` where some run's every point is off the screen at ``theta`` (``(R, 2)``,
+    ``(R, 3)`` or ``(R, K, 2)`` CPU float64, metres): no point of it can land, so its flow vanishes."""
+    points = runs.train_set.points.detach().to("cpu", torch.float64)
+    if points.shape[0] == 0:  # a set without points trains to zero
+        return
+    height, width = runs.camera.screen_shape
+    for run in range(theta.shape[0]):
+        if runs.rows is None:
+            shift = torch.nn.functional.pad(theta[run], (0, 3 - theta.shape[-1]))
+        else:
+            shift = torch.nn.functional.pad(point_shifts(theta[run], runs.rows.cpu()), (0, 1))
+        moved = points + shift
+        screen = runs.camera.project(moved[moved[:, 2] > 0], validate=False)
+        on = ((screen[:, 0] >= 0) & (screen[:, 0] < height) & (screen[:, 1] >= 0) & (screen[:, 1] < width)).any()
+        if not bool(on):
+            raise SDMInputError(f"{name}: every point of run {run} is off the {height} x {width} screen at {when} "
+                                f"(theta {theta[run].tolist()}): the flow vanishes; start closer or lower lr")
 
 
 def rates_per_point(param_index: torch.Tensor) -> torch.Tensor:
@@ -605,6 +663,7 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
         theta = steps[kept]
     step_rates = torch.tensor(rates, dtype=torch.float64).repeat_interleave(refinement.pass_steps)
     recorded = torch.arange(1, refinement.steps + 1, dtype=torch.int64) + int(history.theta_steps[-1])
+    _check_divergence(torch.cat(thetas), recorded, torch.cat((history.lr, step_rates)), runs)
     return RunsHistory(torch.cat((history.theta, *thetas)), torch.cat((history.loss, *losses)),
                        torch.cat((history.level, torch.full((refinement.steps,), common.zoom, dtype=torch.int64))),
                        torch.cat((history.lr, step_rates)), settings, torch.cat((history.theta_steps, recorded)))
