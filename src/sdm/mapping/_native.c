@@ -29,6 +29,11 @@
 
 static inline int64_t clamp_unit(int64_t value) { return value < -1 ? -1 : (value > 1 ? 1 : value); }
 
+/* a - b wrapping around as torch's int64 subtraction does (defined in C where a signed subtraction is not): a
+ * projection floored from NaN or beyond int64 is INT64_MIN, as torch's .long() gives it, and the step towards it
+ * must be torch's. */
+static inline int64_t wrapping_sub(int64_t a, int64_t b) { return (int64_t)((uint64_t)a - (uint64_t)b); }
+
 static inline int on_grid(int64_t row, int64_t col, int64_t height, int64_t width) {
     return row >= 0 && row < height && col >= 0 && col < width;
 }
@@ -65,8 +70,8 @@ static inline __attribute__((always_inline)) void chain_level(
         const int was_alive = first ? 1 : (cell[i] != sentinel) & rmin_survives(decided, cell[i], rank[i], no_rank);
         const int64_t block_row = from[2 * i] >> level, block_col = from[2 * i + 1] >> level;
         /* landing block - input block, limited to the 3x3 kernel */
-        const int64_t step_row = clamp_unit((projected[2 * i] >> level) - block_row);
-        const int64_t step_col = clamp_unit((projected[2 * i + 1] >> level) - block_col);
+        const int64_t step_row = clamp_unit(wrapping_sub(projected[2 * i] >> level, block_row));
+        const int64_t step_col = clamp_unit(wrapping_sub(projected[2 * i + 1] >> level, block_col));
         if (last) {
             entered[i] = (uint8_t)was_alive;
             block_out[2 * i] = block_row;

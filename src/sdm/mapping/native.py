@@ -44,6 +44,11 @@ from .build import library as _library
 from .rules import KernelFlow
 
 
+#: The largest start pixel (either sign) :func:`chain` takes: moved by less than ``2^61`` pixels over at most 60
+#: levels, it stays within int64.
+PIXEL_BOUND = 2**61
+
+
 def _check_range(call: str, name: str, values: torch.Tensor, low: int, high: int) -> None:
     """:class:`SDMInputError` naming ``call`` and ``name`` unless every entry of ``values`` lies in ``[low, high)``."""
     if values.numel() and (int(values.min()) < low or int(values.max()) >= high):
@@ -52,12 +57,12 @@ def _check_range(call: str, name: str, values: torch.Tensor, low: int, high: int
 
 
 def _check_screen(call: str, height, width, steps, zoom) -> None:
-    """:class:`SDMInputError` naming ``call`` unless the screen is positive and ``0 <= zoom <= steps <= 62``."""
+    """:class:`SDMInputError` naming ``call`` unless the screen is positive and ``0 <= zoom <= steps <= 60``."""
     for name, value in (("height", height), ("width", width), ("steps", steps), ("zoom", zoom)):
         if isinstance(value, bool) or not isinstance(value, int):
             raise SDMInputError(f"{call}: {name} must be an integer, got {value!r}")
-    if height < 1 or width < 1 or not 0 <= zoom <= steps <= 62:
-        raise SDMInputError(f"{call}: needs a positive screen and 0 <= zoom <= steps <= 62, got a {height} x {width} "
+    if height < 1 or width < 1 or not 0 <= zoom <= steps <= 60:
+        raise SDMInputError(f"{call}: needs a positive screen and 0 <= zoom <= steps <= 60, got a {height} x {width} "
                             f"screen, steps {steps}, zoom {zoom}")
 
 
@@ -89,6 +94,7 @@ def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, r
     _check_screen("chain", height, width, steps, zoom)
     # the kernel's tables: 2 * ((max(config) + 1) * H * W + 1) entries
     _check_range("chain", "config", config, 0, max((scratch.numel() // 2 - 1) // (height * width), 0))
+    _check_range("chain", "pixels", pixels, -PIXEL_BOUND, PIXEL_BOUND)  # moved by blocks: no int64 overflow
     n_points = pixels.shape[0]
     out_pixels = torch.empty_like(pixels)
     entered = torch.empty(n_points, dtype=torch.bool, device=pixels.device)
@@ -142,6 +148,8 @@ def paper_flow(screen: torch.Tensor, config: torch.Tensor, landed: torch.Tensor,
     _check_range("paper_flow", "config", config, 0, sizes["n"])
     for axis, side in enumerate((sizes["h"], sizes["w"])):
         _check_range("paper_flow", "landing (of the landed points)", landing[landed, axis], 0, side)
+        _check_range("paper_flow", "block (of the landed points, from their landing)",
+                     landing[landed, axis] - block[landed, axis], -1, 2)
     n_points = screen.shape[0]
     grid_h, grid_w = target.shape[1:]
     flow = torch.zeros_like(screen)
