@@ -132,7 +132,21 @@ def test_the_paper_flow_refuses_a_landing_off_the_target(data):
     block = torch.zeros(n_points, 2, dtype=torch.int64)
     landing = torch.tensor([[0, 0], [0, 1], [1, 1], [9, 0]])
     target = torch.zeros(1, 8, 8, dtype=torch.bool)
-    with pytest.raises(SDMInputError, match=r"paper_flow: landing \(of the landed points\) must lie in \[0, 8\)"):
+    refused = (r"paper_flow: every landed point's config must lie in \[0, 1\) \(the targets\), its landing on the "
+               r"8 x 8 grid")
+    with pytest.raises(SDMInputError, match=refused):
         native.paper_flow(screen, config, landed, block, landing, target, 0)
-    with pytest.raises(SDMInputError, match=r"paper_flow: config must lie in \[0, 1\)"):
+    with pytest.raises(SDMInputError, match=refused):
         native.paper_flow(screen, config + 1, landed, block, landing.clamp(max=7), target, 0)
+    with pytest.raises(SDMInputError, match=refused):  # a landing two blocks from its block
+        native.paper_flow(screen, config, landed, block, landing.clamp(max=2), target, 0)
+
+
+@needs_kernel
+def test_the_chain_refuses_start_pixels_whose_moves_would_leave_int64(data):
+    pixels = data.pixels.clone()
+    pixels[0, 0] = 2**62
+    config = torch.zeros(data.points.shape[0], dtype=torch.int64)
+    scratch = torch.full((2 * (128 * 256 + 1),), 0, dtype=torch.int64)
+    with pytest.raises(SDMInputError, match=r"chain: pixels must lie within"):
+        native.chain(data.pixels, pixels, config, data.rank, scratch, 128, 256, 2, 0)

@@ -348,7 +348,7 @@ def train_runs(
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
         thetas, losses = _train_program(train_set, targets, runs.own_targets, settings, runs.camera, method, levels,
                                         rates, orders, starts, bar, rows, record_every, runs.row_rate)
-    theta_steps = torch.arange(0, total + 1, record_every, dtype=torch.int64)
+    theta_steps = torch.arange(0, total + 1, record_every, dtype=torch.int64, device="cpu")
     _check_divergence(thetas.cpu(), theta_steps, step_rates, runs)
     return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings, theta_steps)
 
@@ -661,8 +661,8 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
         thetas.append(steps[1 : kept + 1].cpu())
         losses.append(step_losses[:kept].cpu())
         theta = steps[kept]
-    step_rates = torch.tensor(rates, dtype=torch.float64).repeat_interleave(refinement.pass_steps)
-    recorded = torch.arange(1, refinement.steps + 1, dtype=torch.int64) + int(history.theta_steps[-1])
+    step_rates = torch.tensor(rates, dtype=torch.float64, device="cpu").repeat_interleave(refinement.pass_steps)
+    recorded = torch.arange(1, refinement.steps + 1, dtype=torch.int64, device="cpu") + int(history.theta_steps[-1])
     _check_divergence(torch.cat(thetas), recorded, torch.cat((history.lr, step_rates)), runs)
     return RunsHistory(torch.cat((history.theta, *thetas)), torch.cat((history.loss, *losses)),
                        torch.cat((history.level, torch.full((refinement.steps,), common.zoom, dtype=torch.int64))),

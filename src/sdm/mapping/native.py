@@ -80,7 +80,8 @@ def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, r
         height, width: the screen; steps, zoom: the levels.
 
     All tensors on the CPU (see :func:`serves`; non-contiguous ones are copied); the results too.
-    :func:`check_arrays` checks them against each other (and ``config`` against ``scratch``) first.
+    :func:`check_arrays` checks their shapes against each other first; the kernel checks ``config`` against the
+    tables ``scratch`` holds and the start pixels against :data:`PIXEL_BOUND` in its first pass, before any write.
 
     Returns:
         ``(out_pixels, entered, landed, block, landing)``: ``(P, 2)`` int64 output pixel (``-1``
@@ -92,19 +93,23 @@ def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, r
     check_arrays("chain", projected=(projected, int64, ("P", 2)), pixels=(pixels, int64, ("P", 2)),
                  config=(config, int64, ("P",)), rank=(rank, int64, ("P",)), scratch=(scratch, int64, ("M",)))
     _check_screen("chain", height, width, steps, zoom)
-    # the kernel's tables: 2 * ((max(config) + 1) * H * W + 1) entries
-    _check_range("chain", "config", config, 0, max((scratch.numel() // 2 - 1) // (height * width), 0))
-    _check_range("chain", "pixels", pixels, -PIXEL_BOUND, PIXEL_BOUND)  # moved by blocks: no int64 overflow
     n_points = pixels.shape[0]
     out_pixels = torch.empty_like(pixels)
     entered = torch.empty(n_points, dtype=torch.bool, device=pixels.device)
     landed = torch.empty_like(entered)
     block, landing = torch.empty_like(pixels), torch.empty_like(pixels)
     current, cell, alive = _workspace(n_points, pixels.device)
-    _library().sdm_chain(n_points, projected.data_ptr(), pixels.data_ptr(), config.data_ptr(), rank.data_ptr(),
-                         height, width, steps, zoom, scratch.data_ptr(), NO_RANK, out_pixels.data_ptr(),
-                         entered.data_ptr(), landed.data_ptr(), block.data_ptr(), landing.data_ptr(),
-                         current.data_ptr(), cell.data_ptr(), alive.data_ptr())
+    code = _library().sdm_chain(n_points, projected.data_ptr(), pixels.data_ptr(), config.data_ptr(),
+                                rank.data_ptr(), height, width, steps, zoom, scratch.data_ptr(), scratch.numel(),
+                                NO_RANK, out_pixels.data_ptr(), entered.data_ptr(), landed.data_ptr(),
+                                block.data_ptr(), landing.data_ptr(), current.data_ptr(), cell.data_ptr(),
+                                alive.data_ptr())
+    if code == -1:  # the kernel checks the values in its first pass over the points, before any write
+        raise SDMInputError(f"chain: config must lie in [0, {(scratch.numel() // 2 - 1) // (height * width)}) (the "
+                            f"configurations the scratch tables hold), got entries in [{int(config.min())}, "
+                            f"{int(config.max())}]")
+    if code == -2:
+        raise SDMInputError(f"chain: pixels must lie within +-{PIXEL_BOUND} (PIXEL_BOUND)")
     return out_pixels, entered, landed, block, landing
 
 
@@ -130,8 +135,9 @@ def paper_flow(screen: torch.Tensor, config: torch.Tensor, landed: torch.Tensor,
     """The paper's flow (:func:`~sdm.mapping.flow.dynamic_flow`) but the loss's metres.
 
     Args: as :func:`~sdm.mapping.flow.dynamic_flow` (``screen`` float64), all on the CPU
-        (non-contiguous ones are copied); :func:`check_arrays` checks them against each other first (``config``
-        against the target's configurations, every landed point's ``landing`` on the target's grid).
+        (non-contiguous ones are copied); :func:`check_arrays` checks their shapes against each other first, and the
+        kernel each landed point (its ``config`` one of the targets, its ``landing`` on the grid and beside its
+        ``block``) before it reads the target.
 
     Returns:
         ``(flow, matched, pulled, window_l1)``: ``(P, 2)`` float64 flow, ``(P,)`` bool matched,
@@ -145,11 +151,6 @@ def paper_flow(screen: torch.Tensor, config: torch.Tensor, landed: torch.Tensor,
                          landed=(landed, torch.bool, ("P",)), block=(block, int64, ("P", 2)),
                          landing=(landing, int64, ("P", 2)), target=(target, torch.bool, ("n", "h", "w")))
     _check_screen("paper_flow", sizes["h"], sizes["w"], zoom, zoom)
-    _check_range("paper_flow", "config", config, 0, sizes["n"])
-    for axis, side in enumerate((sizes["h"], sizes["w"])):
-        _check_range("paper_flow", "landing (of the landed points)", landing[landed, axis], 0, side)
-        _check_range("paper_flow", "block (of the landed points, from their landing)",
-                     landing[landed, axis] - block[landed, axis], -1, 2)
     n_points = screen.shape[0]
     grid_h, grid_w = target.shape[1:]
     flow = torch.zeros_like(screen)
@@ -157,9 +158,12 @@ def paper_flow(screen: torch.Tensor, config: torch.Tensor, landed: torch.Tensor,
     pulled = torch.empty(n_points, dtype=torch.int64, device=screen.device)
     window_l1 = torch.empty_like(screen)
     n_pulled = _library().sdm_paper_flow(n_points, screen.data_ptr(), config.data_ptr(), landed.data_ptr(),
-                                         block.data_ptr(), landing.data_ptr(), target.data_ptr(), grid_h, grid_w,
-                                         zoom, matched.data_ptr(), flow.data_ptr(), pulled.data_ptr(),
+                                         block.data_ptr(), landing.data_ptr(), target.data_ptr(), sizes["n"], grid_h,
+                                         grid_w, zoom, matched.data_ptr(), flow.data_ptr(), pulled.data_ptr(),
                                          window_l1.data_ptr())
+    if n_pulled < 0:  # the kernel checks each landed point before it reads the target
+        raise SDMInputError(f"paper_flow: every landed point's config must lie in [0, {sizes['n']}) (the targets), "
+                            f"its landing on the {grid_h} x {grid_w} grid and beside its block")
     return flow, matched, pulled[:n_pulled], window_l1[:n_pulled]
 
 
