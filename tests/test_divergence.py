@@ -1,4 +1,4 @@
-"""Divergence is named: a start or a theta beyond THETA_BOUND, a run whose points are all off the screen, or a run
+"""Divergence is named: a start or a last theta beyond THETA_BOUND, a run whose points are all off the screen, or a run
 whose targets pull nothing stops with an SDMInputError naming the run, the step and the setting to change."""
 from __future__ import annotations
 
@@ -38,25 +38,26 @@ def test_a_start_beyond_the_bound_is_refused(data, theta0):
 
 
 @pytest.mark.parametrize("lr", [1e300, 1.0])
-def test_a_theta_that_leaves_the_bound_names_the_run_the_step_and_lr(data, lr):
+def test_a_theta_that_ends_beyond_the_bound_names_the_run_the_step_and_lr(data, lr):
     """On main lr=1e300 returned theta near 1e299."""
     settings = [TrainSettings(lr=lr, seed=seed) for seed in (0, 1)]
-    with pytest.raises(SDMInputError, match=r"theta of run 0 left the bound of 10\.0 m per component \(THETA_BOUND\) "
-                                            rf"by step 1 \(rate {re.escape(repr(lr))}\): the run diverged; lower lr"):
+    with pytest.raises(SDMInputError, match=r"theta of run 0 ended beyond the bound of 10\.0 m per component "
+                                            r"\(THETA_BOUND\), where it stayed from step 1 "
+                                            rf"\(rate {re.escape(repr(lr))}\) on: the run diverged; lower lr"):
         train_runs(data, [data.targets] * 2, settings)
 
 
 def test_a_row_rate_that_diverges_names_row_rate(data):
     """On main row_rate=1e300 returned theta near 1e299."""
     index = torch.repeat_interleave(torch.arange(len(data)), data.counts)
-    with pytest.raises(SDMInputError, match=r"theta of run 0 left the bound .* lower lr or row_rate"):
+    with pytest.raises(SDMInputError, match=r"theta of run 0 ended beyond the bound .* lower lr or row_rate"):
         train_runs(data, [data.targets], [TrainSettings(lr=1e-4)], param_index=index,
                    row_rate=torch.full((len(data),), 1e300, dtype=torch.float64))
 
 
 def test_a_refinement_that_diverges_is_named(data):
     history = train_runs(data, [data.targets], [TrainSettings(lr=1e-4, flow="closed_centred_r1")])
-    with pytest.raises(SDMInputError, match=r"theta of run 0 left the bound .* by step 1[0-9] "):
+    with pytest.raises(SDMInputError, match=r"theta of run 0 ended beyond the bound .* from step 1[0-9] "):
         refine_runs(data, [data.targets], [TrainSettings(lr=1e300, flow="closed_centred_r1")], history,
                     Refinement("closed_centred_r1", 1, pass_steps=2))
 
@@ -74,3 +75,12 @@ def test_targets_without_an_active_pixel_are_refused(data):
     with pytest.raises(SDMInputError, match=r"targets\[1\] holds no active pixel: the flow vanishes for every point "
                                             r"of run 1"):
         train_runs(data, [data.targets, torch.zeros_like(data.targets)], [TrainSettings(seed=0), TrainSettings(seed=1)])
+
+
+def test_an_early_overshoot_that_comes_back_is_no_divergence():
+    """At the tuning grid's largest rate (1e-3) the first steps overshoot far beyond the bound and come back: the
+    run is a result (tests/test_baselines.py recovers the shift so within 5e-3 m)."""
+    data = configuration_set(64, seed=5)
+    history = train(data, TrainSettings(lr=1e-3, n_epoch=2), progress=False)
+    assert float(history.theta.abs().max()) > THETA_BOUND
+    assert max(abs(value) for value in history.final_theta) < 1.0

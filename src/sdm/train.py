@@ -36,7 +36,7 @@ from .sky import shift_vector
 from .zoom import check_divisible, target_pyramid
 
 
-#: The largest shift a run may reach or start from, metres per component of theta (docs/library.md,
+#: The largest shift a run may start from or end at, metres per component of theta (docs/library.md,
 #: "Divergence"). The paper's shift is 0.6 m long and Table 6 draws rows 0.15 m apart; a shift of 10 m moves a car
 #: 20 m away by a third of the 256-pixel screen (fx * cols_per_image_pixel = 174 pixels per unit of x / z).
 #: A theta beyond it is no estimate but a run that diverged (a learning rate too large) or a start the flow
@@ -309,8 +309,8 @@ def train_runs(
 
     Raises:
         SDMInputError: naming the argument, for mismatched runs, targets or starts, a set smaller than one
-            batch, an unusable ``device``, a theta that became non-finite or left :data:`THETA_BOUND` (naming the
-            run, the step and the setting), a start beyond it, a run whose every point is off the screen, a
+            batch, an unusable ``device``, a theta that became non-finite or ended beyond :data:`THETA_BOUND`
+            (naming the run, the step and the setting), a start beyond it, a run whose every point is off the screen, a
             target set without an active pixel (docs/library.md, "Divergence"), or a
             ``param_index`` that is not an integer tensor of ``P`` rows, holds a negative entry, leaves a row
             with no point, or comes with ``fit_depth`` or ``method="dense"``.
@@ -419,19 +419,24 @@ def _checked_runs(train_set, targets, settings, camera, device, theta0, method, 
 
 
 def _check_divergence(thetas: torch.Tensor, theta_steps: torch.Tensor, step_rates: torch.Tensor, runs: _Runs) -> None:
-    """:class:`SDMInputError` naming the run, the step and the setting to change where a run diverged: its theta
-    left :data:`THETA_BOUND`, or every point of its set is off the screen at its last theta.
+    """:class:`SDMInputError` naming the run, the step and the setting to change where a run diverged: its last theta
+    lies beyond :data:`THETA_BOUND` (named with the step from which it stayed beyond), or every point of its set is
+    off the screen at its last theta. (A theta beyond the bound in between is no error: at the tuning grid's
+    largest rate the first steps overshoot by metres and come back.)
 
     ``thetas`` ``(records, R, ...)`` CPU float64, recorded after ``theta_steps`` steps; ``step_rates`` ``(steps,)``
     the learning rate of each step."""
-    beyond = (thetas.abs().reshape(thetas.shape[0], thetas.shape[1], -1) > THETA_BOUND).any(2)
-    if bool(beyond.any()):
-        record, run = (int(i) for i in beyond.nonzero()[0])
+    beyond = (thetas.abs().reshape(thetas.shape[0], thetas.shape[1], -1) > THETA_BOUND).any(2)  # (records, R)
+    if bool(beyond[-1].any()):  # early steps may overshoot and come back: the result is what is bounded
+        run = int(beyond[-1].nonzero()[0])
+        within = (~beyond[:, run]).nonzero()
+        record = int(within[-1]) + 1 if within.numel() else 0  # the record from which it stayed beyond
         step = int(theta_steps[record])
         rate = float(step_rates[max(step - 1, 0)]) if step_rates.numel() else float("nan")
         setting = "lr" if runs.row_rate is None else "lr or row_rate"
-        raise SDMInputError(f"theta of run {run} left the bound of {THETA_BOUND} m per component (THETA_BOUND) by "
-                            f"step {step} (rate {rate!r}): the run diverged; lower {setting}")
+        raise SDMInputError(f"theta of run {run} ended beyond the bound of {THETA_BOUND} m per component "
+                            f"(THETA_BOUND), where it stayed from step {step} (rate {rate!r}) on: the run diverged; "
+                            f"lower {setting}")
     _check_on_screen(runs, thetas[-1], "theta", f"step {int(theta_steps[-1])}")
 
 

@@ -23,7 +23,6 @@ measurement, not the run's, and is not checked. The standard library only: no to
 """
 from __future__ import annotations
 
-import os
 import re
 import secrets
 import shutil
@@ -84,11 +83,11 @@ def take(results: Path = RESULTS, snapshot: Path = SNAPSHOT, readme: Path = READ
             for name in names:
                 shutil.copy2(results / part / name, staging / part / name)
         verdict = readme_verdict(staging, readme, snapshot)
-        for part in DEFAULT_RUN:  # the swap: old part aside, new part in, old part gone
-            target, old = snapshot / part, staging / f"{part}.old"
+        for part in DEFAULT_RUN:  # the swap, a rename each (same folder): old part aside, new part in
+            target = snapshot / part
             if target.exists():
-                os.replace(target, old)
-            os.replace(staging / part, target)
+                target.rename(staging / f"{part}.old")
+            (staging / part).rename(target)
         io.write_text(readme, with_verdict(text, verdict))
     finally:
         shutil.rmtree(staging, ignore_errors=True)
