@@ -7,7 +7,7 @@ CORES ?= 2
 # torch comes from PyTorch's CPU-only index (no GPU libraries); `make TORCH_INDEX= install` takes pip's default build
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 
-.PHONY: install run workflow test test-fast test-slurm bench timing report snapshot clean
+.PHONY: install run workflow test test-fast test-slurm sanitize bench timing report snapshot clean
 
 install: $(VENV)/.installed
 
@@ -42,6 +42,18 @@ test-fast: install
 # One process (no -n): its one cluster and the local run it compares with are built once.
 test-slurm: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest -m slurm tests/test_slurm.py
+
+# The compiled kernel built with AddressSanitizer and UndefinedBehaviorSanitizer (in a cache folder of its own),
+# loaded into Python with the ASan runtime preloaded, and the kernel's tests and the property test of its callers
+# run against it: any access outside a tensor or any undefined behaviour aborts the run with the sanitizer's report.
+SANITIZE_CC ?= gcc -fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=undefined
+SANITIZE_CACHE ?= $(or $(TMPDIR),/tmp)/sdm-sanitize-cache
+SANITIZE_TESTS ?= tests/test_native.py tests/test_kernel_bindings.py tests/test_kernel_checks.py \
+	tests/test_kernel_properties.py
+sanitize: install
+	SDM_CACHE_DIR="$(SANITIZE_CACHE)" CC="$(SANITIZE_CC)" LD_PRELOAD="$$(gcc -print-file-name=libasan.so)" \
+	ASAN_OPTIONS=detect_leaks=0:halt_on_error=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
+	sh -c '$(BIN)/python tests/sanitized_kernel.py && $(BIN)/pytest -p no:cacheprovider --capture=sys -q $(SANITIZE_TESTS)'
 
 # The CPU figures, then the GPU section (benchmarks/bench_gpu.py: it says so and stops where CUDA is missing).
 bench: install

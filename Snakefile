@@ -3,10 +3,10 @@
 import sys
 
 from snakemake.exceptions import WorkflowError
-from snakemake.utils import min_version, validate
+from snakemake.utils import min_version
 
 sys.path.insert(0, f"{workflow.basedir}/workflow/scripts")
-from config_check import ConfigError, check_against_annotations, check_config
+from config_check import ConfigError, check_against_annotations, check_config, validate_schema
 from failure_causes import failure_causes
 
 min_version("9.0")
@@ -15,8 +15,8 @@ min_version("9.0")
 configfile: "config.yaml"
 
 
-validate(config, schema="workflow/schemas/config.schema.yaml")
 try:
+    validate_schema(config)  # every key, unknown keys refused, defaults filled in
     check_config(config)
 except ConfigError as error:  # one line naming the key, no traceback
     raise WorkflowError(error) from None

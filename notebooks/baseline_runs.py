@@ -35,15 +35,14 @@ shift = [0.517, 0.303]
 threads = 1
 
 # %%
-import pandas as pd
 
 from sdm.baselines import best_settings, noise_runs
 from sdm.experiments import load_split, single_thread
-from sdm.report.io import read_json, write_csv
+from sdm.report.io import read_csv, read_json, write_csv
 
 single_thread(threads)
 train_set, _, camera = load_split(sky, read_json(split))
-chosen = best_settings(method, pd.read_csv(tuning_file))
+chosen = best_settings(method, read_csv(tuning_file))
 print(f"{len(train_set)} training configurations; {method}: {chosen}")
 if len(runs_files) != len(levels):
     raise ValueError(f"runs_files: one per level expected, got {len(runs_files)} for levels {levels}")

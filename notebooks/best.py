@@ -33,7 +33,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from sdm.report.io import read_json, write_csv, write_json, write_text
+from sdm.report.io import read_csv, read_json, write_csv, write_json, write_text
 from sdm.report.tables import best_cell, table1_frame
 
 results = [read_json(path) for path in cells]
@@ -58,5 +58,5 @@ print(f"best: n_epoch {choice['n_epoch']}, lr {choice['lr']:g}, dev loss {choice
 from sdm.report.figures import show_figure, theta_path_figure
 
 tuned = results[chosen]
-show_figure(theta_path_figure(pd.read_csv(best_history), shift,
+show_figure(theta_path_figure(read_csv(best_history), shift,
                               title=f"theta~ with n_epoch {tuned['n_epoch']}, lr {tuned['lr']:g}"), theta_path)

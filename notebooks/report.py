@@ -58,11 +58,10 @@ threads = 1
 # %%
 from pathlib import Path
 
-import pandas as pd
 from IPython.display import Markdown, display
 
 from sdm.experiments import flow_at_true_shift, load_split, single_thread
-from sdm.report.io import read_json, write_text
+from sdm.report.io import read_csv, read_json, write_text
 from sdm.report.reproduction import build_report
 from sdm.report.research import beyond_the_paper
 from sdm.report.tables import markdown_page
@@ -76,9 +75,9 @@ flow
 
 # %%
 text = build_report(
-    pd.read_csv(table1),
-    pd.read_csv(table2),
-    pd.read_csv(distances),
+    read_csv(table1),
+    read_csv(table2),
+    read_csv(distances),
     read_json(stats),
     read_json(summary),
     config,
@@ -101,10 +100,10 @@ display(Markdown(text))
 
 # %%
 # Its figure is Table 2's, linked as ../figures/distances.png: beside report/ under the results root.
-answer = verdict_text(pd.read_csv(table1), pd.read_csv(table2), pd.read_csv(table3_csv) if table3_csv else None,
-                      methods, pd.read_csv(table4_csv) if table4_csv else None, rules, data=data,
-                      elsewhere={words: pd.read_csv(path) for words, path in zip(elsewhere, table4_elsewhere)},
-                      table6=pd.read_csv(table6_csv) if table6_csv else None,
-                      table7=pd.read_csv(table7_csv) if table7_csv else None)
+answer = verdict_text(read_csv(table1), read_csv(table2), read_csv(table3_csv) if table3_csv else None,
+                      methods, read_csv(table4_csv) if table4_csv else None, rules, data=data,
+                      elsewhere={words: read_csv(path) for words, path in zip(elsewhere, table4_elsewhere)},
+                      table6=read_csv(table6_csv) if table6_csv else None,
+                      table7=read_csv(table7_csv) if table7_csv else None)
 write_text(verdict, answer)
 display(Markdown(answer))

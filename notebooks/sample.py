@@ -25,12 +25,11 @@ seed = 0
 threads = 1
 
 # %%
-import pandas as pd
 
 from sdm.data import sample_indices
-from sdm.report.io import write_csv
+from sdm.report.io import read_csv, write_csv
 
-table = pd.read_csv(images)
+table = read_csv(images)
 chosen = table.iloc[sample_indices(len(table), n_images, seed, n_sample_name="config key 'sky.n_images'",
                                    seed_name="config key 'sky.seed'")].reset_index(drop=True)
 write_csv(sample, chosen)

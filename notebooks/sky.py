@@ -34,17 +34,16 @@ threads = 1
 
 # %%
 import matplotlib.pyplot as plt
-import pandas as pd
 
 from sdm.data import build_configurations, read_annotations, write_sky_file
 from sdm.data.stats import PAPER_TARGET_DEPTH, configuration_table, summarize
 from sdm.experiments import single_thread
-from sdm.report.io import write_json
+from sdm.report.io import read_csv, write_json
 
 single_thread(threads)
 cars_by_image, camera = read_annotations(source_kind, annotations)
 by_id = {image.image_id: image for image in cars_by_image}
-chosen = [by_id[image_id] for image_id in pd.read_csv(sample, dtype={"image_id": str})["image_id"]]
+chosen = [by_id[image_id] for image_id in read_csv(sample, dtype={"image_id": str})["image_id"]]
 configurations = build_configurations(chosen, shift=tuple(shift), camera=camera, progress=False)
 write_sky_file(sky, configurations, tuple(shift), camera, metadata={"sample": sample, "source": source_kind})
 print(f"{len(configurations)} configurations written to {sky}")

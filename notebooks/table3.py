@@ -72,7 +72,7 @@ from sdm.report.baselines import (
     table3_frame, table3_summary, tuning_frame, write_table3,
 )
 from sdm.report.figures import show_figure
-from sdm.report.io import read_json, write_csv, write_text
+from sdm.report.io import read_csv, read_json, write_csv, write_text
 from sdm.report.tables import to_markdown
 
 single_thread(threads)
@@ -83,13 +83,13 @@ if len(tuning_files) != len(methods):
 # ## Table 3 and the figure
 
 # %%
-baseline_runs = pd.concat([pd.read_csv(path) for path in run_files], ignore_index=True)
+baseline_runs = pd.concat([read_csv(path) for path in run_files], ignore_index=True)
 # Table 3 pairs every method on runs 0..runs-1 (baselines.runs); a method given more (baselines.runs_by_method:
 # CMA-ES's 60, for Table 4) is read here on those runs only, so that each row holds the same runs.
 baseline_runs = baseline_runs[baseline_runs["run"] < runs].reset_index(drop=True)
 # SDM's rows: Table 2's runs with the same (level, run), i.e. the same noisy targets, and the noise
 # stage's own time per run (see the top of this notebook).
-sdm_runs = table2_runs(pd.read_csv(table2_distances), [read_json(path) for path in sdm_timings], levels,
+sdm_runs = table2_runs(read_csv(table2_distances), [read_json(path) for path in sdm_timings], levels,
                        list(range(runs)))
 unpaired = set(zip(baseline_runs["level"], baseline_runs["run"])) - set(zip(sdm_runs["level"], sdm_runs["run"]))
 if unpaired:
@@ -98,7 +98,7 @@ if unpaired:
 print(f"SDM rows from Table 2: {len(sdm_runs)} runs; seconds per run by level: "
       + ", ".join(f"{level}: {value:.3f}" for level, value in sdm_runs.groupby("level")["seconds"].first().items()))
 # The floor's rows: each run's exact-mismatch minimiser (the stage floor_runs), read against, not ranked.
-floor_runs = pd.concat([pd.read_csv(path) for path in floor_files], ignore_index=True) if floor_files else None
+floor_runs = pd.concat([read_csv(path) for path in floor_files], ignore_index=True) if floor_files else None
 floor_rows = [floor_runs.assign(method=FLOOR)[list(RUN_COLUMNS)]] if floor_files else []
 all_runs = pd.concat([sdm_runs, baseline_runs, *floor_rows], ignore_index=True)
 table3 = table3_frame(all_runs, shift=shift)
@@ -106,7 +106,7 @@ written = write_table3(table3, Path(table3_csv).with_suffix(""))
 assert {str(path) for path in written} == {table3_csv, table3_md, table3_tex, table3_html}, written
 display(Markdown(to_markdown(table3_display(table3), TABLE3_FORMAT)))
 
-tuning_table = tuning_frame([pd.read_csv(path) for path in tuning_files])
+tuning_table = tuning_frame([read_csv(path) for path in tuning_files])
 write_csv(tuning_csv, tuning_table)
 write_text(tuning_md, to_markdown(tuning_table, TUNING_FORMAT))
 display(Markdown(to_markdown(tuning_table, TUNING_FORMAT)))
@@ -116,7 +116,7 @@ show_figure(baselines_figure(table3, all_runs, shift), figure)
 # ## The answer, in plain words (every number from Table 3)
 
 # %%
-answer = table3_summary(table3, table2_runs=int(pd.read_csv(table2_distances).groupby("level").size().min()))
+answer = table3_summary(table3, table2_runs=int(read_csv(table2_distances).groupby("level").size().min()))
 if floor_files:
     answer += floor_summary(floor_frame(floor_runs), floor_settings)
 write_text(summary, answer)

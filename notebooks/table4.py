@@ -44,7 +44,7 @@ from IPython.display import Markdown, display
 
 from sdm.experiments import single_thread
 from sdm.report.figures import show_figure
-from sdm.report.io import read_json, write_text
+from sdm.report.io import read_csv, read_json, write_text
 from sdm.report.research import (
     CMAES_ROW, TABLE4_FORMAT, bias_summary, gathered_runs, reference_rows, rule_times, rules_against_baselines,
     rules_figure, table4_display,
@@ -58,12 +58,12 @@ rule_runs = gathered_runs(rule_files, ("flow", "level", "run"), expected, "Table
 # Beside the rules: CMA-ES (Table 3's runs) and the floor (each run's exact-mismatch minimiser), on their own
 # paired runs; every row is compared with CMA-ES on the runs both have (the bar "within 2x of CMA-ES":
 # at most 2x its mean).
-baseline_runs = pd.concat([pd.read_csv(path) for path in baseline_run_files]) if baseline_run_files else None
-floor_runs = pd.concat([pd.read_csv(path) for path in floor_files]) if floor_files else None
+baseline_runs = pd.concat([read_csv(path) for path in baseline_run_files]) if baseline_run_files else None
+floor_runs = pd.concat([read_csv(path) for path in floor_files]) if floor_files else None
 references = reference_rows(baseline_runs, floor_runs)
 cmaes_runs = references[references["flow"] == CMAES_ROW]
 table4 = table4_frame(pd.concat([rule_runs[references.columns], references], ignore_index=True),
-                      pd.read_csv(table2_distances), cmaes_runs if len(cmaes_runs) else None)
+                      read_csv(table2_distances), cmaes_runs if len(cmaes_runs) else None)
 written = write_research_table(table4, Path(table4_csv).with_suffix(""), 4)
 assert {str(path) for path in written} == {table4_csv, table4_md, table4_tex, table4_html}, written
 display(Markdown(to_markdown(table4_display(table4), TABLE4_FORMAT)))
@@ -81,6 +81,6 @@ if baseline_runs is not None:  # Table 3 ran: the rules beside its baselines, on
 # ## Why each rule lands where it does (measured by the stage `rule_bias`, `sdm.experiments.rule_bias`)
 
 # %%
-answer += "\n" + bias_summary(pd.read_csv(table4_bias), table4)
+answer += "\n" + bias_summary(read_csv(table4_bias), table4)
 write_text(table4_summary, answer)
 display(Markdown(answer))

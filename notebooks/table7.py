@@ -35,21 +35,21 @@ threads = 1
 # %%
 from pathlib import Path
 
-import pandas as pd
 from IPython.display import Image, Markdown, display
 
 from sdm.io import write_text
+from sdm.report.io import read_csv
 from sdm.network import refine_settings, refine_steps
 from sdm.report import network as report
 
-frames = [pd.read_csv(path) for path in test_files]
-curve_frames = [pd.read_csv(path) for path in curves]
+frames = [read_csv(path) for path in test_files]
+curve_frames = [read_csv(path) for path in curves]
 table = report.table7(frames, curve_frames)
 report.write_table7(table, Path(table7_csv).with_suffix(""))
 display(Markdown(Path(table7_md).read_text()))
 
 # %%
-bias = pd.read_csv(bias_files[0]) if bias_files else None
+bias = read_csv(bias_files[0]) if bias_files else None
 summary = report.table7_summary(table, refine_steps(refine_settings(refine, seed=0)), int(train["epochs"]),
                                 int(sizes[0]), bias)
 write_text(table7_summary, summary)

@@ -44,17 +44,17 @@ import pandas as pd
 from IPython.display import Markdown, display
 
 from sdm.data.stats import avg_dist_mm
-from sdm.report.io import read_json, write_csv
+from sdm.report.io import read_csv, read_json, write_csv
 from sdm.report.tables import TABLE1_FORMAT, TABLE2_FORMAT, table1_frame, table2_frame, to_markdown, write_table
 
-all_runs = pd.concat([pd.read_csv(path) for path in chunks]).sort_values(["level", "run"]).reset_index(drop=True)
+all_runs = pd.concat([read_csv(path) for path in chunks]).sort_values(["level", "run"]).reset_index(drop=True)
 expected = {(level, run) for level in levels for run in range(runs)}
 found = set(zip(all_runs["level"], all_runs["run"]))
 assert found == expected, f"missing runs: {sorted(expected - found)[:10]}, unexpected: {sorted(found - expected)[:10]}"
 write_csv(distances, all_runs)
 
 # %%
-table1 = table1_frame(pd.read_csv(grid))
+table1 = table1_frame(read_csv(grid))
 written = write_table(table1, Path(table1_csv).with_suffix(""), TABLE1_FORMAT)
 assert {str(path) for path in written} == {table1_csv, table1_md, table1_tex, table1_html}, written
 display(Markdown(to_markdown(table1, TABLE1_FORMAT)))
@@ -73,4 +73,4 @@ display(Markdown(to_markdown(table2, TABLE2_FORMAT)))
 # %%
 from sdm.report.figures import distances_figure, show_figure
 
-show_figure(distances_figure(pd.read_csv(distances)), distances_plot)
+show_figure(distances_figure(read_csv(distances)), distances_plot)

@@ -10,6 +10,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 
+import sdm.errors
 import sdm.io
 import sdm.report.io
 from sdm.camera import APOLLO_CAMERA_5
@@ -105,8 +106,9 @@ def test_a_write_that_fails_midway_leaves_the_old_file_and_no_temporary(tmp_path
 
 def test_a_failing_figure_or_csv_writer_leaves_nothing(tmp_path):
     class Unwritable:
-        def to_csv(self, path, index=False):
-            Path(path).write_text("x\n1\n")
+        def to_csv(self, path=None, index=False):
+            if path is not None:
+                Path(path).write_text("x\n1\n")
             raise RuntimeError("boom")
 
     with pytest.raises(RuntimeError, match="boom"):
@@ -133,3 +135,39 @@ def test_there_is_one_atomic_writer():
         if re.search(r"\bmkstemp\b|NamedTemporaryFile|os\.replace\(", text) and path.name != "synthetic.py":
             offenders.append(str(path.relative_to(ROOT)))
     assert offenders == []
+
+
+def test_a_csv_is_written_with_its_checksum_and_read_back_checked(tmp_path):
+    frame = pd.DataFrame({"level": [0, 1, 2], "distance_m": [0.1, 0.25, 1.0 / 3.0]})
+    path = sdm.io.write_csv(tmp_path / "runs.csv", frame)
+    assert path.read_bytes() == frame.to_csv(index=False).encode()
+    digest, rows = (tmp_path / "runs.csv.sha256").read_text().split()[:2]
+    assert rows == "3" and len(digest) == 64
+    pd.testing.assert_frame_equal(sdm.report.io.read_csv(path), pd.read_csv(path))
+
+
+@pytest.mark.parametrize("cut", [14, 3, 40], ids=["last-value", "last-digits", "mid-row"])
+def test_a_cut_csv_is_refused_naming_it_and_removed_for_its_job_to_rerun(tmp_path, cut):
+    """As ``head -c -14``: on main Table 2 was rebuilt from a chunk whose last value was cut, and a chunk cut
+    mid-row failed later naming no file."""
+    frame = pd.DataFrame({"level": [2] * 4, "run": range(4), "distance_m": [0.04991912345678, 0.05, 0.06, 0.07]})
+    path = sdm.io.write_csv(tmp_path / "level2_chunk0.csv", frame)
+    path.write_bytes(path.read_bytes()[:-cut])
+    with pytest.raises(sdm.errors.SDMInputError, match=r"level2_chunk0\.csv: damaged result: its bytes do not match "
+                       r"level2_chunk0\.csv\.sha256 \(written with 4 rows"):
+        sdm.report.io.read_csv(path)
+    assert not path.exists() and not (tmp_path / "level2_chunk0.csv.sha256").exists()
+
+
+def test_a_csv_rewritten_leaves_no_stale_checksum(tmp_path):
+    """The old checksum file goes before the new CSV: a write stopped between the two is read unchecked (the CSV
+    itself is whole: written atomically), never refused against the old checksum."""
+    path = sdm.io.write_csv(tmp_path / "t.csv", pd.DataFrame({"x": [1]}))
+
+    class Failing:
+        def to_csv(self, path=None, index=False):
+            raise RuntimeError("stopped")
+
+    with pytest.raises(RuntimeError, match="stopped"):
+        sdm.io.write_csv(path, Failing())
+    assert not (tmp_path / "t.csv.sha256").exists() and sdm.io.csv_damage(path) is None

@@ -96,6 +96,25 @@ def test_weights_round_trip(sets, tmp_path):
         N.load_weights(path, (64, 128))
 
 
+def test_a_damaged_or_non_finite_weights_file_is_refused_naming_it(sets, tmp_path):
+    """On main a weights file with one flipped byte of a parameter, or a NaN weight, loaded."""
+    train, _ = sets
+    net = _fresh(train)
+    path = N.save_weights(net, tmp_path / "net.pt")
+    data = bytearray(path.read_bytes())
+    weight = next(iter(net.state_dict().values())).detach().reshape(-1)[:4].numpy().tobytes()
+    at = bytes(data).index(weight)  # the first parameter's first bytes, as stored
+    data[at] ^= 0x10
+    (tmp_path / "flipped.pt").write_bytes(bytes(data))
+    with pytest.raises(SDMInputError, match=r"flipped\.pt: its weights do not match their SHA-256"):
+        N.load_weights(tmp_path / "flipped.pt", train.data.camera.screen_shape)
+    with torch.no_grad():
+        next(iter(net.parameters())).view(-1)[0] = float("nan")
+    N.save_weights(net, tmp_path / "nan.pt")
+    with pytest.raises(SDMInputError, match=r"nan\.pt: weights \[.*\] hold values that are not finite"):
+        N.load_weights(tmp_path / "nan.pt", train.data.camera.screen_shape)
+
+
 def test_bad_input_is_named(sets):
     train, dev = sets
     net = _fresh(train)

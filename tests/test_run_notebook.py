@@ -173,3 +173,39 @@ def test_other_errors_are_not_retried(error):
     with pytest.raises(type(error)):
         runner.execute_with_kernel_restarts(execute, "notebook")
     assert len(execute.calls) == 1
+
+
+@pytest.mark.parametrize("signal_name", ["SIGTERM", "SIGHUP"])
+def test_a_terminated_job_leaves_no_temporary_notebook(tmp_path, signal_name):
+    """On main a job stopped by a signal (Snakemake and clusters send SIGTERM) left its hidden .tmp.ipynb."""
+    import signal
+    import time
+
+    source = tmp_path / "slow.py"
+    source.write_text("\n".join([HEADER, '# %% tags=["parameters"]\nx = 1', "# %%\nimport time\ntime.sleep(120)"]))
+    executed, html = tmp_path / "logs" / "slow.ipynb", tmp_path / "html" / "slow.html"
+    env = dict(os.environ, PYTHONPATH=str(ROOT / "src") + os.pathsep + os.environ.get("PYTHONPATH", ""))
+    process = subprocess.Popen([sys.executable, str(RUNNER), str(source), str(executed), str(html), "{}"],
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=env, cwd=tmp_path)
+    deadline = time.monotonic() + 120
+    while not list(executed.parent.glob(".slow.*.tmp.ipynb")) and time.monotonic() < deadline:
+        time.sleep(0.2)
+    assert list(executed.parent.glob(".slow.*.tmp.ipynb")), "the runner never started the notebook"
+    time.sleep(2)  # the kernel is in the sleeping cell
+    process.send_signal(getattr(signal, signal_name))
+    process.communicate(timeout=120)
+    assert process.returncode != 0
+    assert [path.name for path in executed.parent.iterdir()] == []
+
+
+def test_a_temporary_notebook_left_by_a_killed_run_is_removed_by_the_next(tmp_path):
+    """A run killed outright (SIGKILL) cannot clean up; the job's next run removes what it left."""
+    executed = tmp_path / "logs" / "stage.ipynb"
+    executed.parent.mkdir()
+    left = executed.parent / ".stage.0123456789ab.tmp.ipynb"
+    other = executed.parent / ".other.0123456789ab.tmp.ipynb"
+    left.write_text("{")
+    other.write_text("{")
+    runner = _runner_module()
+    assert runner.remove_stale_temporaries(executed) == [left]
+    assert not left.exists() and other.exists()

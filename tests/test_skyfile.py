@@ -98,7 +98,7 @@ def test_sample_rejects_non_images():
 def test_round_trip(sky_path, configurations):
     sky = SkyFile(sky_path)
     assert len(sky) == len(configurations)
-    assert sky.version == FORMAT_VERSION == 2
+    assert sky.version == FORMAT_VERSION == 3
     assert sky.image_ids == [cfg.image_id for cfg in configurations]
     assert sky.shift == SKY_SHIFT and sky.camera == APOLLO_CAMERA_5
     assert sky.metadata == {"source": "test", "seed": 5}
@@ -238,8 +238,8 @@ def test_wrong_magic(sky_path):
 
 
 def test_other_version(sky_path):
-    damage(sky_path, lambda d: d[:8] + struct.pack("<I", 3) + d[12:])
-    with pytest.raises(SDMInputError, match=r"sky\.bin: Sky file format version 3 is not supported \(this sdm reads version 2\)"):
+    damage(sky_path, lambda d: d[:8] + struct.pack("<I", 4) + d[12:])
+    with pytest.raises(SDMInputError, match=r"sky\.bin: Sky file format version 4 is not supported \(this sdm reads version 3\)"):
         SkyFile(sky_path)
 
 
@@ -254,21 +254,34 @@ def test_a_version_1_file_is_refused_saying_how_to_rebuild_it(tmp_path, configur
     with pytest.raises(SDMInputError) as error:
         SkyFile(path)
     assert str(error.value) == (
-        f"{path}: Sky file format version 1 is not supported (this sdm reads version 2; version 1 does not record "
+        f"{path}: Sky file format version 1 is not supported (this sdm reads version 3; version 1 does not record "
         f"the car of each point); {skyfile_module.REBUILD_HINT}"
     )
     # the old layout under the new version number is refused too, never read without its car index
-    damage(path, lambda d: d[:8] + struct.pack("<I", 2) + d[12:])
+    damage(path, lambda d: d[:8] + struct.pack("<I", 3) + d[12:])
     with pytest.raises(SDMInputError, match=rf"old\.bin: header names format 'sdm-sky' version 1.*{REBUILD}"):
         SkyFile(path)
 
 
-def test_a_version_2_header_without_point_car_is_refused(tmp_path, configurations):
+def test_a_header_without_point_car_is_refused(tmp_path, configurations):
     path = tmp_path / "s.bin"
     write_sky_file(path, configurations[:4], SKY_SHIFT, APOLLO_CAMERA_5)
-    damage(path, lambda d: d.replace(b'"point_car"', b'"point_cat"'))
-    with pytest.raises(SDMInputError, match=rf"s\.bin: header has no valid entry for array 'point_car'.*{REBUILD}"):
+    damage(path, lambda d: d.replace(b'"point_car"', b'"point_cat"'))  # the header's CRC-32 no longer matches
+    with pytest.raises(SDMInputError, match=rf"s\.bin: header fails its CRC-32.*{REBUILD}"):
         SkyFile(path)
+
+
+@pytest.mark.parametrize("edit", [(b'"fx":2304', b'"fx":3304'), (b'[0.517,', b'[0.617,')], ids=["camera", "shift"])
+def test_a_header_changed_by_one_byte_is_refused(tmp_path, configurations, edit):
+    """The header is under its own CRC-32: on main a camera or shift changed by one byte was read (and verify()
+    passed), moving every point."""
+    path = tmp_path / "s.bin"
+    write_sky_file(path, configurations[:4], SKY_SHIFT, APOLLO_CAMERA_5)
+    data = path.read_bytes()
+    assert data.count(edit[0]) == 1
+    damage(path, lambda d: bytes(d).replace(edit[0], edit[1], 1))
+    with pytest.raises(SDMInputError, match=rf"s\.bin: header fails its CRC-32.*{REBUILD}"):
+        SkyFile(path).verify()
 
 
 def test_a_car_index_outside_the_centres_is_refused_on_read(tmp_path, configurations, monkeypatch):

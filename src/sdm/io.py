@@ -16,6 +16,10 @@ JSON, CSV, the rendered notebooks) goes through :func:`write_atomic`:
 4. if anything fails on the way (including ``KeyboardInterrupt``), the
    temporary file is removed and the destination is left as it was.
 
+A CSV (:func:`write_csv`) gets a checksum file beside it, ``name.csv.sha256``: the SHA-256 of its bytes and its row
+count, which its reader checks (:func:`csv_damage`; :func:`sdm.report.io.read_csv`), so a result cut or changed
+after it was written is named, not read.
+
 It also says where :mod:`sdm` keeps what it can rebuild (:func:`cache_dir`: the
 compiled kernel, the workflow's parsed code).
 
@@ -25,6 +29,7 @@ This module uses only the standard library and imports nothing from
 """
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import secrets
@@ -123,6 +128,44 @@ def read_json(path: str | Path) -> Any:
     return json.loads(Path(path).read_text(encoding="utf-8"))
 
 
+#: The suffix of a CSV's checksum file: ``name.csv.sha256`` beside ``name.csv``.
+CHECKSUM_SUFFIX = ".sha256"
+
+
+def checksum_path(path: str | Path) -> Path:
+    """The checksum file of the CSV at ``path`` (:data:`CHECKSUM_SUFFIX`)."""
+    path = Path(path)
+    return path.with_name(path.name + CHECKSUM_SUFFIX)
+
+
 def write_csv(path: str | Path, frame) -> Path:
-    """Write a pandas DataFrame as CSV (no index) atomically."""
-    return write_atomic(path, lambda temporary: frame.to_csv(temporary, index=False))
+    """Write a pandas DataFrame as CSV (no index) atomically, then its checksum file (:func:`checksum_path`): one
+    line ``<sha256>  <rows> rows  <name>``. The old checksum file goes first, so a write stopped midway never
+    leaves a checksum of other bytes beside the CSV."""
+    path = Path(path)
+    checksum = checksum_path(path)
+    checksum.unlink(missing_ok=True)
+    data = frame.to_csv(index=False).encode("utf-8")
+    write_bytes(path, data)
+    write_text(checksum, f"{hashlib.sha256(data).hexdigest()}  {len(frame)} rows  {path.name}\n")
+    return path
+
+
+def csv_damage(path: str | Path, data: bytes | None = None) -> str | None:
+    """What is wrong with the CSV at ``path`` (its bytes ``data``, read if ``None``) against its checksum file:
+    ``None`` where they match or there is no checksum file (a CSV not written by :func:`write_csv`)."""
+    path = Path(path)
+    checksum = checksum_path(path)
+    if not checksum.is_file():
+        return None
+    data = path.read_bytes() if data is None else data
+    try:
+        digest, rows = checksum.read_text(encoding="ascii").split()[:2]
+        rows = int(rows)
+    except (ValueError, UnicodeDecodeError):
+        return f"its checksum file {checksum.name} is unreadable"
+    if hashlib.sha256(data).hexdigest() != digest:
+        lines = data.count(b"\n")
+        return (f"its bytes do not match {checksum.name} (written with {rows} rows; it now holds {max(lines - 1, 0)} "
+                f"full rows in {len(data)} bytes: cut or changed after it was written)")
+    return None

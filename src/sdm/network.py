@@ -29,6 +29,7 @@ Tensors: points float64 metres on the set's device; images float32; ``theta`` fl
 """
 from __future__ import annotations
 
+import hashlib
 import math
 import os
 import pickle
@@ -572,25 +573,50 @@ def refine_settings(refine: dict, seed: int):
 
 
 def save_weights(net: ShiftNet, path: str | Path) -> Path:
-    """Write ``net``'s state_dict to ``path`` atomically (a temporary file renamed), readable by others."""
+    """Write ``net``'s state_dict to ``path`` atomically (a temporary file renamed), readable by others, with the
+    SHA-256 of its parameters (:func:`weights_digest`) that :func:`load_weights` checks."""
     from .io import write_atomic
 
-    return write_atomic(path, lambda temporary: torch.save({"screen": list(net.screen), "state": net.state_dict()},
-                                                           temporary))
+    state = net.state_dict()
+    saved = {"screen": list(net.screen), "state": state, "sha256": weights_digest(state)}
+    return write_atomic(path, lambda temporary: torch.save(saved, temporary))
+
+
+def weights_digest(state: dict) -> str:
+    """The SHA-256 (hex) of a state_dict: every entry's name, dtype, shape and bytes, in the dict's order."""
+    digest = hashlib.sha256()
+    for name, tensor in state.items():
+        tensor = tensor.detach().to("cpu").contiguous()
+        digest.update(f"{name}|{tensor.dtype}|{tuple(tensor.shape)}|".encode())
+        digest.update(tensor.view(-1).view(torch.uint8).numpy().tobytes() if tensor.numel() else b"")
+    return digest.hexdigest()
 
 
 def load_weights(path: str | Path, screen: tuple[int, int]) -> ShiftNet:
     """A :class:`ShiftNet` for ``screen`` with the weights :func:`save_weights` wrote to ``path`` (eval mode).
 
     Raises:
-        SDMInputError: naming the file when it is not such a file or was saved for another screen.
+        SDMInputError: naming the file when it is not such a file, its parameters do not match their SHA-256 (a
+            damaged file) or hold a value that is not finite, or it was saved for another screen.
     """
+    rerun = "rerun its network_train stage"
     try:
         saved = torch.load(path, map_location="cpu", weights_only=True)
+        state, stored = saved["state"], saved.get("sha256")
+        if stored != weights_digest(state):
+            raise SDMInputError(f"{path}: its weights do not match their SHA-256 (damaged, or written without one); "
+                                f"{rerun}")
+        bad = [name for name, tensor in state.items()
+               if tensor.is_floating_point() and not bool(tensor.isfinite().all())]
+        if bad:
+            raise SDMInputError(f"{path}: weights {bad[:3]} hold values that are not finite; {rerun}")
         net = ShiftNet(tuple(saved["screen"]))
-        net.load_state_dict(saved["state"])
-    except (OSError, RuntimeError, KeyError, TypeError, ValueError, EOFError, pickle.UnpicklingError) as error:
-        raise SDMInputError(f"{path}: not a ShiftNet weights file ({error}); rerun its network_train stage") from None
+        net.load_state_dict(state)
+    except SDMInputError:
+        raise
+    except (OSError, RuntimeError, KeyError, TypeError, ValueError, AttributeError, EOFError,
+            pickle.UnpicklingError) as error:
+        raise SDMInputError(f"{path}: not a ShiftNet weights file ({error}); {rerun}") from None
     if net.screen != tuple(screen):
         raise SDMInputError(f"{path}: weights for a {net.screen} screen, the data's is {tuple(screen)}")
     return net.eval()

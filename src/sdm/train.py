@@ -36,6 +36,14 @@ from .sky import shift_vector
 from .zoom import check_divisible, target_pyramid
 
 
+#: The largest shift a run may start from or end at, metres per component of theta (docs/library.md,
+#: "Divergence"). The paper's shift is 0.6 m long and Table 6 draws rows 0.15 m apart; a shift of 10 m moves a car
+#: 20 m away by a third of the 256-pixel screen (fx * cols_per_image_pixel = 174 pixels per unit of x / z).
+#: A theta beyond it is no estimate but a run that diverged (a learning rate too large) or a start the flow
+#: cannot correct.
+THETA_BOUND = 10.0
+
+
 @dataclass(frozen=True)
 class TrainSettings:
     """Hyper-parameters of one training run.
@@ -301,7 +309,9 @@ def train_runs(
 
     Raises:
         SDMInputError: naming the argument, for mismatched runs, targets or starts, a set smaller than one
-            batch, an unusable ``device``, a theta that became non-finite (naming the run and the step), or a
+            batch, an unusable ``device``, a theta that became non-finite or ended beyond :data:`THETA_BOUND`
+            (naming the run, the step and the setting), a start beyond it, a run whose every point is off the screen, a
+            target set without an active pixel (docs/library.md, "Divergence"), or a
             ``param_index`` that is not an integer tensor of ``P`` rows, holds a negative entry, leaves a row
             with no point, or comes with ``fit_depth`` or ``method="dense"``.
 
@@ -317,38 +327,9 @@ def train_runs(
     >>> [round(distance(theta), 2) for theta in runs.final_theta]  # noise-free, noisy: metres from SKY_SHIFT
     [0.02, 0.03]
     """
-    settings = list(settings)
-    n_runs = len(settings)
-    if n_runs == 0 or len(targets) != n_runs:
-        raise SDMInputError(f"train_runs needs one target set per run: {len(targets)} target sets, {n_runs} settings")
-    shared = {replace(one, seed=0) for one in settings}
-    if len(shared) != 1:
-        raise SDMInputError(f"the runs' settings may differ only in seed, got {sorted(map(str, shared))}")
-    common = settings[0]
-    if method not in METHODS:
-        raise SDMInputError(f"method must be one of {sorted(METHODS)}, got {method!r}")
-    if method == "dense" and n_runs > 1:
-        raise SDMInputError(f"method 'dense' (the grid reference) trains one run at a time, got {n_runs} runs")
-    camera = camera or train_set.camera
-    own_targets = [run_targets is train_set.targets for run_targets in targets]
-    if device is not None:
-        train_set = train_set.to(_usable_device(device))
-    device = train_set.device
-    check_divisible(camera.screen_shape, common.s)  # before anything is zoomed out
+    runs = _checked_runs(train_set, targets, settings, camera, device, theta0, method, param_index, row_rate)
+    train_set, settings, common, rows, starts = runs.train_set, runs.settings, runs.common, runs.rows, runs.starts
     n_configs, batch_size = len(train_set), common.batch_size
-    if n_configs < batch_size:
-        raise SDMInputError(f"the training set has {n_configs} configurations, fewer than one batch of {batch_size}")
-    for run, run_targets in enumerate(targets):
-        if tuple(run_targets.shape) != tuple(train_set.targets.shape) or run_targets.dtype != torch.bool:
-            raise SDMInputError(f"targets[{run}] must be bool of shape {tuple(train_set.targets.shape)}, "
-                                f"got {run_targets.dtype} {tuple(run_targets.shape)}")
-    rows = None if param_index is None else check_param_index(param_index, train_set, _theta0_rows(theta0))
-    if rows is not None and (common.fit_depth or method == "dense"):
-        raise SDMInputError("param_index: parameters attached to points train the shift (a, b) with method 'fast'; "
-                            f"got fit_depth={common.fit_depth}, method={method!r}")
-    starts = _starts(theta0, n_runs, common.fit_depth, device,
-                     n_rows=None if rows is None else int(rows.max()) + 1)
-    row_rate = _row_rate(row_rate, rows, device)
 
     levels = list(range(common.s, common.zoom - 1, -1))
     rates, rate = [], common.lr
@@ -365,10 +346,118 @@ def train_runs(
 
     record_every = 1 if rows is None else n_configs // batch_size  # rows: after every epoch
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
-        thetas, losses = _train_program(train_set, targets, own_targets, settings, camera, method, levels, rates,
-                                        orders, starts, bar, rows, record_every, row_rate)
-    return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings,
-                       torch.arange(0, total + 1, record_every, dtype=torch.int64))
+        thetas, losses = _train_program(train_set, targets, runs.own_targets, settings, runs.camera, method, levels,
+                                        rates, orders, starts, bar, rows, record_every, runs.row_rate)
+    theta_steps = torch.arange(0, total + 1, record_every, dtype=torch.int64, device="cpu")
+    _check_divergence(thetas.cpu(), theta_steps, step_rates, runs)
+    return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings, theta_steps)
+
+
+@dataclass
+class _Runs:
+    """The arguments of :func:`train_runs` (and :func:`refine_runs`) after :func:`_checked_runs`."""
+
+    train_set: ConfigurationSet  # on the training device
+    settings: list[TrainSettings]
+    common: TrainSettings  # settings[0]: every field but seed is every run's
+    camera: Camera
+    own_targets: list[bool]  # run r trains on the set's own targets
+    rows: torch.Tensor | None  # the checked (P, G) param_index
+    starts: torch.Tensor  # (R, 2), (R, 3) with fit_depth, (R, K, 2) with rows; float64 on the device
+    row_rate: torch.Tensor | None  # (K,) float64 on the device
+
+
+def _checked_runs(train_set, targets, settings, camera, device, theta0, method, param_index, row_rate) -> _Runs:
+    """The one check of the runs' arguments, shared by :func:`train_runs` and :func:`refine_runs`: what one
+    accepts, the other does. :class:`SDMInputError` naming the argument (see :func:`train_runs`)."""
+    settings = list(settings)
+    n_runs = len(settings)
+    if n_runs == 0 or len(targets) != n_runs:
+        raise SDMInputError(f"targets: one target set per run is needed: {len(targets)} target sets, "
+                            f"{n_runs} settings")
+    if not all(isinstance(one, TrainSettings) for one in settings):
+        raise SDMInputError(f"settings must be TrainSettings, got {sorted({type(one).__name__ for one in settings})}")
+    shared = {replace(one, seed=0) for one in settings}
+    if len(shared) != 1:
+        raise SDMInputError(f"settings: the runs' settings may differ only in seed, got {sorted(map(str, shared))}")
+    common = settings[0]
+    if method not in METHODS:
+        raise SDMInputError(f"method must be one of {sorted(METHODS)}, got {method!r}")
+    if method == "dense" and n_runs > 1:
+        raise SDMInputError(f"method 'dense' (the grid reference) trains one run at a time, got {n_runs} runs")
+    camera = camera or train_set.camera
+    own_targets = [run_targets is train_set.targets for run_targets in targets]  # before the set moves
+    if device is not None:
+        train_set = train_set.to(_usable_device(device))
+    device = train_set.device
+    check_divisible(camera.screen_shape, common.s)  # before anything is zoomed out
+    n_configs, batch_size = len(train_set), common.batch_size
+    if n_configs < batch_size:
+        raise SDMInputError(f"the training set has {n_configs} configurations, fewer than one batch of {batch_size}")
+    for run, run_targets in enumerate(targets):
+        if (not isinstance(run_targets, torch.Tensor) or tuple(run_targets.shape) != tuple(train_set.targets.shape)
+                or run_targets.dtype != torch.bool):
+            raise SDMInputError(f"targets[{run}] must be bool of shape {tuple(train_set.targets.shape)}, got "
+                                f"{getattr(run_targets, 'dtype', type(run_targets).__name__)} "
+                                f"{tuple(getattr(run_targets, 'shape', ()))}")
+    rows = None if param_index is None else check_param_index(param_index, train_set, _theta0_rows(theta0))
+    if rows is not None and (common.fit_depth or method == "dense"):
+        raise SDMInputError("param_index: parameters attached to points train the shift (a, b) with method 'fast'; "
+                            f"got fit_depth={common.fit_depth}, method={method!r}")
+    starts = _starts(theta0, n_runs, common.fit_depth, device, n_rows=None if rows is None else int(rows.max()) + 1)
+    beyond = (starts.abs().reshape(n_runs, -1) > THETA_BOUND).any(1)
+    if bool(beyond.any()):
+        run = int(beyond.nonzero()[0])
+        raise SDMInputError(f"theta0[{run}] lies beyond the bound of {THETA_BOUND} m per component (THETA_BOUND): "
+                            f"{starts[run].tolist()} is no start the flow can correct")
+    for run, run_targets in enumerate(targets):
+        if train_set.points.shape[0] and not bool(run_targets.any()):  # (a set without points trains to zero)
+            raise SDMInputError(f"targets[{run}] holds no active pixel: the flow vanishes for every point of run {run}")
+    runs = _Runs(train_set, settings, common, camera, own_targets, rows, starts, _row_rate(row_rate, rows, device))
+    _check_on_screen(runs, starts.cpu(), "theta0", "its start")
+    return runs
+
+
+def _check_divergence(thetas: torch.Tensor, theta_steps: torch.Tensor, step_rates: torch.Tensor, runs: _Runs) -> None:
+    """:class:`SDMInputError` naming the run, the step and the setting to change where a run diverged: its last theta
+    lies beyond :data:`THETA_BOUND` (named with the step from which it stayed beyond), or every point of its set is
+    off the screen at its last theta. (A theta beyond the bound in between is no error: at the tuning grid's
+    largest rate the first steps overshoot by metres and come back.)
+
+    ``thetas`` ``(records, R, ...)`` CPU float64, recorded after ``theta_steps`` steps; ``step_rates`` ``(steps,)``
+    the learning rate of each step."""
+    beyond = (thetas.abs().reshape(thetas.shape[0], thetas.shape[1], -1) > THETA_BOUND).any(2)  # (records, R)
+    if bool(beyond[-1].any()):  # early steps may overshoot and come back: the result is what is bounded
+        run = int(beyond[-1].nonzero()[0])
+        within = (~beyond[:, run]).nonzero()
+        record = int(within[-1]) + 1 if within.numel() else 0  # the record from which it stayed beyond
+        step = int(theta_steps[record])
+        rate = float(step_rates[max(step - 1, 0)]) if step_rates.numel() else float("nan")
+        setting = "lr" if runs.row_rate is None else "lr or row_rate"
+        raise SDMInputError(f"theta of run {run} ended beyond the bound of {THETA_BOUND} m per component "
+                            f"(THETA_BOUND), where it stayed from step {step} (rate {rate!r}) on: the run diverged; "
+                            f"lower {setting}")
+    _check_on_screen(runs, thetas[-1], "theta", f"step {int(theta_steps[-1])}")
+
+
+def _check_on_screen(runs: _Runs, theta: torch.Tensor, name: str, when: str) -> None:
+    """:class:`SDMInputError` naming ``name`` where some run's every point is off the screen at ``theta`` (``(R, 2)``,
+    ``(R, 3)`` or ``(R, K, 2)`` CPU float64, metres): no point of it can land, so its flow vanishes."""
+    points = runs.train_set.points.detach().to("cpu", torch.float64)
+    if points.shape[0] == 0:  # a set without points trains to zero
+        return
+    height, width = runs.camera.screen_shape
+    for run in range(theta.shape[0]):
+        if runs.rows is None:
+            shift = torch.nn.functional.pad(theta[run], (0, 3 - theta.shape[-1]))
+        else:
+            shift = torch.nn.functional.pad(point_shifts(theta[run], runs.rows.cpu()), (0, 1))
+        moved = points + shift
+        screen = runs.camera.project(moved[moved[:, 2] > 0], validate=False)
+        on = ((screen[:, 0] >= 0) & (screen[:, 0] < height) & (screen[:, 1] >= 0) & (screen[:, 1] < width)).any()
+        if not bool(on):
+            raise SDMInputError(f"{name}: every point of run {run} is off the {height} x {width} screen at {when} "
+                                f"(theta {theta[run].tolist()}): the flow vanishes; start closer or lower lr")
 
 
 def rates_per_point(param_index: torch.Tensor) -> torch.Tensor:
@@ -540,14 +629,24 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     :attr:`Refinement.steps`. ``param_index``: that of :func:`train_runs` (the passes move the same rows, with
     ``row_rate``; their theta is recorded after every step).
     """
-    settings = list(settings)
+    if not isinstance(history, RunsHistory):
+        raise SDMInputError(f"history must be the RunsHistory of train_runs, got {type(history).__name__}")
+    trained_rows = history.theta.dim() == 4  # (steps + 1, R, K, 2): trained with param_index
+    if trained_rows != (param_index is not None):
+        raise SDMInputError(
+            "param_index: the history was trained with parameters attached to points "
+            f"({history.theta.shape[2]} rows a run); pass its param_index" if trained_rows else
+            "param_index: the history was trained with one shift a run (no param_index); refine it without one")
+    if history.theta.dim() < 3 or history.theta.shape[1] != len(settings):
+        raise SDMInputError(f"history holds {history.theta.shape[1] if history.theta.dim() > 1 else 0} runs, "
+                            f"settings {len(settings)}: refine the runs it trained")
+    runs = _checked_runs(train_set, targets, settings, camera, device, history.theta[-1], "fast", param_index,
+                         row_rate)
+    train_set, settings, camera, rows, row_rate = runs.train_set, runs.settings, runs.camera, runs.rows, runs.row_rate
+    own_targets, theta = runs.own_targets, runs.starts
     passes = [replace(one, n_epoch=1, flow=refinement.flow,
                       depth_zoom=one.zoom if refinement.moves_c else one.depth_zoom) for one in settings]
     common = passes[0]
-    camera = camera or train_set.camera
-    own_targets = [run_targets is train_set.targets for run_targets in targets]  # before the set moves
-    if device is not None:
-        train_set = train_set.to(_usable_device(device))
     per_epoch = len(train_set) // common.batch_size
     epochs_per_pass = -(-refinement.pass_steps // per_epoch)
     orders = _shufflings([refine_seed(one.seed) for one in settings], len(train_set),
@@ -555,9 +654,6 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     rates, widths = refinement.rates(common), refinement.widths
     whole = refinement.pass_steps % per_epoch == 0  # no step cut: every pass in one program
     programs = [range(refinement.passes)] if whole else [range(i, i + 1) for i in range(refinement.passes)]
-    theta = history.theta[-1].to(train_set.device)
-    rows = None if param_index is None else check_param_index(param_index, train_set, theta.shape[1])
-    row_rate = _row_rate(row_rate, rows, train_set.device)
     thetas, losses = [], []
     for program in programs:
         epochs = [i * epochs_per_pass + j for i in program for j in range(epochs_per_pass)]
@@ -570,8 +666,9 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
         thetas.append(steps[1 : kept + 1].cpu())
         losses.append(step_losses[:kept].cpu())
         theta = steps[kept]
-    step_rates = torch.tensor(rates, dtype=torch.float64).repeat_interleave(refinement.pass_steps)
-    recorded = torch.arange(1, refinement.steps + 1, dtype=torch.int64) + int(history.theta_steps[-1])
+    step_rates = torch.tensor(rates, dtype=torch.float64, device="cpu").repeat_interleave(refinement.pass_steps)
+    recorded = torch.arange(1, refinement.steps + 1, dtype=torch.int64, device="cpu") + int(history.theta_steps[-1])
+    _check_divergence(torch.cat(thetas), recorded, torch.cat((history.lr, step_rates)), runs)
     return RunsHistory(torch.cat((history.theta, *thetas)), torch.cat((history.loss, *losses)),
                        torch.cat((history.level, torch.full((refinement.steps,), common.zoom, dtype=torch.int64))),
                        torch.cat((history.lr, step_rates)), settings, torch.cat((history.theta_steps, recorded)))

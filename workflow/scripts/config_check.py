@@ -201,15 +201,35 @@ def _dotted(path) -> str:
     return "".join(f"[{part}]" if isinstance(part, int) else f".{part}" for part in path).lstrip(".")
 
 
-def _check_schedule(name: str, key: str) -> None:
-    """Both rules of a schedule ``RULE+REFINE:E`` (whose form the schema checks) must be rule names of the schema."""
+def _rule_names() -> list[str]:
+    """The rule names of the schema (``research.rules.names``' enum, held to the library's registry ``sdm.RULES``
+    by tests/test_research.py)."""
     names = _validator(str(SCHEMA_PATH.resolve()))[0]["properties"]["research"]["properties"]["rules"][
         "properties"]["names"]
-    known = names["items"]["anyOf"][0]["enum"]  # the plain rule names a schedule may combine
+    return names["items"]["anyOf"][0]["enum"]  # the plain rule names a schedule may combine
+
+
+def _check_schedule(name: str, key: str) -> None:
+    """Both rules of a schedule ``RULE+REFINE:E`` (whose form the schema checks) must be rule names of the schema."""
+    known = _rule_names()
     parts = name.split(":")[0].split("+") if "+" in name else []
     unknown = [part for part in parts if part not in known]
     if unknown:
         raise ConfigError(f"config key '{key}': schedule {name!r} names {unknown[0]!r}, not a rule of {known}")
+
+
+def _check_rule(name: Any, key: str) -> None:
+    """``name`` must be a plain rule name of the schema (a key whose library call takes a rule, not a schedule)."""
+    known = _rule_names()
+    if name not in known:
+        raise ConfigError(f"config key '{key}': {name!r} is not a rule name of {known}")
+
+
+def _at_most(value: Any, bound: int, key: str, what: str) -> None:
+    """:class:`ConfigError` naming ``key`` unless ``value`` (an integer, when the schema has typed it) is at most
+    ``bound`` (``what`` says which bound)."""
+    if isinstance(value, int) and not isinstance(value, bool) and value > bound:
+        raise ConfigError(f"config key '{key}': at most {what} ({bound}), got {value}")
 
 
 def _check_research(config: Mapping[str, Any], noise_runs: int) -> None:
@@ -251,6 +271,29 @@ def _check_research(config: Mapping[str, Any], noise_runs: int) -> None:
         if int(scaling.get("n_images", 16)) < int(objects.get("batch_size", 1)):
             raise ConfigError(f"config key 'research.objects.scaling.n_images': at least research.objects.batch_size "
                               f"({objects.get('batch_size')}), got {scaling.get('n_images')}")
+        _at_most((objects.get("silhouette") or {}).get("batch_size"), int(objects.get("configurations", 1)),
+                 "research.objects.silhouette.batch_size", "research.objects.configurations, a run's configurations")
+    network = research.get("network") or {}
+    if network.get("enabled"):
+        _check_network(network, int(config["sky"]["n_images"]))
+
+
+def _check_network(network: Mapping[str, Any], n_sky: int) -> None:
+    """Table 7's sizes against the Sky set, its batches against the sizes, its refinement's rule against the
+    schema's rule names."""
+    sizes = network.get("sizes") or []
+    if len(sizes) == 3 and all(isinstance(v, int) and not isinstance(v, bool) for v in sizes):
+        if sum(sizes) > n_sky:
+            raise ConfigError(f"config key 'research.network.sizes': train + dev + test {sizes} ask for {sum(sizes)} "
+                              f"configurations; the Sky set has sky.n_images = {n_sky}")
+        train, _, test = sizes
+        _at_most((network.get("train") or {}).get("batch_size"), train, "research.network.train.batch_size",
+                 "the train configurations, research.network.sizes[0]")
+        _at_most((network.get("refine") or {}).get("batch_size"), test, "research.network.refine.batch_size",
+                 "the test configurations, research.network.sizes[2]")
+    refine = network.get("refine") or {}
+    if "flow" in refine:
+        _check_rule(refine["flow"], "research.network.refine.flow")
 
 
 def check_against_annotations(config: Mapping[str, Any], n_annotated: int, where: str) -> None:

@@ -28,6 +28,7 @@ import contextlib
 import json
 import os
 import re
+import signal
 import sys
 import tempfile
 from pathlib import Path
@@ -155,12 +156,35 @@ def _write_log(log: Path, text: str) -> None:
     library_io().write_text(log, text + "\n" if text else "")
 
 
+def stop_on_termination() -> None:
+    """SIGTERM and SIGHUP (how Snakemake, a cluster and a closed terminal stop a job) raise ``SystemExit`` in this
+    process, as Ctrl-C raises ``KeyboardInterrupt``: the temporary notebook is removed on the way out
+    (:func:`sdm.io.write_atomic`). Only the main thread can set handlers; elsewhere nothing changes."""
+    with contextlib.suppress(ValueError):
+        for number in (signal.SIGTERM, signal.SIGHUP):
+            signal.signal(number, lambda received, frame: sys.exit(128 + received))
+
+
+def remove_stale_temporaries(executed: str | Path) -> list[Path]:
+    """Remove the hidden temporary notebooks of ``executed`` (``.<stem>.<random>.tmp.ipynb``) that an earlier run
+    of this job left behind when it was killed beyond catching (SIGKILL, a lost node); the removed paths."""
+    executed = Path(executed)
+    stale = sorted(executed.parent.glob(f".{executed.stem}.*.tmp{executed.suffix}"))
+    for path in stale:
+        path.unlink(missing_ok=True)
+    return stale
+
+
 def main(source: str, executed: str, html: str, parameters: str | dict, stderr_log: str | None = None) -> int:
     """Run ``source`` with ``parameters`` (a dict, or its JSON); 0 on success, 1 on failure.
 
     With ``stderr_log`` (the rule's text log), the tools' and the kernel's messages go to that file
-    instead of stderr; on failure the console still gets the one-line cause first.
+    instead of stderr; on failure the console still gets the one-line cause first. A termination signal ends
+    the run without leaving its temporary notebook (:func:`stop_on_termination`), and one left by an earlier
+    run killed outright is removed first (:func:`remove_stale_temporaries`).
     """
+    stop_on_termination()
+    remove_stale_temporaries(executed)
     if isinstance(parameters, str):
         parameters = json.loads(parameters)
     log = Path(stderr_log) if stderr_log else None

@@ -4,11 +4,14 @@
     python workflow/scripts/snapshot.py check     # exit 1 (naming each) on a README or docs number not in it
 
 ``take`` (``make snapshot``, after ``make run``) replaces ``docs/results/{tables,figures,report}/`` with
-the files of ``results/tables/`` (CSV, Markdown and LaTeX tables, the ``*_summary.md`` texts),
-``results/figures/`` (PNG) and ``results/report/`` (the reproduction report and the verdict), and
-writes ``docs/results/report/verdict.md`` into README.md between the verdict markers (figure paths
-made relative to the README). Nothing else in ``docs/results/`` is touched (``timing.md`` is written
-by ``make timing``).
+the default run's files (:data:`DEFAULT_RUN`) of ``results/tables/`` (CSV, Markdown and LaTeX tables, the
+``*_summary.md`` texts), ``results/figures/`` (PNG) and ``results/report/`` (the reproduction report and the
+verdict), and writes ``docs/results/report/verdict.md`` into README.md between the verdict markers (figure
+paths made relative to the README). It is atomic and exact: it first checks that every file of the default run
+is in ``results/`` (and that each CSV matches its checksum file), and exits naming the missing or damaged ones
+before anything is touched; it builds the new parts beside the old ones and swaps them in, then the README.
+The opt-in stages' files (Tables 5-7 and their figures) are never taken: their snapshots have folders of their
+own. Nothing else in ``docs/results/`` is touched (``timing.md`` is written by ``make timing``).
 
 ``check`` holds the README and docs to the snapshot: the verdict section must be the snapshot's verdict,
 and every results number they quote -- a distance in 1e-3 m (``5.76e-3 m``) or a ratio (``1.6x``,
@@ -21,17 +24,27 @@ measurement, not the run's, and is not checked. The standard library only: no to
 from __future__ import annotations
 
 import re
+import secrets
 import shutil
 import sys
 from pathlib import Path
+
+from code_deps import library_io  # sdm/io.py (the CSVs' checksums), loaded without importing sdm (torch)
 
 ROOT = Path(__file__).resolve().parents[2]
 RESULTS = ROOT / "results"
 SNAPSHOT = ROOT / "docs" / "results"
 README = ROOT / "README.md"
-#: The parts of results/ the snapshot holds, and the files of each.
-#: (Not the tables' and the report's HTML pages: the same text again, made for `make report`.)
-PARTS = {"tables": ("*.csv", "*.md", "*.tex"), "figures": ("*.png",), "report": ("*.md",)}
+#: The parts of results/ the snapshot holds, and the default run's files of each: all of them must be there.
+#: (Not the tables' and the report's HTML pages: the same text again, made for `make report`; not the opt-in
+#: stages' Tables 5-7 and figures.)
+DEFAULT_RUN = {
+    "tables": [f"{table}.{kind}" for table in ("table1", "table2", "table3", "table4") for kind in ("csv", "md", "tex")]
+    + ["table3_summary.md", "table3_tuning.csv", "table3_tuning.md", "table4_bias.csv", "table4_summary.md"],
+    "figures": [f"{name}.png" for name in ("baselines", "distances", "fig1_configuration", "fig2_forward",
+                                           "fig3_backward", "fig4_noise", "research_rules", "theta_path")],
+    "report": ["reproduction.md", "verdict.md"],
+}
 BEGIN = "<!-- verdict: written by `make snapshot` from docs/results/report/verdict.md; do not edit by hand -->"
 END = "<!-- end of verdict -->"
 #: A results number: a distance in 1e-3 m or a ratio, alone or as a range (``1.6-1.9x``, ``30 to 68e-3 m``).
@@ -44,23 +57,47 @@ SPEAKS_OF_THE_RUN = re.compile(r"default run|the run's|docs/results|results/tabl
 
 
 def take(results: Path = RESULTS, snapshot: Path = SNAPSHOT, readme: Path = README) -> None:
-    """Copy the default run's results into the snapshot, then write the README's verdict section from it."""
-    for part, patterns in PARTS.items():
-        files = sorted(path for pattern in patterns for path in (results / part).glob(pattern))
-        if not files:
-            raise SystemExit(f"{results / part}: no results to take (run `make run` first)")
-        target = snapshot / part
-        shutil.rmtree(target, ignore_errors=True)
-        target.mkdir(parents=True)
-        for path in files:
-            shutil.copy2(path, target / path.name)
-    readme.write_text(with_verdict(readme.read_text(), readme_verdict(snapshot, readme)))
+    """Copy the default run's results into the snapshot, then write the README's verdict section from it.
+
+    Exits (``SystemExit``, naming each file) before touching anything where a file of :data:`DEFAULT_RUN` is
+    missing from ``results`` or a CSV does not match its checksum file; then builds the new parts beside the old
+    ones and swaps them in, part by part (a rename each), and writes the README atomically last.
+    """
+    io = library_io()
+    problems = []
+    for part, names in DEFAULT_RUN.items():
+        for name in names:
+            path = results / part / name
+            if not path.is_file():
+                problems.append(f"{path}: missing")
+            elif path.suffix == ".csv" and (damage := io.csv_damage(path)) is not None:
+                problems.append(f"{path}: {damage}")
+    if problems:
+        raise SystemExit("the default run is not complete in results/ (run `make run` first); docs/results/ is "
+                         "unchanged:\n" + "\n".join(problems))
+    text = with_verdict(readme.read_text(), "")  # the README has its one verdict section, before anything moves
+    staging = snapshot / f".take-{secrets.token_hex(6)}"
+    try:
+        for part, names in DEFAULT_RUN.items():
+            (staging / part).mkdir(parents=True)
+            for name in names:
+                shutil.copy2(results / part / name, staging / part / name)
+        verdict = readme_verdict(staging, readme, snapshot)
+        for part in DEFAULT_RUN:  # the swap, a rename each (same folder): old part aside, new part in
+            target = snapshot / part
+            if target.exists():
+                target.rename(staging / f"{part}.old")
+            (staging / part).rename(target)
+        io.write_text(readme, with_verdict(text, verdict))
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
 
 
-def readme_verdict(snapshot: Path = SNAPSHOT, readme: Path = README) -> str:
-    """The snapshot's verdict as the README shows it: its relative links made relative to the README."""
+def readme_verdict(snapshot: Path = SNAPSHOT, readme: Path = README, linked: Path | None = None) -> str:
+    """The snapshot's verdict as the README shows it: its relative links made relative to the README (to the
+    snapshot at ``linked``, where ``snapshot`` is a copy being built)."""
     verdict = (snapshot / "report" / "verdict.md").read_text()
-    base = (snapshot / "report").relative_to(readme.parent)
+    base = ((linked or snapshot) / "report").relative_to(readme.parent)
 
     def rebased(match: re.Match) -> str:
         target = (base / match.group(2)).as_posix()

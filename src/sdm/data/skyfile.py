@@ -1,11 +1,11 @@
 """The Sky dataset file: all configurations in one versioned, sparse, lazily readable file.
 
-Layout (format version 2; all integers little-endian; ``docs/data.md`` has the
+Layout (format version 3; all integers little-endian; ``docs/data.md`` has the
 full description)::
 
     offset  size  field
     0       8     magic b"\\x89SDMSKY\\n"
-    8       4     uint32 format version (2)
+    8       4     uint32 format version (3)
     12      4     uint32 header length L in bytes
     16      8     uint64 data offset D (multiple of 64)
     24      8     uint64 total file size in bytes
@@ -17,7 +17,8 @@ The header holds ``format`` ("sdm-sky"), ``version``, ``n_configurations``,
 ``image_ids``, ``shift`` ``[a, b]`` (m), ``camera`` (intrinsics and screen),
 ``metadata`` (free JSON object) and ``arrays``: for each array its ``dtype``
 (numpy string), ``shape``, ``offset`` (bytes from D), ``nbytes`` and
-``crc32``. The arrays (``N`` configurations; ``P``, ``T``, ``C`` pooled counts)::
+``crc32``; and ``header_crc32``, the CRC-32 of the header itself without that key (as written: compact
+JSON, keys sorted), so that no byte of the header (a camera field, the shift) changes unnoticed. The arrays (``N`` configurations; ``P``, ``T``, ``C`` pooled counts)::
 
     point_offsets   int64 (N+1,)   configuration i's points are rows
                                    point_offsets[i]:point_offsets[i+1]
@@ -32,8 +33,8 @@ The header holds ``format`` ("sdm-sky"), ``version``, ``n_configurations``,
     centre_pixels   int16 (C, 2)   active pixels of E (car centres on screen), row-major
     centre_depth    float64 (C,)   their depth (the value of E), metres
 
-Opening a file reads the fixed prefix, the header and the three offset arrays
-(checking their CRC-32); configurations are decoded one at a time from a
+Opening a file reads the fixed prefix, the header (checking its CRC-32) and the three offset arrays
+(checking theirs); configurations are decoded one at a time from a
 read-only memory map, and the first read of each array checks its CRC-32, so a
 damaged file is refused before any of its configurations is used.
 A file of another format version (version 1 had no ``point_car``) is refused,
@@ -60,8 +61,8 @@ from ..sky import SkyConfiguration, check_shift
 
 #: First 8 bytes of every Sky file.
 MAGIC = b"\x89SDMSKY\n"
-#: The format version this module writes and reads (2: ``point_car`` added).
-FORMAT_VERSION = 2
+#: The format version this module writes and reads (2: ``point_car`` added; 3: the header under its own CRC-32).
+FORMAT_VERSION = 3
 #: Value of the header's ``format`` key.
 FORMAT_NAME = "sdm-sky"
 #: Alignment of the data section and of each array, bytes.
@@ -81,7 +82,8 @@ _ARRAYS = {
 }
 _CAMERA_FIELDS = [f.name for f in dataclasses.fields(Camera)]
 #: What a refused older version lacked, said after "this sdm reads version N".
-_VERSION_NOTES = {1: "; version 1 does not record the car of each point"}
+_VERSION_NOTES = {1: "; version 1 does not record the car of each point",
+                  2: "; version 2 keeps its header outside every checksum"}
 #: What to do about a damaged Sky file; ends every "damaged" message.
 REBUILD_HINT = (
     "delete it and run snakemake again to rebuild it (the 'sky' stage), "
@@ -92,6 +94,12 @@ REBUILD_HINT = (
 def _damaged(path: Path, what: str) -> SDMInputError:
     """The error for a damaged Sky file: names the file, says what is wrong and how to rebuild it."""
     return SDMInputError(f"{path}: {what}; the Sky file is damaged: {REBUILD_HINT}")
+
+
+def _header_json(header: dict) -> bytes:
+    """The header as the file holds it: compact UTF-8 JSON, keys sorted (what ``header_crc32`` is taken of, without
+    that key)."""
+    return json.dumps(header, sort_keys=True, separators=(",", ":"), allow_nan=False).encode("utf-8")
 
 
 def _align(n: int) -> int:
@@ -192,7 +200,8 @@ def write_sky_file(
         "arrays": table,
     }
     try:
-        header_bytes = json.dumps(header, sort_keys=True, separators=(",", ":"), allow_nan=False).encode("utf-8")
+        header["header_crc32"] = zlib.crc32(_header_json(header))
+        header_bytes = _header_json(header)
     except (TypeError, ValueError) as exc:
         raise SDMInputError(f"{path}: metadata is not JSON-serialisable ({exc})") from None
     data_offset = _align(_PREFIX.size + len(header_bytes))
@@ -330,6 +339,9 @@ class SkyFile:
             header = json.loads(header_bytes.decode("utf-8"))
         except (UnicodeDecodeError, json.JSONDecodeError) as exc:
             raise _damaged(self.path, f"damaged header ({exc})") from None
+        stored = header.pop("header_crc32", None) if isinstance(header, dict) else None
+        if isinstance(stored, bool) or not isinstance(stored, int) or stored != zlib.crc32(_header_json(header)):
+            raise _damaged(self.path, "header fails its CRC-32 (a camera field, the shift or the array table changed)")
         self._header = header
         self.version = int(version)
         try:

@@ -29,6 +29,15 @@
 
 static inline int64_t clamp_unit(int64_t value) { return value < -1 ? -1 : (value > 1 ? 1 : value); }
 
+/* The largest start pixel (either sign) sdm_chain takes: moved by less than 2^61 pixels over at most 60 levels,
+ * it stays within int64. */
+#define PIXEL_BOUND ((int64_t)1 << 61)
+
+/* a - b wrapping around as torch's int64 subtraction does (defined in C where a signed subtraction is not): a
+ * projection floored from NaN or beyond int64 is INT64_MIN, as torch's .long() gives it, and the step towards it
+ * must be torch's. */
+static inline int64_t wrapping_sub(int64_t a, int64_t b) { return (int64_t)((uint64_t)a - (uint64_t)b); }
+
 static inline int on_grid(int64_t row, int64_t col, int64_t height, int64_t width) {
     return row >= 0 && row < height && col >= 0 && col < width;
 }
@@ -65,8 +74,8 @@ static inline __attribute__((always_inline)) void chain_level(
         const int was_alive = first ? 1 : (cell[i] != sentinel) & rmin_survives(decided, cell[i], rank[i], no_rank);
         const int64_t block_row = from[2 * i] >> level, block_col = from[2 * i + 1] >> level;
         /* landing block - input block, limited to the 3x3 kernel */
-        const int64_t step_row = clamp_unit((projected[2 * i] >> level) - block_row);
-        const int64_t step_col = clamp_unit((projected[2 * i + 1] >> level) - block_col);
+        const int64_t step_row = clamp_unit(wrapping_sub(projected[2 * i] >> level, block_row));
+        const int64_t step_col = clamp_unit(wrapping_sub(projected[2 * i + 1] >> level, block_col));
         if (last) {
             entered[i] = (uint8_t)was_alive;
             block_out[2 * i] = block_row;
@@ -124,25 +133,33 @@ static inline __attribute__((always_inline)) void chain_range(
  * projected: (P, 2) floor of each point's projection, screen pixels (row, col)
  * pixels:    (P, 2) each point's pixel in I~ at the start
  * config:    (P,)   configuration index; rank: (P,) rmin priority (lower wins)
- * cell_min:  (2 * (n_cells + 1),) scratch (two tables, see chain_range), every entry NO_RANK on entry and on
- *            return
+ * cell_min:  (n_scratch,) scratch, at least 2 * (n_cells + 1) entries (two tables, see chain_range), every
+ *            entry NO_RANK on entry and on return
  * Outputs, all (P, ...): out_pixels (-1 where dropped), entered, landed, block and landing
  * at the loss level (written for every point, as the torch path computes them).
+ * Returns 0; -1 (nothing read or written beyond the inputs) where a configuration is negative or beyond the
+ * tables n_scratch holds, -2 where a start pixel lies beyond +-PIXEL_BOUND (its moves would leave int64).
  *
  * Configurations never interact, so where the points come configuration by configuration
  * (config non-decreasing, as every packed batch is) the chain runs chunk by chunk of whole
  * configurations; otherwise over all points at once. The result is the same either way.
  */
-void sdm_chain(int64_t n_points, const int64_t *projected, const int64_t *pixels, const int64_t *config,
-               const int64_t *rank, int64_t height, int64_t width, int64_t steps, int64_t zoom, int64_t *cell_min,
-               int64_t no_rank, int64_t *out_pixels, uint8_t *entered, uint8_t *landed, int64_t *block_out,
-               int64_t *landing_out, int64_t *current, int64_t *cell, uint8_t *alive) {
-    int sorted = 1;
-    int64_t last = 0; /* the highest configuration: cell_min has 2 * ((last + 1) * height * width + 1) entries at least */
+int64_t sdm_chain(int64_t n_points, const int64_t *projected, const int64_t *pixels, const int64_t *config,
+                  const int64_t *rank, int64_t height, int64_t width, int64_t steps, int64_t zoom, int64_t *cell_min,
+                  int64_t n_scratch, int64_t no_rank, int64_t *out_pixels, uint8_t *entered, uint8_t *landed,
+                  int64_t *block_out, int64_t *landing_out, int64_t *current, int64_t *cell, uint8_t *alive) {
+    int sorted = 1, inside = 1;
+    /* the highest and lowest configuration: cell_min must have 2 * ((last + 1) * height * width + 1) entries */
+    int64_t last = 0, least = 0;
     for (int64_t i = 0; i < n_points; ++i) {
         if (i && config[i] < config[i - 1]) sorted = 0;
         if (config[i] > last) last = config[i];
+        if (config[i] < least) least = config[i];
+        inside &= pixels[2 * i] >= -PIXEL_BOUND & pixels[2 * i] <= PIXEL_BOUND & pixels[2 * i + 1] >= -PIXEL_BOUND &
+                  pixels[2 * i + 1] <= PIXEL_BOUND;
     }
+    if (least < 0 || height < 1 || width < 1 || last >= (n_scratch / 2 - 1) / (height * width)) return -1;
+    if (!inside) return -2;
     int64_t lo = 0;
     while (lo < n_points) {
         int64_t hi = n_points;
@@ -154,6 +171,7 @@ void sdm_chain(int64_t n_points, const int64_t *projected, const int64_t *pixels
                     (last + 1) * height * width, no_rank, out_pixels, entered, landed, block_out, landing_out, current, cell, alive);
         lo = hi;
     }
+    return 0;
 }
 
 static inline double sign_of(double value) { return (double)((value > 0.0) - (value < 0.0)); }
@@ -215,12 +233,13 @@ static inline void window_pull(double screen_row, double screen_col, int64_t cen
  * Outputs: matched (P,), flow (P, 2) (x, y) = (col, row) pulls, zero where not pulled (the
  * caller zeroes it), pulled (p,) indices of the pulled points in ascending order and
  * window_l1 (p, 2) per axis the summed |p - T_q| over the pulling blocks (screen pixels).
- * Returns p, the number of pulled points.
+ * Returns p, the number of pulled points; -1 (no target read) where a landed point's configuration is not one
+ * of the n_configs targets, its landing block is off the grid or not beside its block.
  */
 int64_t sdm_paper_flow(int64_t n_points, const double *screen, const int64_t *config, const uint8_t *landed,
-                       const int64_t *block, const int64_t *landing, const uint8_t *target, int64_t grid_h,
-                       int64_t grid_w, int64_t zoom, uint8_t *matched, double *flow, int64_t *pulled,
-                       double *window_l1) {
+                       const int64_t *block, const int64_t *landing, const uint8_t *target, int64_t n_configs,
+                       int64_t grid_h, int64_t grid_w, int64_t zoom, uint8_t *matched, double *flow,
+                       int64_t *pulled, double *window_l1) {
     const int64_t cells_per_config = grid_h * grid_w;
     const double block_size = (double)((int64_t)1 << zoom);
     int64_t n_pulled = 0;
@@ -229,8 +248,13 @@ int64_t sdm_paper_flow(int64_t n_points, const double *screen, const int64_t *co
             matched[i] = 0;
             continue;
         }
-        const uint8_t *own = target + config[i] * cells_per_config;
         const int64_t block_row = block[2 * i], block_col = block[2 * i + 1];
+        const int64_t near_row = wrapping_sub(landing[2 * i], block_row);
+        const int64_t near_col = wrapping_sub(landing[2 * i + 1], block_col);
+        if (config[i] < 0 || config[i] >= n_configs || !on_grid(landing[2 * i], landing[2 * i + 1], grid_h, grid_w) ||
+            near_row < -1 || near_row > 1 || near_col < -1 || near_col > 1)
+            return -1;
+        const uint8_t *own = target + config[i] * cells_per_config;
         matched[i] = own[landing[2 * i] * grid_w + landing[2 * i + 1]];
         if (matched[i]) continue;
         const int64_t landing_index = (landing[2 * i] - block_row) * 3 + (landing[2 * i + 1] - block_col) + 4;

@@ -72,9 +72,9 @@ BUILD_TIMEOUT_S = 30.0
 #: The kernel's functions, name -> ``(restype, argtypes)``: every one must be in the built library
 #: (checked when it is loaded) and is bound with these types. A new kernel function is one entry here.
 SIGNATURES: dict[str, tuple[object, list]] = {
-    "sdm_chain": (None, [_I64, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _I64, _I64, _PTR, _I64,
+    "sdm_chain": (_I64, [_I64, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _I64, _I64, _PTR, _I64, _I64,
                          _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR]),
-    "sdm_paper_flow": (_I64, [_I64, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _I64,
+    "sdm_paper_flow": (_I64, [_I64, _PTR, _PTR, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _I64, _I64,
                               _PTR, _PTR, _PTR, _PTR]),
     "sdm_train": (_I64, [_I64, _I64, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _PTR, _I64, _I64, _I64, _I64,
                          *[_PTR] * 11, _I64, _I64, _I64, _PTR, _PTR, _I64, _PTR, _PTR, _PTR, _PTR]),

@@ -176,8 +176,9 @@ class SpatialDomainMapping(nn.Module):
                 omitted only for a single target (``n = 1``).
             rank: ``(P,)`` int64 ``rmin`` priority; default: depth, then row order.
             target_is_zoomed: ``target`` is already zoomed out to level ``zoom``.
-            validate: check every input (the default). Only callers that checked
-                their inputs once up front (the trainer, on a packed set) turn this off.
+            validate: check every input's values too (the default). Only callers that checked
+                their inputs once up front (the trainer, on a packed set) turn this off; the
+                types, shapes and devices are checked either way.
 
         Returns:
             :class:`SDMOutput`.
@@ -190,8 +191,7 @@ class SpatialDomainMapping(nn.Module):
         """
         if target.ndim == 2:
             target = target[None]
-        if validate:
-            self._check(points, pixels, target, config, rank, target_is_zoomed)
+        self._check(points, pixels, target, config, rank, target_is_zoomed, values=validate)
         if config is None:
             config = torch.zeros(points.shape[0], dtype=torch.int64, device=points.device)
         if rank is None:
@@ -208,7 +208,10 @@ class SpatialDomainMapping(nn.Module):
         result = MappingResult(out_pixels, flow, loss.detach(), entered, matched, self.zoom, landed)
         return SDMOutput(loss, result, int(target.shape[0]), self.camera, config, points.detach()[:, 2])
 
-    def _check(self, points, pixels, target, config, rank, target_is_zoomed) -> None:
+    def _check(self, points, pixels, target, config, rank, target_is_zoomed, values: bool = True) -> None:
+        """:class:`SDMInputError` naming the argument: types, dtypes, shapes, devices and the configurations'
+        range always (the flows index the targets by configuration), and with ``values`` the points' finiteness
+        and the pixels on the screen."""
         height, width = self.camera.screen_shape
         if not isinstance(points, torch.Tensor):
             raise SDMInputError(f"points must be a torch.Tensor, got {type(points).__name__}")
@@ -228,8 +231,9 @@ class SpatialDomainMapping(nn.Module):
                     f"{name} is on {tensor.device} but points are on {points.device}: "
                     "every input of the layer must live on one device (move them with .to(device))"
                 )
-        check_points(points, "points")
-        if points.ndim != 2:
+        if values:
+            check_points(points, "points")
+        if points.ndim != 2 or points.shape[-1] != 3:
             raise SDMInputError(f"points must have shape (P, 3), got {tuple(points.shape)}")
         n_points = points.shape[0]
         if n_points == 0:
@@ -241,7 +245,7 @@ class SpatialDomainMapping(nn.Module):
             raise SDMInputError(f"target must have shape (n, {expected[0]}, {expected[1]}), got {tuple(target.shape)}")
         if pixels.shape != (n_points, 2) or pixels.dtype != torch.int64:
             raise SDMInputError(f"pixels must be int64 of shape ({n_points}, 2), got {pixels.dtype} {tuple(pixels.shape)}")
-        if not bool(inside(pixels, height, width).all()):
+        if values and not bool(inside(pixels, height, width).all()):
             raise SDMInputError(f"pixels must lie on the {height} x {width} screen")
         n_configs = int(target.shape[0])
         if config is None:
@@ -253,7 +257,7 @@ class SpatialDomainMapping(nn.Module):
         else:
             if config.shape != (n_points,) or config.dtype != torch.int64:
                 raise SDMInputError(f"config must be int64 of shape ({n_points},), got {config.dtype} {tuple(config.shape)}")
-            if not 0 <= int(config.min()) <= int(config.max()) < n_configs:
+            if not 0 <= int(config.min()) <= int(config.max()) < n_configs:  # indexes the targets: always
                 raise SDMInputError(f"config must hold indices into the {n_configs} targets, got "
                                     f"{int(config.min())}..{int(config.max())}")
         if rank is not None and (rank.shape != (n_points,) or rank.dtype != torch.int64):

@@ -34,12 +34,36 @@ import weakref
 
 import torch
 
+from ..errors import SDMInputError
 from ..representation import NO_RANK
 # enabled, disabled and serves: what the layer's and the trainer's callers ask of the kernel (sdm.mapping.build's).
 # The calls below read the library as _library.
 from .build import disabled, enabled, eager_under_compile, serves  # noqa: F401
+from .build import check_arrays
 from .build import library as _library
 from .rules import KernelFlow
+
+
+#: The largest start pixel (either sign) :func:`chain` takes: moved by less than ``2^61`` pixels over at most 60
+#: levels, it stays within int64.
+PIXEL_BOUND = 2**61
+
+
+def _check_range(call: str, name: str, values: torch.Tensor, low: int, high: int) -> None:
+    """:class:`SDMInputError` naming ``call`` and ``name`` unless every entry of ``values`` lies in ``[low, high)``."""
+    if values.numel() and (int(values.min()) < low or int(values.max()) >= high):
+        raise SDMInputError(f"{call}: {name} must lie in [{low}, {high}), got entries in "
+                            f"[{int(values.min())}, {int(values.max())}]")
+
+
+def _check_screen(call: str, height, width, steps, zoom) -> None:
+    """:class:`SDMInputError` naming ``call`` unless the screen is positive and ``0 <= zoom <= steps <= 60``."""
+    for name, value in (("height", height), ("width", width), ("steps", steps), ("zoom", zoom)):
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise SDMInputError(f"{call}: {name} must be an integer, got {value!r}")
+    if height < 1 or width < 1 or not 0 <= zoom <= steps <= 60:
+        raise SDMInputError(f"{call}: needs a positive screen and 0 <= zoom <= steps <= 60, got a {height} x {width} "
+                            f"screen, steps {steps}, zoom {zoom}")
 
 
 @eager_under_compile
@@ -56,6 +80,8 @@ def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, r
         height, width: the screen; steps, zoom: the levels.
 
     All tensors on the CPU (see :func:`serves`; non-contiguous ones are copied); the results too.
+    :func:`check_arrays` checks their shapes against each other first; the kernel checks ``config`` against the
+    tables ``scratch`` holds and the start pixels against :data:`PIXEL_BOUND` in its first pass, before any write.
 
     Returns:
         ``(out_pixels, entered, landed, block, landing)``: ``(P, 2)`` int64 output pixel (``-1``
@@ -63,16 +89,27 @@ def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, r
         and landing block at level ``zoom``.
     """
     projected, pixels, config, rank = (t.contiguous() for t in (projected, pixels, config, rank))
+    int64 = torch.int64
+    check_arrays("chain", projected=(projected, int64, ("P", 2)), pixels=(pixels, int64, ("P", 2)),
+                 config=(config, int64, ("P",)), rank=(rank, int64, ("P",)), scratch=(scratch, int64, ("M",)))
+    _check_screen("chain", height, width, steps, zoom)
     n_points = pixels.shape[0]
     out_pixels = torch.empty_like(pixels)
     entered = torch.empty(n_points, dtype=torch.bool, device=pixels.device)
     landed = torch.empty_like(entered)
     block, landing = torch.empty_like(pixels), torch.empty_like(pixels)
     current, cell, alive = _workspace(n_points, pixels.device)
-    _library().sdm_chain(n_points, projected.data_ptr(), pixels.data_ptr(), config.data_ptr(), rank.data_ptr(),
-                         height, width, steps, zoom, scratch.data_ptr(), NO_RANK, out_pixels.data_ptr(),
-                         entered.data_ptr(), landed.data_ptr(), block.data_ptr(), landing.data_ptr(),
-                         current.data_ptr(), cell.data_ptr(), alive.data_ptr())
+    code = _library().sdm_chain(n_points, projected.data_ptr(), pixels.data_ptr(), config.data_ptr(),
+                                rank.data_ptr(), height, width, steps, zoom, scratch.data_ptr(), scratch.numel(),
+                                NO_RANK, out_pixels.data_ptr(), entered.data_ptr(), landed.data_ptr(),
+                                block.data_ptr(), landing.data_ptr(), current.data_ptr(), cell.data_ptr(),
+                                alive.data_ptr())
+    if code == -1:  # the kernel checks the values in its first pass over the points, before any write
+        raise SDMInputError(f"chain: config must lie in [0, {(scratch.numel() // 2 - 1) // (height * width)}) (the "
+                            f"configurations the scratch tables hold), got entries in [{int(config.min())}, "
+                            f"{int(config.max())}]")
+    if code == -2:
+        raise SDMInputError(f"chain: pixels must lie within +-{PIXEL_BOUND} (PIXEL_BOUND)")
     return out_pixels, entered, landed, block, landing
 
 
@@ -98,7 +135,9 @@ def paper_flow(screen: torch.Tensor, config: torch.Tensor, landed: torch.Tensor,
     """The paper's flow (:func:`~sdm.mapping.flow.dynamic_flow`) but the loss's metres.
 
     Args: as :func:`~sdm.mapping.flow.dynamic_flow` (``screen`` float64), all on the CPU
-        (non-contiguous ones are copied).
+        (non-contiguous ones are copied); :func:`check_arrays` checks their shapes against each other first, and the
+        kernel each landed point (its ``config`` one of the targets, its ``landing`` on the grid and beside its
+        ``block``) before it reads the target.
 
     Returns:
         ``(flow, matched, pulled, window_l1)``: ``(P, 2)`` float64 flow, ``(P,)`` bool matched,
@@ -107,6 +146,11 @@ def paper_flow(screen: torch.Tensor, config: torch.Tensor, landed: torch.Tensor,
     """
     screen, config, landed, block, landing, target = (
         t.contiguous() for t in (screen, config, landed, block, landing, target))
+    int64 = torch.int64
+    sizes = check_arrays("paper_flow", screen=(screen, torch.float64, ("P", 2)), config=(config, int64, ("P",)),
+                         landed=(landed, torch.bool, ("P",)), block=(block, int64, ("P", 2)),
+                         landing=(landing, int64, ("P", 2)), target=(target, torch.bool, ("n", "h", "w")))
+    _check_screen("paper_flow", sizes["h"], sizes["w"], zoom, zoom)
     n_points = screen.shape[0]
     grid_h, grid_w = target.shape[1:]
     flow = torch.zeros_like(screen)
@@ -114,9 +158,12 @@ def paper_flow(screen: torch.Tensor, config: torch.Tensor, landed: torch.Tensor,
     pulled = torch.empty(n_points, dtype=torch.int64, device=screen.device)
     window_l1 = torch.empty_like(screen)
     n_pulled = _library().sdm_paper_flow(n_points, screen.data_ptr(), config.data_ptr(), landed.data_ptr(),
-                                         block.data_ptr(), landing.data_ptr(), target.data_ptr(), grid_h, grid_w,
-                                         zoom, matched.data_ptr(), flow.data_ptr(), pulled.data_ptr(),
+                                         block.data_ptr(), landing.data_ptr(), target.data_ptr(), sizes["n"], grid_h,
+                                         grid_w, zoom, matched.data_ptr(), flow.data_ptr(), pulled.data_ptr(),
                                          window_l1.data_ptr())
+    if n_pulled < 0:  # the kernel checks each landed point before it reads the target
+        raise SDMInputError(f"paper_flow: every landed point's config must lie in [0, {sizes['n']}) (the targets), "
+                            f"its landing on the {grid_h} x {grid_w} grid and beside its block")
     return flow, matched, pulled[:n_pulled], window_l1[:n_pulled]
 
 
@@ -170,7 +217,8 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
         record_every: theta is recorded before the first step and after every ``record_every``-th step (the
             total number of steps must be a multiple of it).
 
-    All tensors on the CPU (non-contiguous ones are copied); the results too.
+    All tensors on the CPU (non-contiguous ones are copied); the results too. :func:`check_program` checks every
+    argument against the others first: nothing the kernel reads or writes lies outside its tensor.
 
     Returns:
         ``(thetas, losses, failed)``: ``(steps_total / record_every + 1, R, 2)`` float64 theta before the first
@@ -180,20 +228,17 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
         did not.
     """
     points, pixels, rank, offsets, orders, theta0 = (
-        t.contiguous() for t in (points, pixels, rank, offsets, orders, theta0))
-    targets = [[level.contiguous() if level is not None else None for level in run] for run in targets]
-    bases = [base.contiguous() for base in bases] if bases is not None else None
+        _contiguous(t) for t in (points, pixels, rank, offsets, orders, theta0))
+    targets = [[_contiguous(level) for level in run] for run in targets]
+    bases = [_contiguous(base) for base in bases] if bases is not None else None
+    if isinstance(param_index, torch.Tensor) and param_index.dim() == 1:
+        param_index = param_index[:, None]
+    param_index, row_rate = _contiguous(param_index), _contiguous(row_rate)
+    check_program(points, pixels, rank, offsets, camera, steps, levels, n_epoch, batch_size, rates, windows, orders,
+                  targets, theta0, bases, param_index, record_every, row_rate, crossing_widths)
     n_runs, n_configs = orders.shape[1], orders.shape[2]
-    if bases is None and any(level is None for run in targets for level in run):
-        raise ValueError("train_program: a level left to the kernel (None) needs the run's level-0 target in bases")
     device = points.device
     total = len(levels) * n_epoch * (n_configs // batch_size)
-    if total % record_every:
-        raise ValueError(f"train_program: {total} steps are not a multiple of record_every {record_every}")
-    if param_index is not None:
-        param_index = param_index.reshape(points.shape[0], -1).contiguous()
-    if row_rate is not None:
-        row_rate = row_rate.to(torch.float64).contiguous()
     row_shape = tuple(theta0.shape[1:])  # (2,), or (K, 2) with param_index
     n_rows = theta0.shape[1] if param_index is not None else 1
     constants = torch.tensor([camera.fx, camera.fy, camera.cx, camera.cy, camera.rows_per_image_pixel,
@@ -201,8 +246,6 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
                               camera.fx * camera.cols_per_image_pixel], dtype=torch.float64, device=device)
     rates_t = torch.tensor(rates, dtype=torch.float64, device=device)
     levels_t = torch.tensor(levels, dtype=torch.int64, device=device)
-    if not all(isinstance(window, KernelFlow) for window in windows):  # sdm_train refuses an unknown mode (-3)
-        raise ValueError(f"train_program: windows must be sdm.mapping.rules.KernelFlow, got {windows}")
     modes_t = torch.tensor([int(window) for window in windows], dtype=torch.uint8, device=device)
     groups = (_crossing_groups(points, offsets, param_index) if KernelFlow.CROSSING in windows
               else (torch.zeros(1, dtype=torch.int64),) * 3)
@@ -237,6 +280,89 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
         raise MemoryError("sdm_train: no memory for one configuration's working rows")
     return thetas, losses, failed
 
+
+def check_program(points, pixels, rank, offsets, camera, steps, levels, n_epoch, batch_size, rates, windows, orders,
+                  targets, theta0, bases=None, param_index=None, record_every=1, row_rate=None,
+                  crossing_widths=None) -> None:
+    """:func:`train_program`'s arguments checked against each other, as ``sdm_train`` reads them.
+
+    The sizes: ``P`` points, ``N`` configurations (``offsets``: ``0``, non-decreasing, ``P`` last), ``R`` runs
+    (``orders``, ``targets``, ``bases``, ``theta0``), ``L`` loss levels (``levels`` in ``0..steps``, ``rates``,
+    ``windows``, ``crossing_widths`` and each run's ``targets``), ``K`` rows of theta (``theta0``, ``row_rate``,
+    the entries of ``param_index``). Every shuffled configuration lies in ``0..N-1``; every target level is
+    ``(N, H >> level, W >> level)`` bool; the screen divides into blocks of ``2^steps``; the steps are a multiple of
+    ``record_every``.
+
+    Raises:
+        SDMInputError: naming ``train_program`` and the argument.
+    """
+    call, int64 = "train_program", torch.int64
+    height, width = camera.screen_shape
+    _check_screen(call, height, width, steps, 0)
+    if height % (1 << steps) or width % (1 << steps):
+        raise SDMInputError(f"{call}: a {height} x {width} screen does not divide into blocks of 2^{steps} pixels")
+    for name, value in (("n_epoch", n_epoch), ("batch_size", batch_size), ("record_every", record_every)):
+        if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+            raise SDMInputError(f"{call}: {name} must be a positive integer, got {value!r}")
+    n_levels = len(levels)
+    if n_levels == 0 or any(isinstance(level, bool) or not isinstance(level, int) or not 0 <= level <= steps
+                            for level in levels):
+        raise SDMInputError(f"{call}: levels must be integers in 0..{steps}, at least one, got {levels}")
+    for name, per_level in (("rates", rates), ("windows", windows), ("crossing_widths", crossing_widths)):
+        if per_level is not None and len(per_level) != n_levels:
+            raise SDMInputError(f"{call}: {name} must hold one entry per level ({n_levels}), got {len(per_level)}")
+    if not all(isinstance(window, KernelFlow) for window in windows):  # sdm_train refuses an unknown mode (-3)
+        raise SDMInputError(f"{call}: windows must be sdm.mapping.rules.KernelFlow, got {windows}")
+    if any(window is KernelFlow.CROSSING and level != 0 for window, level in zip(windows, levels)):
+        raise SDMInputError(f"{call}: CROSSING runs at level 0 only, got levels {levels} for windows "
+                            f"{[window.name for window in windows]}")
+    if not isinstance(orders, torch.Tensor) or orders.dim() != 3 or len(targets) != orders.shape[1]:
+        raise SDMInputError(f"{call}: orders must be (levels * n_epoch, R, N) and targets hold its R runs, got orders "
+                            f"{tuple(getattr(orders, 'shape', ()))} and {len(targets)} runs of targets")
+    if any(len(run) != n_levels for run in targets):
+        raise SDMInputError(f"{call}: targets must hold {n_levels} levels a run, got {[len(run) for run in targets]}")
+    if bases is None and any(level is None for run in targets for level in run):
+        raise SDMInputError(f"{call}: a level left to the kernel (None) needs the run's level-0 target in bases")
+    if bases is not None and len(bases) != len(targets):
+        raise SDMInputError(f"{call}: bases must hold one target per run ({len(targets)}), got {len(bases)}")
+    if (not isinstance(theta0, torch.Tensor) or (param_index is None) != (theta0.dim() == 2)
+            or (row_rate is not None and param_index is None)):
+        raise SDMInputError(f"{call}: theta0 must be (R, 2) without param_index and row_rate, (R, K, 2) with "
+                            f"param_index, got {tuple(getattr(theta0, 'shape', ()))} and param_index "
+                            f"{None if param_index is None else tuple(param_index.shape)}")
+    arrays = dict(offsets=(offsets, int64, ("N+1",)), points=(points, torch.float64, ("P", 3)),
+                  pixels=(pixels, int64, ("P", 2)), rank=(rank, int64, ("P",)),
+                  orders=(orders, int64, (n_levels * n_epoch, "R", "N")))
+    for run, run_targets in enumerate(targets):
+        arrays.update({f"targets[{run}] at level {level}": (target, torch.bool, ("N", height >> level, width >> level))
+                       for level, target in zip(levels, run_targets) if target is not None})
+    arrays.update({f"bases[{run}]": (base, torch.bool, ("N", height, width)) for run, base in enumerate(bases or [])})
+    if param_index is None:
+        arrays["theta0"] = (theta0, torch.float64, ("R", 2))
+    else:
+        arrays.update(theta0=(theta0, torch.float64, ("R", "K", 2)), param_index=(param_index, int64, ("P", "G")))
+        if row_rate is not None:
+            arrays["row_rate"] = (row_rate, torch.float64, ("K",))
+    sizes = check_arrays(call, **arrays)
+    n_configs = sizes["N"]
+    if n_configs < 1 or int(offsets[0]) != 0 or int(offsets[-1]) != sizes["P"] or bool((offsets.diff() < 0).any()):
+        raise SDMInputError(f"{call}: offsets must run from 0 to the {sizes['P']} points, non-decreasing, with at "
+                            "least one configuration")
+    _check_range(call, "orders", orders, 0, n_configs)
+    if batch_size > n_configs:
+        raise SDMInputError(f"{call}: batch_size {batch_size} is more than the {n_configs} configurations")
+    total = n_levels * n_epoch * (n_configs // batch_size)
+    if total % record_every:
+        raise SDMInputError(f"{call}: {total} steps are not a multiple of record_every {record_every}")
+    if param_index is not None:
+        if sizes["G"] < 1:
+            raise SDMInputError(f"{call}: param_index must name at least one row per point")
+        _check_range(call, "param_index", param_index, 0, sizes["K"])
+
+
+def _contiguous(tensor):
+    """``tensor`` C-contiguous (anything else as it is, for :func:`check_program` to name)."""
+    return tensor.contiguous() if isinstance(tensor, torch.Tensor) else tensor
 
 #: _crossing_groups' last layout: (weak references to points and offsets, their versions, the layout). A set's
 #: groups depend on its points only, and the paired runs train the same set again and again (a call per group).
@@ -295,8 +421,6 @@ def _crossing_constants(device: torch.device, widths: list[float] | None, n_leve
     from .crossing import CROSSING_SCALE, CROSSING_STEPS, CROSSING_WIDTH
 
     widths = [CROSSING_WIDTH] * n_levels if widths is None else [float(width) for width in widths]
-    if len(widths) != n_levels:
-        raise ValueError(f"train_program: crossing_widths must hold one width per level ({n_levels}), got {widths}")
     return torch.tensor([[width, CROSSING_SCALE, float(CROSSING_STEPS)] for width in widths], dtype=torch.float64,
                         device=device).reshape(n_levels, 3)
 

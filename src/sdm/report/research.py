@@ -20,6 +20,7 @@ import pandas as pd
 
 from ..errors import SDMInputError
 from .. import paper
+from .io import read_csv
 from .tables import TableFormat, in_millimetres, write_table
 
 #: The depth bar for the noise-free runs (metres): mean |a - a*|, |b - b*| and |c - c*|.
@@ -79,7 +80,7 @@ def gathered_runs(paths: Sequence[str | Path], keys: Sequence[str], expected: se
     """The run files at ``paths`` (CSVs, one row per run) concatenated, checked to hold exactly the runs
     ``expected`` (tuples of the columns ``keys``, e.g. ``(flow, level, run)``); ``what`` names the table in
     the error. The gathering stages of Tables 4 and 5 read their jobs' files with it."""
-    frame = pd.concat([pd.read_csv(path) for path in paths], ignore_index=True)
+    frame = pd.concat([read_csv(path) for path in paths], ignore_index=True)
     found = set(zip(*(frame[key] for key in keys)))
     if found != expected:
         raise SDMInputError(f"{what}: missing runs {sorted(expected - found)[:5]}, unexpected {sorted(found - expected)[:5]}")
