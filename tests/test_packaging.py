@@ -193,3 +193,12 @@ def test_the_declared_dependencies_are_the_layers():
     assert core == {"torch", "numpy", "tqdm"}
     extra = {re.split(r"[<>=!~ ]", requirement)[0] for requirement in project["optional-dependencies"]["experiments"]}
     assert {"pandas", "matplotlib"} <= extra
+
+
+def test_the_benchmarks_folder_holds_source_only():
+    """Snakemake's benchmark files and logs go under the results root: every tracked file of benchmarks/ is a
+    script (or its README)."""
+    listed = subprocess.run(["git", "ls-files", "benchmarks"], cwd=ROOT, capture_output=True, text=True, check=True)
+    files = listed.stdout.split()
+    assert len(files) >= 10
+    assert [name for name in files if not name.endswith((".py", ".md"))] == []
