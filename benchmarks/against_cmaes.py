@@ -19,7 +19,7 @@ import time
 import pandas as pd
 import torch
 
-from sdm.baselines import best_settings, noise_runs
+from sdm.baselines import baseline_noise_runs, best_settings
 from sdm.experiments import load_split
 from sdm.report.research import CMAES_FACTOR
 
@@ -43,7 +43,8 @@ def main(argv=None) -> int:
     rows, frames = [], []
     for level, own in rule.groupby("level", sort=True):
         start = time.process_time()
-        search = noise_runs("cmaes", train_set, int(level), sorted(own["run"]), chosen, args.seed, camera=camera)
+        search = baseline_noise_runs("cmaes", train_set, int(level), sorted(own["run"]), chosen, args.seed,
+                                     camera=camera)
         cpu = (time.process_time() - start) / len(own)
         # run r of both is the paired run (level, r): its noise and seeds come from run_seed(seed, level, r)
         paired = own.set_index("run")["distance"].reindex(search["run"])

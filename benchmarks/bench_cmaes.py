@@ -61,7 +61,7 @@ class ReferenceMismatch(cmaes.PixelMismatch):
 
 def reference_fit(train_set, settings, seed) -> FitResult:
     start = time.perf_counter()
-    result = cmaes._search(ReferenceMismatch(train_set), settings, seed, (0.0, 0.0))
+    result = cmaes.cmaes_search(ReferenceMismatch(train_set), settings, seed, (0.0, 0.0))
     result.seconds = time.perf_counter() - start
     return result
 

@@ -36,7 +36,7 @@ threads = 1
 
 # %%
 
-from sdm.baselines import best_settings, noise_runs
+from sdm.baselines import baseline_noise_runs, best_settings
 from sdm.experiments import load_split, single_thread
 from sdm.report.io import read_csv, read_json, write_csv
 
@@ -47,7 +47,7 @@ print(f"{len(train_set)} training configurations; {method}: {chosen}")
 if len(runs_files) != len(levels):
     raise ValueError(f"runs_files: one per level expected, got {len(runs_files)} for levels {levels}")
 for level, runs_file in zip(levels, runs_files):
-    results = noise_runs(method, train_set, level, list(range(runs)), chosen, seed, shift=shift, camera=camera)
+    results = baseline_noise_runs(method, train_set, level, list(range(runs)), chosen, seed, shift=shift, camera=camera)
     write_csv(runs_file, results)
     print(f"level {level}: mean distance {1000 * results['distance'].mean():.3f}e-3 m, "
           f"{results['seconds'].mean():.2f} s per run")

@@ -35,7 +35,7 @@
 # (`sdm_timings`: per chunk, the wall seconds of `sdm.experiments.noise_runs` over the chunk's runs, trained
 # together as one program on one thread; neither the notebook's start nor reading the data counted),
 # summed per level and divided by the level's runs (drawing the noisy targets included). The baselines'
-# seconds are the `seconds` column of `sdm.baselines.noise_runs`: their fits' wall time per run, on one
+# seconds are the `seconds` column of `sdm.baselines.baseline_noise_runs`: their fits' wall time per run, on one
 # thread as well.
 
 # %% tags=["parameters"]

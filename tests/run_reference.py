@@ -1,7 +1,7 @@
 """Single-run references of the paired runs: one run at a time, each trained or fitted alone.
 
 :func:`sdm.experiments.paired_runs` runs every table's runs in groups (Table 2's ``noise_runs``,
-Table 4's ``rule_noise_runs``, Table 5's ``depth_noise_runs``, Table 3's ``sdm.baselines.noise_runs``);
+Table 4's ``rule_noise_runs``, Table 5's ``depth_noise_runs``, Table 3's ``sdm.baselines.baseline_noise_runs``);
 these loops are what it replaced, kept here so that the tests can hold the driver to them: the run's
 seed from :func:`~sdm.experiments.run_seed`, its noisy targets drawn alone, then :func:`sdm.train`
 (or the method's ``fit``) on that run only. Rows as the driver's tables have them.

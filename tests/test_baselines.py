@@ -20,7 +20,7 @@ from scenes import configuration_set
 from sdm import SKY_SHIFT, distance
 from sdm.baselines import (
     CMAESSettings, ChamferSettings, SilhouetteSettings, SinkhornSettings, best_settings, fit, grid, make_settings,
-    noise_runs, settings_grid, tune,
+    baseline_noise_runs, settings_grid, tune,
 )
 from sdm.baselines import chamfer as chamfer_module
 from sdm.baselines import common
@@ -48,7 +48,7 @@ def test_sdm_through_the_common_interface_is_table2s_run(small):
     is that run trained alone: same seed, same theta, to the bit."""
     train_set, _ = small
     settings = settings_for(1, 1e-3, 4, 16, 0.5, 0)
-    ours = noise_runs("sdm", train_set, 2, [3, 0, 1], settings, seed=5, group_size=2)
+    ours = baseline_noise_runs("sdm", train_set, 2, [3, 0, 1], settings, seed=5, group_size=2)
     theirs = sdm_noise_runs(train_set, 2, [3, 0, 1], replace(settings, seed=5))  # settings.seed: the noise seed
     pd.testing.assert_frame_equal(ours[list(theirs.columns)], theirs)
     assert set(ours["method"]) == {"sdm"} and (ours["seconds"] > 0).all()
@@ -265,8 +265,8 @@ def test_noise_runs_are_paired_and_seeded(small):
     pytest.importorskip("cma")
     train_set, _ = small
     settings = CMAESSettings(budget=30)
-    first, other = noise_runs("cmaes", train_set, 2, [1, 2], settings, seed=4).to_dict("records")
-    again = noise_runs("cmaes", train_set, 2, [1], settings, seed=4).iloc[0]
+    first, other = baseline_noise_runs("cmaes", train_set, 2, [1, 2], settings, seed=4).to_dict("records")
+    again = baseline_noise_runs("cmaes", train_set, 2, [1], settings, seed=4).iloc[0]
     assert (first["a"], first["b"]) == (again["a"], again["b"])
     assert first["seed"] == again["seed"] != other["seed"]
     alone = baseline_noise_run("cmaes", train_set, 2, 1, settings, seed=4)  # the run fitted alone

@@ -20,7 +20,8 @@ import torch
 import baseline_reference
 from run_reference import baseline_noise_run
 from scenes import configuration_set
-from sdm.baselines import METHODS, RUN_COLUMNS, ChamferSettings, SilhouetteSettings, SinkhornSettings, noise_runs
+from sdm.baselines import (METHODS, RUN_COLUMNS, ChamferSettings, SilhouetteSettings, SinkhornSettings,
+                           baseline_noise_runs)
 from sdm.baselines import chamfer, common, silhouette, sinkhorn
 from sdm.errors import SDMInputError
 from sdm.experiments import noisy_targets
@@ -138,21 +139,21 @@ def test_subsample_runs_draws_what_subsample_draws():
 
 
 def test_noise_runs_batched_equal_the_loop(runs):
-    """noise_runs through fit_runs (groups of 2 over 3 runs) gives the rows of each run fitted alone."""
+    """baseline_noise_runs through fit_runs (groups of 2 over 3 runs) gives the rows of each run fitted alone."""
     sets, _ = runs
     data = configuration_set(48, seed=23)
     _, settings = SHORT["chamfer"]
     assert METHODS["chamfer"].fit_runs is chamfer.fit_runs
-    frame = noise_runs("chamfer", data, 2, [0, 3, 1], settings, seed=4, group_size=2)
+    frame = baseline_noise_runs("chamfer", data, 2, [0, 3, 1], settings, seed=4, group_size=2)
     loop = pd.DataFrame([baseline_noise_run("chamfer", data, 2, run, settings, seed=4) for run in (0, 3, 1)])
     assert list(frame.columns) == RUN_COLUMNS and list(frame["run"]) == [0, 3, 1]
     assert list(frame["seed"]) == list(loop["seed"])
     assert (frame[["a", "b"]] - loop[["a", "b"]]).abs().to_numpy().max() <= TOLERANCE_M
     assert frame.loc[0, "seconds"] == frame.loc[1, "seconds"] > 0  # the first group's time over its runs
     with pytest.raises(SDMInputError, match="group_size"):
-        noise_runs("chamfer", data, 2, [0], settings, seed=4, group_size=0)
+        baseline_noise_runs("chamfer", data, 2, [0], settings, seed=4, group_size=0)
     with pytest.raises(SDMInputError, match="settings for 'chamfer'"):
-        noise_runs("chamfer", data, 2, [0], SilhouetteSettings(), seed=4)
+        baseline_noise_runs("chamfer", data, 2, [0], SilhouetteSettings(), seed=4)
 
 
 def test_noise_runs_of_a_method_without_fit_runs_fit_each_run_alone(monkeypatch):
@@ -160,14 +161,15 @@ def test_noise_runs_of_a_method_without_fit_runs_fit_each_run_alone(monkeypatch)
     data = configuration_set(48, seed=23)
     _, settings = SHORT["chamfer"]
     monkeypatch.setitem(METHODS, "chamfer", replace(METHODS["chamfer"], fit_runs=None))
-    frame = noise_runs("chamfer", data, 1, [2, 0], settings, seed=4)
+    frame = baseline_noise_runs("chamfer", data, 1, [2, 0], settings, seed=4)
     for row in frame.to_dict("records"):
         alone = baseline_noise_run("chamfer", data, 1, row["run"], settings, seed=4)
         assert (row["seed"], row["a"], row["b"]) == (alone["seed"], alone["a"], alone["b"])
 
 
 def test_sdm_batched_equals_its_single_runs(monkeypatch):
-    """sdm_layer.fit_runs is one train_runs call over its runs (the grouping is noise_runs'), run for run fit()."""
+    """sdm_layer.fit_runs is one train_runs call over its runs (the grouping is baseline_noise_runs'), run for run
+    fit()."""
     from sdm import experiments
     from sdm.baselines import sdm_layer
     from sdm.train import TrainSettings
@@ -199,7 +201,7 @@ def test_sdm_batched_equals_its_single_runs(monkeypatch):
         alone = sdm_layer.fit(data_run, settings, seed, theta0=start)
         assert result.theta == alone.theta and result.history["loss"] == alone.history["loss"]
     calls.clear()
-    frame = noise_runs("sdm", data, 2, range(5), settings, seed=1)  # the method's default group: Table 2's
+    frame = baseline_noise_runs("sdm", data, 2, range(5), settings, seed=1)  # the method's default group: Table 2's
     assert calls == [4, 1] and list(frame["run"]) == [0, 1, 2, 3, 4]
 
 

@@ -193,7 +193,7 @@ def test_fit_is_the_search_on_the_reference_count(small, path):
     settings = CMAESSettings(budget=60)
     with counting(path):
         fast = fit(noisy, settings, seed=3)
-    slow = cmaes._search(ReferenceOnly(noisy), settings, 3, (0.0, 0.0))
+    slow = cmaes.cmaes_search(ReferenceOnly(noisy), settings, 3, (0.0, 0.0))
     assert fast.theta == slow.theta
     assert fast.history == slow.history
     assert fast.evaluations == slow.evaluations > 60

@@ -23,7 +23,7 @@ the default 512 training configurations one SDM run of Table 2 costs about 0.64 
 defaults, while silhouette and sinkhorn cost 1.6 and 1.9 s, so config.yaml gives them 8
 configurations a step and 27 / 16 steps per stage (0.54 and 0.65 s; their level-2 mean distance
 over 10 runs moves from 11.2 to 15.1 and from 16.9 to 18.1 e-3 m). The noise runs are fitted many at a time (``fit_runs``,
-:func:`noise_runs`), each run bit-identical to its single fit; on one CPU core that shares little,
+:func:`baseline_noise_runs`), each run bit-identical to its single fit; on one CPU core that shares little,
 for SDM (about 1.2x, docs/method/fast-path.md) as for the gradient baselines, whose steps are dominated by
 arithmetic on their dense per-step tensors (nearest-neighbour matrices, splatted cells, Sinkhorn
 kernels) rather than by per-operation overhead (``benchmarks/bench_baselines.py`` measures both
@@ -31,7 +31,7 @@ ways; the ``seconds_per_run`` of Table 3 is the batched cost).
 
 :func:`tune` scores a grid of settings by the dev loss of Table 1 (:func:`sdm.metrics.dev_loss`:
 mean false-positive pixels per dev configuration at ``theta``), so every method is picked by the
-same criterion as SDM; :func:`noise_runs` runs Table 2's runs (:func:`sdm.experiments.paired_runs`)
+same criterion as SDM; :func:`baseline_noise_runs` runs Table 2's runs (:func:`sdm.experiments.paired_runs`)
 for any method: the same run seeds, hence the same noisy targets (paired comparison).
 
 ``geomloss`` and ``cma`` are imported only when their method runs: they are dependencies of the
@@ -73,8 +73,8 @@ class Method:
         requires: the extra package it imports when it runs (``None``: only torch).
         fit_runs: ``fit_runs(train_sets, settings, seeds, camera, theta0) -> list[FitResult]``: many
             independent runs as one program, run ``r`` equal to ``fit(train_sets[r], settings,
-            seeds[r])``; ``None`` when the method has none (:func:`noise_runs` then loops over ``fit``).
-        group_size: runs :func:`noise_runs` hands ``fit_runs`` at a time by default; ``None``: all the
+            seeds[r])``; ``None`` when the method has none (:func:`baseline_noise_runs` then loops over ``fit``).
+        group_size: runs :func:`baseline_noise_runs` hands ``fit_runs`` at a time by default; ``None``: all the
             runs of the call (the baselines' dense steps share nothing across groups).
     """
 
@@ -224,12 +224,12 @@ def best_settings(name: str, tuning: pd.DataFrame):
     return entry.settings(**values)
 
 
-#: Columns of Table 3's run rows (:func:`noise_runs`): the method, Table 2's columns
+#: Columns of Table 3's run rows (:func:`baseline_noise_runs`): the method, Table 2's columns
 #: (:data:`sdm.experiments.RUN_COLUMNS`), the fit's ``seconds`` and its loss ``evaluations``.
 RUN_COLUMNS = ["method", *experiments.RUN_COLUMNS, "seconds", "evaluations"]
 
 
-def noise_runs(name: str, train_set: ConfigurationSet, level: int, runs: Sequence[int], settings, seed: int,
+def baseline_noise_runs(name: str, train_set: ConfigurationSet, level: int, runs: Sequence[int], settings, seed: int,
                shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
                group_size: int | None = None) -> pd.DataFrame:
     """Table 3's paired robustness runs of method ``name`` at one level, one row each (:data:`RUN_COLUMNS`).
@@ -270,6 +270,6 @@ def noise_runs(name: str, train_set: ConfigurationSet, level: int, runs: Sequenc
 
 __all__ = [
     "METHODS", "Method", "FitResult", "SDMSettings", "SilhouetteSettings", "ChamferSettings", "SinkhornSettings",
-    "CMAESSettings", "RUN_COLUMNS", "best_settings", "fit", "grid", "make_settings", "method", "noise_runs",
+    "CMAESSettings", "RUN_COLUMNS", "best_settings", "fit", "grid", "make_settings", "method", "baseline_noise_runs",
     "settings_grid", "tune",
 ]

@@ -453,7 +453,7 @@ class PixelMismatch:
         return n_rendered + int(target_ids.numel()) - 2 * overlap
 
 
-def _search(objective: PixelMismatch, settings: CMAESSettings, seed: int, theta0) -> FitResult:
+def cmaes_search(objective: PixelMismatch, settings: CMAESSettings, seed: int, theta0) -> FitResult:
     """One CMA-ES run on ``objective`` (``seconds`` left 0).
 
     ``objective`` counts candidates of ``theta0``'s length ``d`` (``__call__``, ``many``, ``evaluations``):
@@ -516,7 +516,7 @@ def fit(train_set: ConfigurationSet, settings: CMAESSettings = CMAESSettings(), 
     >>> result.evaluations, round(distance(result.theta), 3)  # objective calls; metres from SKY_SHIFT
     (127, 0.006)
     """
-    return timed(lambda: _search(PixelMismatch(train_set, camera), settings, seed, theta0))
+    return timed(lambda: cmaes_search(PixelMismatch(train_set, camera), settings, seed, theta0))
 
 
 def fit_runs(train_sets: Sequence[ConfigurationSet], settings: CMAESSettings, seeds: Sequence[int],
@@ -555,7 +555,7 @@ def fit_runs(train_sets: Sequence[ConfigurationSet], settings: CMAESSettings, se
             layout = ShiftLayout(train_set, camera)
             layouts.append((train_set, layout))
         objective = PixelMismatch(train_set, camera, layout, recycle=objective)
-        results.append(_search(objective, settings, seed, theta0))
+        results.append(cmaes_search(objective, settings, seed, theta0))
     per_run = (time.perf_counter() - start) / max(len(results), 1)
     for result in results:
         result.seconds = per_run

@@ -9,7 +9,7 @@ that a larger budget no longer moves it, and measures the region around it where
 
 The search (:class:`FloorSettings`), all on one objective (memoised: a theta counted twice is counted once):
 
-1. ``restarts`` CMA-ES runs (:func:`sdm.baselines.cmaes._search`, ``budget`` counts each): the first
+1. ``restarts`` CMA-ES runs (:func:`sdm.baselines.cmaes.cmaes_search`, ``budget`` counts each): the first
    from ``theta0`` with step size ``sigma0``, restart ``k`` from the best theta so far with
    ``sigma0 * sigma_decay**k`` (the later restarts search ever closer around the incumbent). Then
    theta* itself, where its count is lower than the incumbent's (the floor measures the data, and the
@@ -63,7 +63,7 @@ from ..errors import SDMInputError
 from ..experiments import paired_runs
 from ..metrics import distance
 from ..sky import SKY_SHIFT
-from .cmaes import CMAESSettings, PixelMismatch, ShiftLayout, _search
+from .cmaes import CMAESSettings, PixelMismatch, ShiftLayout, cmaes_search
 from .common import check_positive, check_positive_int, field_error
 
 
@@ -220,7 +220,7 @@ def _distance(theta: Sequence[float], truth: Sequence[float]) -> float:
 
 class _Memo:
     """The objective with each distinct theta counted once (the compass search and the region probe the
-    same lattice points again); what :func:`~sdm.baselines.cmaes._search` calls (``__call__``, ``many``,
+    same lattice points again); what :func:`~sdm.baselines.cmaes.cmaes_search` calls (``__call__``, ``many``,
     ``evaluations``)."""
 
     def __init__(self, objective: PixelMismatch) -> None:
@@ -376,7 +376,7 @@ def floor_search(objective: PixelMismatch, seed: int = 0, settings: FloorSetting
     restart_best, half_state = [], None
     seeds = np.random.SeedSequence([int(seed)]).generate_state(settings.restarts, dtype=np.uint32)
     for restart in range(settings.restarts):
-        run = _search(count, settings.cmaes(restart), int(seeds[restart]), best_theta)
+        run = cmaes_search(count, settings.cmaes(restart), int(seeds[restart]), best_theta)
         value = count(run.theta)
         if value < best_value:  # ties keep the incumbent
             best_theta, best_value = tuple(float(v) for v in run.theta), value

@@ -43,7 +43,7 @@ from ..camera import Camera
 from ..errors import SDMInputError
 from ..representation import screen_pixels
 from ..sharing import Units, check_theta
-from .cmaes import CMAESSettings, _search
+from .cmaes import CMAESSettings, cmaes_search
 from .common import check_positive, check_positive_int, field_error, project_shifted
 from .floor import FloorSettings, floor_search
 
@@ -237,7 +237,7 @@ def fit_configurations(data: ConfigurationSet, units: Units, settings: RowsCMAES
     mismatch, evaluations, seconds = _per_configuration(len(data))
     for index, own, objective, start, began in _each_configuration(data, units, configs, totals):
         searched = Penalised(objective, start, settings.penalty) if settings.penalty else objective
-        result = _search(searched, settings.cmaes(len(start)), configuration_seed(seed, index), start)
+        result = cmaes_search(searched, settings.cmaes(len(start)), configuration_seed(seed, index), start)
         mismatch[index] = objective(result.theta)
         seconds[index] = time.process_time() - began
         evaluations[index] = objective.evaluations - 1  # the closing count is not the search's
@@ -325,7 +325,7 @@ def fit_blocks(data: ConfigurationSet, units: Units, settings: RowsCMAESSettings
                 own_start = start[2 * unit:2 * unit + 2]
                 searched = _Block(objective, current, unit)
                 searched = Penalised(searched, own_start, settings.penalty) if settings.penalty else searched
-                result = _search(searched, block.cmaes(1), block_seed, current[2 * unit:2 * unit + 2])
+                result = cmaes_search(searched, block.cmaes(1), block_seed, current[2 * unit:2 * unit + 2])
                 current[2 * unit:2 * unit + 2] = [float(v) for v in result.theta]
         evaluations[index] = objective.evaluations
         mismatch[index] = objective(current)

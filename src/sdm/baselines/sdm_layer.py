@@ -49,7 +49,7 @@ def fit_runs(train_sets: Sequence[ConfigurationSet], settings: TrainSettings = T
     (:func:`sdm.experiments.train_group`, one :func:`sdm.train.train_runs` call): run ``r`` is
     ``fit(train_sets[r], settings, seeds[r])``, theta for theta, to the bit (with ``fit_depth``, to
     1e-12 m: the depth flow is a float sum). How many runs go together is the caller's choice
-    (:func:`sdm.baselines.noise_runs` groups them).
+    (:func:`sdm.baselines.baseline_noise_runs` groups them).
 
     Args:
         train_sets: ``R`` sets with the same points, offsets and camera, differing only in targets.
