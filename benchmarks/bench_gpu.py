@@ -41,7 +41,7 @@ from sdm.batch import ConfigurationSet
 from sdm.data import build_sky_dataset
 from sdm.data.synthetic import synthetic_images
 from sdm.experiments import noise_runs
-from sdm.network import LOSSES, NetworkSettings, ShiftSet, mixed_levels, shift_set, train_network
+from sdm.network import LOSSES, NetworkSettings, mixed_levels, shift_set, train_network
 
 #: Table 7's training: the default config's research.network.train (16 epochs there; one here) and sizes.
 NETWORK_SETTINGS = NetworkSettings(epochs=1, batch_size=16, lr=(("default", 1e-3),), s=2, sigma=0.5, max_points=256)
@@ -153,9 +153,8 @@ def network_section(data: ConfigurationSet) -> list[dict]:
     sets = {}
     for device in ("cuda", "cpu"):
         whole = shift_set(data.subset(range(NETWORK_TRAIN + 16)).to(device), 0, levels)
-        sets[device] = (whole_part(whole, range(NETWORK_TRAIN)), whole_part(whole, range(NETWORK_TRAIN,
-                                                                                           NETWORK_TRAIN + 16)))
-    warm_up = whole_part(sets["cuda"][0], range(32))
+        sets[device] = (whole.subset(range(NETWORK_TRAIN)), whole.subset(range(NETWORK_TRAIN, NETWORK_TRAIN + 16)))
+    warm_up = sets["cuda"][0].subset(range(32))
     for loss in LOSSES:  # the device's first calls (cuDNN's set-up, kernels loaded) are not any loss's epoch
         train_network(loss, warm_up, warm_up, NETWORK_SETTINGS)
     rows = []
@@ -177,12 +176,6 @@ def network_section(data: ConfigurationSet) -> list[dict]:
         rows.append(row)
         print(f"{loss:>16} {row['cuda_s']:>12.2f} {row['cpu_s']:>12.2f} {row['ratio']:>7.1f}x")
     return rows
-
-
-def whole_part(whole, indices):
-    """Configurations ``indices`` of a :class:`sdm.network.ShiftSet`, with their shifts and noise levels."""
-    chosen = torch.as_tensor(list(indices))
-    return ShiftSet(whole.data.subset(chosen), whole.truth[chosen], whole.levels[chosen])
 
 
 def markdown(figures: dict) -> str:

@@ -40,8 +40,7 @@ torch.set_num_threads(int(threads))
 built = build_sky_dataset(synthetic_images(2 * configs, seed=0), n_sample=configs + 80, seed=0, progress=False)
 data = ConfigurationSet.from_configurations([c for c in built if c.num_points][: configs + 64])
 whole = shift_set(data, 0, mixed_levels(len(data), (0, 1, 2, 3, 4), seed=1))
-train = whole.__class__(whole.data.subset(range(configs)), whole.truth[:configs], whole.levels[:configs])
-dev = whole.__class__(whole.data.subset(range(configs, len(data))), whole.truth[configs:], whole.levels[configs:])
+train, dev = whole.subset(range(configs)), whole.subset(range(configs, len(data)))
 settings = NetworkSettings(epochs=epochs, batch_size=16, s=2, max_points=256)
 saved = {"capability": torch.backends.cpu.get_cpu_capability()}
 for loss in losses:

@@ -52,9 +52,7 @@ def main(argv=None) -> int:
     single_thread(1)
     config = yaml.safe_load(open(args.config))
     section, training = config["research"]["objects"], config["train"]
-    settings = objects.settings_from_config(
-        section["truth"], section["warm"], section["rows"], section["schedule"], section["cmaes"], section["floor"],
-        section["silhouette"], training["s"], section["batch_size"], training["lr_decay"])
+    settings = objects.settings_from_sections(section, training)
     if args.sigma0 is not None:  # every search's initial step
         settings = replace(settings, cmaes=replace(settings.cmaes, sigma0=args.sigma0), car_sigma0=args.sigma0)
     if args.penalty is not None:

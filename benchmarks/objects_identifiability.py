@@ -116,9 +116,7 @@ def main(argv=None) -> int:
     single_thread(1)
     config = yaml.safe_load(open(args.config))
     section, training = config["research"]["objects"], config["train"]
-    settings = objects.settings_from_config(
-        section["truth"], section["warm"], section["rows"], section["schedule"], section["cmaes"], section["floor"],
-        section["silhouette"], training["s"], section["batch_size"], training["lr_decay"])
+    settings = objects.settings_from_sections(section, training)
     settings = replace(settings, rows=replace(settings.rows, seed=0))
     chosen = read_json(args.split)["train"][args.first:args.first + args.configurations]
     with SkyFile(args.sky) as sky:

@@ -54,9 +54,7 @@ def main(argv=None) -> int:
     data = ConfigurationSet.from_configurations(configs, camera)
     n_cars = torch.tensor([int(config.centres.shape[0]) for config in configs], dtype=torch.int64)
     training = config["train"]
-    settings = objects.settings_from_config(
-        section["truth"], section["warm"], section["rows"], section["schedule"], section["cmaes"], section["floor"],
-        section["silhouette"], training["s"], section["batch_size"], training["lr_decay"])
+    settings = objects.settings_from_sections(section, training)
     flow = parse_schedule(section["schedule"])[0]
     print(f"# {args.sharing}: {len(data)} configurations, runs 0-{section['runs'] - 1}, mean distance per unit "
           f"(1e-3 m) at noise levels {section['levels']}")

@@ -190,3 +190,14 @@ def test_table7_words_follow_the_numbers():
     assert list(table["method"][:3]) == ["start", "prior", "net:sdm_paper"]
     assert "level 0: 200.0e-3 m, the networks at 0.15-0.45x of it" in table7_summary(table, 4, 16, 3000)
     assert "0.25-0.35x the error of doing nothing" in verdict_sentence(table)
+
+
+def test_a_shift_set_subset_keeps_each_configuration_with_its_shift_and_level():
+    whole = N.shift_set(ConfigurationSet.from_configurations(configurations(20, seed=1)), 0,
+                        N.mixed_levels(20, (0, 2), seed=1))
+    part = whole.subset([3, 1, 7])
+    chosen = torch.tensor([3, 1, 7])
+    assert torch.equal(part.truth, whole.truth[chosen]) and torch.equal(part.levels, whole.levels[chosen])
+    assert torch.equal(part.data.targets, whole.data.targets[chosen])
+    with pytest.raises(SDMInputError, match="indices"):
+        whole.subset([20])

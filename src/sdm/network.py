@@ -101,6 +101,11 @@ class ShiftSet:
     def __len__(self) -> int:
         return len(self.data)
 
+    def subset(self, indices: Sequence[int]) -> "ShiftSet":
+        """Configurations ``indices`` (integers in ``[0, N)``, in that order), with their shifts and noise levels."""
+        chosen = self.data.check_indices(indices).cpu()
+        return ShiftSet(self.data.subset(chosen), self.truth[chosen.to(self.truth.device)], self.levels[chosen])
+
 
 def shift_set(data: ConfigurationSet, seed: int, levels: Sequence[int] | torch.Tensor,
               truth: S.TruthDistribution = S.TruthDistribution()) -> ShiftSet:

@@ -340,6 +340,13 @@ def search_settings(warm: dict, rows: dict, schedule: str, cmaes: dict, s: int, 
         floor=None, silhouette=None)
 
 
+def settings_from_sections(section: dict, train: dict) -> ObjectsSettings:
+    """:func:`settings_from_config` from the config's whole ``research.objects`` section and its ``train`` section."""
+    return settings_from_config(section["truth"], section["warm"], section["rows"], section["schedule"], section["cmaes"],
+                                section["floor"], section["silhouette"], train["s"], section["batch_size"],
+                                train["lr_decay"])
+
+
 def settings_from_config(truth: dict, warm: dict, rows: dict, schedule: str, cmaes: dict, floor: dict,
                          silhouette: dict, s: int, batch_size: int, lr_decay: float) -> ObjectsSettings:
     """:class:`ObjectsSettings` from the config's ``research.objects`` values and the ``train`` section."""
