@@ -64,7 +64,7 @@ def test_refine_refuses_a_history_of_other_runs_before_any_pass(data, monkeypatc
     """On main a run-count mismatch failed only after every pass had run; now no program starts."""
     history = train_runs(data, [data.targets] * 2, [SETTINGS, replace(SETTINGS, seed=1)])
     called = []
-    monkeypatch.setattr(sys.modules["sdm.train"], "_train_program", lambda *args, **kwargs: called.append(1))
+    monkeypatch.setattr(sys.modules["sdm.train.refine"], "train_steps", lambda *args, **kwargs: called.append(1))
     with pytest.raises(SDMInputError, match="history holds 2 runs, settings 1"):
         refine_runs(data, [data.targets], [SETTINGS], history, REFINE)
     assert not called

@@ -218,7 +218,7 @@ def test_a_pass_that_ends_inside_an_epoch_is_cut_after_its_steps(small):
     one by hand from the same shufflings."""
     from tqdm.std import tqdm
 
-    from sdm.train import _shufflings, _train_program
+    from sdm.train.engine import shufflings as _shufflings, train_steps as _train_program
 
     settings = [replace(BASE, seed=seed) for seed in (3, 5)]
     targets = [noisy_targets(small.targets, 3, 1), noisy_targets(small.targets, 1, 2)]

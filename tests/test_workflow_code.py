@@ -245,8 +245,8 @@ def test_cmaes_and_flow_edits_rerun_what_docs_workflow_md_says(touched_project, 
 
 
 @pytest.mark.parametrize("library_file, text", [
-    ("src/sdm/train.py", "\n# a comment only\n"),
-    ("src/sdm/train.py", "\n\n\n"),
+    ("src/sdm/train/engine.py", "\n# a comment only\n"),
+    ("src/sdm/train/engine.py", "\n\n\n"),
     ("src/sdm/mapping/flow.py", None),  # a docstring edited
 ])
 def test_comments_docstrings_and_layout_rerun_nothing(touched_project, library_file, text):
