@@ -25,6 +25,7 @@ import torch
 from .batch import ConfigurationSet
 from .camera import APOLLO_CAMERA_5, Camera
 from .data import SkyFile
+from .depth import depth_flow, depth_targets
 from .errors import SDMInputError
 from .mapping import SpatialDomainMapping
 from .metrics import dev_loss, distance
@@ -380,8 +381,6 @@ def depth_bias(train_set: ConfigurationSet, c: float, levels: Sequence[int], see
         One row per (noise level, zoom), columns :data:`DEPTH_BIAS_COLUMNS`; ``flow_c`` per training
         configuration, ``stiffness_c`` per configuration per metre, ``offset_c`` in metres.
     """
-    from .depth import depth_flow, depth_targets
-
     _, refine = parse_schedule(flow)
     flow = refine.flow if refine is not None else flow
     camera = camera or train_set.camera
@@ -495,8 +494,6 @@ def depth_noise_runs(train_set, c: float, level: int, runs: Sequence[int], setti
         the fitted ``a, b, c``, the absolute errors ``error_a, error_b, error_c``, the distance in
         ``(a, b)`` (``distance_ab``, as Table 2's) and in ``(a, b, c)`` (``distance``), all in metres.
     """
-    from .depth import depth_targets
-
     if len(shift) != 2:
         raise SDMInputError(f"shift must be (a, b), metres (c is its own argument), got {tuple(shift)!r}")
     truth = (float(shift[0]), float(shift[1]), float(c))

@@ -29,7 +29,9 @@ import torch.nn.functional as F
 
 from .camera import APOLLO_CAMERA_5, Camera
 from .errors import SDMInputError
+from .mapping.build import serves
 from .representation import first_by_rank, inside, occupancy, priority_rank, render_rmin, screen_pixels
+from .sky_native import noise_fill
 
 #: The shift of the Sky dataset, metres: theta* = (a, b).
 SKY_SHIFT = (0.517, 0.303)
@@ -344,9 +346,6 @@ class NoiseBuffer:
     def fill(self, active: torch.Tensor, moves: torch.Tensor) -> torch.Tensor:
         """:attr:`targets` set to the pixels ``active`` (``(K, d)`` int64: leading indices, then ``(row, col)``)
         moved by ``moves`` (``(K, 2)`` int64), those off the grid dropped; returns it."""
-        from .mapping.build import serves
-        from .sky_native import noise_fill
-
         targets = self.targets
         height, width = targets.shape[-2:]
         if self._count is None:

@@ -23,6 +23,7 @@ from ..errors import SDMInputError
 from ..representation import inside, priority_rank
 from ..zoom import check_divisible, zoom_out
 from .dense import dense_mapping
+from .depth_flow import DepthPull
 from .fast import fast_mapping
 from .result import MappingResult
 from .flow import dynamic_flow
@@ -202,8 +203,6 @@ class SpatialDomainMapping(nn.Module):
             points, pixels, config, rank, zoomed, self.s, self.zoom, self.camera, self.method, options
         )
         if self.fit_depth:  # a zero term whose gradient on z is the depth flow (sdm.depth)
-            from ..depth import DepthPull
-
             loss = loss + DepthPull.apply(points, flow)
         result = MappingResult(out_pixels, flow, loss.detach(), entered, matched, self.zoom, landed)
         return SDMOutput(loss, result, int(target.shape[0]), self.camera, config, points.detach()[:, 2])

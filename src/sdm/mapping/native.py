@@ -41,6 +41,7 @@ from ..representation import NO_RANK
 from .build import disabled, enabled, eager_under_compile, serves  # noqa: F401
 from .build import check_arrays
 from .build import library as _library
+from .crossing import CROSSING_SCALE, CROSSING_STEPS, CROSSING_WIDTH, rigid_groups
 from .rules import KernelFlow
 
 
@@ -393,8 +394,6 @@ def _crossing_groups(points: torch.Tensor, offsets: torch.Tensor,
 def _crossing_layout(points: torch.Tensor, offsets: torch.Tensor,
                      rows: torch.Tensor | None = None) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """:func:`_crossing_groups`, computed."""
-    from .crossing import rigid_groups  # the rules import this module
-
     counts = offsets[1:] - offsets[:-1]
     config = torch.repeat_interleave(torch.arange(counts.numel(), device=points.device), counts)
     if points.shape[0] == 0:
@@ -418,8 +417,6 @@ def _crossing_layout(points: torch.Tensor, offsets: torch.Tensor,
 def _crossing_constants(device: torch.device, widths: list[float] | None, n_levels: int) -> torch.Tensor:
     """``(n_levels, 3)`` float64, per level: ``group_crossing``'s kernel half-width (metres; ``widths[level]``,
     :data:`~sdm.mapping.crossing.CROSSING_WIDTH` for ``None``), flow scale and kernel steps."""
-    from .crossing import CROSSING_SCALE, CROSSING_STEPS, CROSSING_WIDTH
-
     widths = [CROSSING_WIDTH] * n_levels if widths is None else [float(width) for width in widths]
     return torch.tensor([[width, CROSSING_SCALE, float(CROSSING_STEPS)] for width in widths], dtype=torch.float64,
                         device=device).reshape(n_levels, 3)

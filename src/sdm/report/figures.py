@@ -27,6 +27,7 @@ from matplotlib.patches import Rectangle
 from ..camera import APOLLO_CAMERA_5, Camera
 from ..errors import SDMInputError
 from .. import paper
+from ..mapping import explain_point
 from ..sky import SKY_SHIFT, SkyConfiguration, add_target_noise, shift_vector
 from .io import write_atomic
 
@@ -123,8 +124,6 @@ def pick_point(configuration: SkyConfiguration, theta: Sequence[float], camera: 
     Returns:
         ``(shifted point (3,), pixel (row, col), explanation dict)``.
     """
-    from ..mapping import explain_point
-
     if configuration.num_points == 0:
         raise SDMInputError(f"configuration {configuration.image_id!r} has no point to draw")
     points = configuration.points(camera)

@@ -20,6 +20,7 @@ import pandas as pd
 
 from ..errors import SDMInputError
 from .. import paper
+from ..train import parse_schedule
 from .io import read_csv
 from .tables import TableFormat, in_millimetres, write_table
 
@@ -296,7 +297,6 @@ def _refinement_reading(flow: str, rows: pd.DataFrame, frame: pd.DataFrame) -> l
                      f"the gap closed)")
     if not parts:
         return []
-    from ..train import parse_schedule  # the schedule's own widths (torch is imported only where a line is written)
 
     widths = parse_schedule(flow)[1].widths
     return [f"  Why it misses, measured on the same runs (1e-3 m): the refinement (`{refine}`) starts where `{first}` "

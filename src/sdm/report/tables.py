@@ -4,6 +4,7 @@ Units: dev loss in pixels; distances in 1e-3 m (the paper's Table 2 unit); "Avg.
 """
 from __future__ import annotations
 
+import html
 import math
 import re
 from dataclasses import dataclass, field
@@ -311,7 +312,6 @@ def markdown_page(markdown: str, title: str) -> str:
     Markdown file) as a download only, so the tables and the report are flagged for it as these pages.
     Rendered by mistune (what nbconvert renders notebooks' Markdown with), tables included.
     """
-    import html
 
     import mistune
 
