@@ -26,7 +26,6 @@ MAX_FUNCTION_LINES = 80  # docstring excluded
 #: Files over MAX_FILE_LINES, with their line count today: they may only shrink.
 OVERSIZED_FILES = {
     "baselines/cmaes.py": 573,
-    "data/synthetic.py": 604,
     "experiments.py": 518,
     "network.py": 664,
     "report/research.py": 578,
@@ -36,7 +35,6 @@ OVERSIZED_FILES = {
 #: Functions over MAX_FUNCTION_LINES (``file:qualified name``), with their length today: they may only shrink.
 OVERSIZED_FUNCTIONS = {
     "baselines/cmaes.py:ShiftLayout.__init__": 94,
-    "data/synthetic.py:generate_scene": 89,
 }
 
 #: Imports inside a function, each ``(file, function, module)``: optional dependencies, imported where they are

@@ -11,6 +11,7 @@ import torch
 
 from sdm.camera import APOLLO_CAMERA_5
 from sdm.data import build_sky_dataset, read_apollo_camera, read_apollo_folder, synthetic_images, write_synthetic_apollo
+from sdm.data import scene as scene_module
 from sdm.data import synthetic as synthetic_module
 from sdm.data.stats import (
     PAPER_AVG_DIST_MM,
@@ -98,7 +99,7 @@ def test_refuses_to_clobber_and_overwrites_on_request(tmp_path):
 
 def test_error_leaves_nothing_half_written(tmp_path, monkeypatch):
     calls = {"n": 0}
-    real = synthetic_module.generate_scene
+    real = scene_module.generate_scene
 
     def failing(*args, **kwargs):
         calls["n"] += 1
@@ -106,7 +107,7 @@ def test_error_leaves_nothing_half_written(tmp_path, monkeypatch):
             raise RuntimeError("disk on fire")
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(synthetic_module, "generate_scene", failing)
+    monkeypatch.setattr(scene_module, "generate_scene", failing)
     with pytest.raises(RuntimeError, match="disk on fire"):
         write_synthetic_apollo(tmp_path / "apollo", n_images=10)
     assert list(tmp_path.iterdir()) == []
@@ -139,7 +140,7 @@ def test_cars_do_not_interpenetrate(small_set):
 
 def test_moving_lanes_keep_five_metre_gaps():
     """Within a lane of moving traffic, bumper-to-bumper gaps are at least ``min_gap`` (5 m)."""
-    model = synthetic_module.SceneModel(p_parked=0.0, p_cross=0.0, curvature_sd=0.0)
+    model = scene_module.SceneModel(p_parked=0.0, p_cross=0.0, curvature_sd=0.0)
     for image in synthetic_images(200, seed=1, model=model):
         xyz = image.centres.numpy()
         same_lane = np.abs(xyz[:, None, 0] - xyz[None, :, 0]) < 1.0

@@ -21,7 +21,8 @@ from .readers import (
 )
 from .skyfile import FORMAT_VERSION, SkyFile, write_sky_file
 from .stats import require_cars_on_screen
-from .synthetic import DEFAULT_MODEL, SceneModel, images_with_cars, synthetic_images, write_synthetic_apollo
+from .scene import DEFAULT_MODEL, SceneModel
+from .synthetic import images_with_cars, synthetic_images, write_synthetic_apollo
 
 __all__ = [
     "DEFAULT_MODEL",

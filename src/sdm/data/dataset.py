@@ -12,7 +12,8 @@ from ..camera import APOLLO_CAMERA_5, Camera
 from ..errors import SDMInputError
 from ..sky import CIRCLE_RADIUS, SKY_SHIFT, SkyConfiguration, build_configuration
 from .readers import ImageCars
-from .synthetic import DEFAULT_MODEL, SceneModel, images_with_cars
+from .scene import DEFAULT_MODEL, SceneModel
+from .synthetic import images_with_cars
 
 #: Number of images of the Sky dataset.
 SKY_N_IMAGES = 4248
