@@ -48,7 +48,7 @@ from sdm.report.io import read_csv, read_json, write_text
 from sdm.report.research import (
     CMAES_ROW, TABLE4_FORMAT, bias_summary, gathered_runs, reference_rows, rule_times, rules_against_baselines,
     rules_figure, table4_display,
-    table4_frame, table4_summary as summary_of_table4, write_research_table,
+    table4_frame, table4_summary as summary_of_table4, write_table4,
 )
 from sdm.report.tables import to_markdown
 
@@ -64,7 +64,7 @@ references = reference_rows(baseline_runs, floor_runs)
 cmaes_runs = references[references["flow"] == CMAES_ROW]
 table4 = table4_frame(pd.concat([rule_runs[references.columns], references], ignore_index=True),
                       read_csv(table2_distances), cmaes_runs if len(cmaes_runs) else None)
-written = write_research_table(table4, Path(table4_csv).with_suffix(""), 4)
+written = write_table4(table4, Path(table4_csv).with_suffix(""))
 assert {str(path) for path in written} == {table4_csv, table4_md, table4_tex, table4_html}, written
 display(Markdown(to_markdown(table4_display(table4), TABLE4_FORMAT)))
 show_figure(rules_figure(table4), figure)

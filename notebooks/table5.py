@@ -48,10 +48,11 @@ import pandas as pd
 from sdm.experiments import depth_bias, load_split, single_thread
 from sdm.report.figures import show_figure
 from sdm.report.io import read_json, write_csv, write_text
-from sdm.report.research import (
-    TABLE5_FORMAT, depth_figure, gathered_runs, table5_bias_summary, table5_display, table5_frame,
-    table5_summary as summary_of_table5, write_research_table,
+from sdm.report.depth import (
+    TABLE5_FORMAT, depth_figure, table5_bias_summary, table5_display, table5_frame,
+    table5_summary as summary_of_table5, write_table5,
 )
+from sdm.report.research import gathered_runs
 from sdm.report.tables import to_markdown
 from sdm.train import TrainSettings, parse_schedule
 
@@ -59,7 +60,7 @@ single_thread(threads)
 expected = {(float(value), level, run) for value in shifts_c for level in levels for run in range(runs)}
 depth_runs = gathered_runs(depth_files, ("c_true", "level", "run"), expected, "Table 5")
 table5 = table5_frame(depth_runs)
-written = write_research_table(table5, Path(table5_csv).with_suffix(""), 5)
+written = write_table5(table5, Path(table5_csv).with_suffix(""))
 assert {str(path) for path in written} == {table5_csv, table5_md, table5_tex, table5_html}, written
 display(Markdown(to_markdown(table5_display(table5), TABLE5_FORMAT)))
 show_figure(depth_figure(table5), figure)

@@ -27,10 +27,10 @@ from sdm.experiments import (
 )
 from run_reference import depth_noise_run, noise_run
 from sdm import paper
+from sdm.report.depth import DEPTH_BAR_M, depth_figure, table5_bias_summary, table5_frame, table5_summary, write_table5
 from sdm.report.research import (
-    DEPTH_BAR_M, beyond_the_paper, depth_figure, half_paper_mean_m, rules_against_baselines, rules_figure, table4_frame,
-    table4_summary, rule_times,
-    table5_bias_summary, table5_frame, table5_summary, write_research_table,
+    beyond_the_paper, half_paper_mean_m, rules_against_baselines, rules_figure, table4_frame, table4_summary, rule_times,
+    write_table4,
 )
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -229,13 +229,11 @@ def test_depth_bias_measures_the_depth_flow_at_theta_star(small_set):
 def test_tables_are_written_and_drawn(tmp_path):
     table4 = table4_frame(_runs([0, 1], range(3), 1e-3, "closed"), _runs([0, 1], range(3), 1e-2))
     table5 = table5_frame(_depth_runs({(0.5, 0): (1e-3, 1e-3, 1e-2), (0.5, 1): (2e-3, 2e-3, 2e-2)}))
-    for frame, which in ((table4, 4), (table5, 5)):
-        written = write_research_table(frame, tmp_path / f"table{which}", which)
+    for frame, which, write in ((table4, 4, write_table4), (table5, 5, write_table5)):
+        written = write(frame, tmp_path / f"table{which}")
         assert [p.suffix for p in written] == [".csv", ".md", ".tex", ".html"] and all(p.stat().st_size for p in written)
         assert pd.read_csv(written[0]).shape == frame.shape
     assert "| closed |" in (tmp_path / "table4.md").read_text()
-    with pytest.raises(SDMInputError, match="which"):
-        write_research_table(table4, tmp_path / "x", 3)
     for fig in (rules_figure(table4), depth_figure(table5)):
         assert fig.axes
     assert beyond_the_paper() == ""

@@ -16,7 +16,7 @@ import pandas as pd
 from ..errors import SDMInputError
 from ..sky import SKY_SHIFT
 from .. import paper
-from .tables import TableFormat, in_millimetres, write_table
+from .tables import TableFormat, in_millimetres, require_columns, write_table
 
 #: The per-run columns Table 3 needs (``sdm.baselines.RUN_COLUMNS`` has these and more).
 RUN_COLUMNS = ("method", "level", "run", "a", "b", "distance", "seconds")
@@ -59,11 +59,7 @@ def table3_frame(runs: pd.DataFrame, shift: Sequence[float] = SKY_SHIFT, referen
         ``wins_vs_sdm`` (share of paired runs with a smaller distance than the reference's, ties
         count half), NaN where the reference has no such run.
     """
-    missing = [c for c in RUN_COLUMNS if c not in runs]
-    if missing:
-        raise SDMInputError(f"Table 3 runs: missing column(s) {missing}; has {list(runs.columns)}")
-    if runs.empty:
-        raise SDMInputError("Table 3 runs: no run")
+    require_columns(runs, RUN_COLUMNS, "Table 3 runs", runs=True)
     duplicated = runs.duplicated(["method", "level", "run"])
     if duplicated.any():
         first = runs[duplicated].iloc[0]
@@ -130,9 +126,7 @@ def table2_runs(distances: pd.DataFrame, timings: Sequence[Mapping], levels: Seq
     Raises:
         SDMInputError: a wanted ``(level, run)`` that Table 2 does not have.
     """
-    missing = [c for c in RUN_COLUMNS if c not in ("method", "seconds") and c not in distances]
-    if missing:
-        raise SDMInputError(f"Table 2's runs: missing column(s) {missing}; has {list(distances.columns)}")
+    require_columns(distances, [c for c in RUN_COLUMNS if c not in ("method", "seconds")], "Table 2's runs")
     wanted = pd.MultiIndex.from_product([[int(v) for v in levels], [int(v) for v in runs]], names=["level", "run"])
     table2 = distances.set_index(["level", "run"])
     absent = wanted.difference(table2.index)
@@ -366,11 +360,7 @@ def floor_frame(runs: pd.DataFrame) -> pd.DataFrame:
         where the count is minimal, along a and b); ``truth_minimal`` (share of runs where theta* itself
         has the minimal count); ``seconds_per_run``.
     """
-    missing = [c for c in FLOOR_RUN_COLUMNS if c not in runs]
-    if missing:
-        raise SDMInputError(f"floor runs: missing column(s) {missing}; has {list(runs.columns)}")
-    if runs.empty:
-        raise SDMInputError("floor runs: no run")
+    require_columns(runs, FLOOR_RUN_COLUMNS, "floor runs", runs=True)
     rows = []
     for level, group in runs.groupby("level", sort=True):
         mean, half = float(group["distance"].mean()), float(group["half_distance"].mean())

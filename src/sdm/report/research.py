@@ -1,11 +1,9 @@
-"""Beyond the paper: Table 4 (Table 2 per gradient rule) and Table 5 (the shift with depth).
+"""Beyond the paper: Table 4 (Table 2 per gradient rule), the helpers Tables 4 and 5 share, and the report's
+section on both (Table 5, the shift with depth: :mod:`sdm.report.depth`).
 
 Table 4 puts each rule's runs beside the paper's rule's own runs with the same noise draws (Table 2's
 runs ``0 .. runs-1``), the paper's published Table 2 and the bar "half the paper's mean": at most half the
 paper's published mean at each noisy level, at most the paper's noise-free mean (0.682e-3 m) at level 0.
-Table 5 gives, per true depth shift ``c*`` and noise level, the mean absolute errors of ``a``, ``b``
-and ``c`` and the distance to ``theta* = (a*, b*, c*)``, against the depth bar for the noise-free
-runs (``a``, ``b`` within 2e-3 m and ``c`` within 2e-2 m, mean over the runs).
 
 Units: the CSVs keep metres (``*_m``); the Markdown and LaTeX tables show 1e-3 m, like Table 2.
 """
@@ -22,10 +20,7 @@ from ..errors import SDMInputError
 from .. import paper
 from ..train import parse_schedule
 from .io import read_csv
-from .tables import TableFormat, in_millimetres, write_table
-
-#: The depth bar for the noise-free runs (metres): mean |a - a*|, |b - b*| and |c - c*|.
-DEPTH_BAR_M = {"a": 2e-3, "b": 2e-3, "c": 2e-2}
+from .tables import TableFormat, in_millimetres, require_columns, write_table
 
 #: Per-run columns Table 4 needs (``sdm.experiments.rule_noise_runs``; Table 2's runs have no ``flow``).
 RULE_RUN_COLUMNS = ("flow", "level", "run", "distance")
@@ -50,18 +45,6 @@ def reference_rows(baseline_runs: pd.DataFrame | None, floor_runs: pd.DataFrame 
     if not parts:
         return pd.DataFrame(columns=list(RULE_RUN_COLUMNS))
     return pd.concat(parts, ignore_index=True)[list(RULE_RUN_COLUMNS)]
-#: Per-run columns Table 5 needs (``sdm.experiments.DEPTH_RUN_COLUMNS``).
-DEPTH_RUN_COLUMNS = ("c_true", "level", "run", "c", "error_a", "error_b", "error_c", "distance_ab", "distance")
-
-
-def _require(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
-    missing = [c for c in columns if c not in frame]
-    if missing:
-        raise SDMInputError(f"{what}: missing column(s) {missing}; has {list(frame.columns)}")
-    if frame.empty:
-        raise SDMInputError(f"{what}: no run")
-
-
 def half_paper_mean_m(level: int) -> float:
     """The bar "half the paper's mean" on a rule's mean distance at ``level`` (metres): half the paper's published
     Table 2 mean at a noisy level, the paper's own mean noise-free; NaN where the paper has no level."""
@@ -71,7 +54,7 @@ def half_paper_mean_m(level: int) -> float:
     return 1e-3 * published["mean"] * (1.0 if int(level) == 0 else 0.5)
 
 
-def _stats(values: np.ndarray) -> dict[str, float]:
+def run_stats(values: np.ndarray) -> dict[str, float]:
     return {"mean_m": float(values.mean()),
             "std_m": float(values.std(ddof=1)) if values.size > 1 else math.nan,
             "median_m": float(np.median(values))}
@@ -112,17 +95,17 @@ def table4_frame(rule_runs: pd.DataFrame, table2_runs: pd.DataFrame,
         (their number), ``on_cmaes_runs_mean_m`` (the row's mean over them), ``cmaes_mean_m``,
         ``ratio_to_cmaes`` and ``within_2x_cmaes`` (ratio at most :data:`CMAES_FACTOR`).
     """
-    _require(rule_runs, RULE_RUN_COLUMNS, "Table 4 rule runs")
-    _require(table2_runs, ("level", "run", "distance"), "Table 2 runs")
+    require_columns(rule_runs, RULE_RUN_COLUMNS, "Table 4 rule runs", runs=True)
+    require_columns(table2_runs, ("level", "run", "distance"), "Table 2 runs", runs=True)
     reference = table2_runs.set_index(["level", "run"])["distance"]
     search = cmaes_runs.set_index(["level", "run"])["distance"] if cmaes_runs is not None and len(cmaes_runs) else None
     rows = []
     for flow in pd.unique(rule_runs["flow"]):
         for level, group in rule_runs[rule_runs["flow"] == flow].groupby("level", sort=True):
-            ours = _stats(group["distance"].to_numpy(dtype=float))
+            ours = run_stats(group["distance"].to_numpy(dtype=float))
             pairs = pd.MultiIndex.from_arrays([group["level"], group["run"]])
             paired = reference.reindex(pairs).dropna().to_numpy(dtype=float)
-            theirs = _stats(paired) if paired.size else dict.fromkeys(("mean_m", "std_m", "median_m"), math.nan)
+            theirs = run_stats(paired) if paired.size else dict.fromkeys(("mean_m", "std_m", "median_m"), math.nan)
             published = paper.TABLE2.get(int(level), {})
             bar = half_paper_mean_m(level)
             row = {"flow": str(flow), "level": int(level), "runs": int(len(group)), **ours}
@@ -315,7 +298,7 @@ def bias_summary(bias: pd.DataFrame, frame: pd.DataFrame) -> str:
     """Why each rule lands where it does, measured (Markdown): per rule and level, where the mean flow of the
     last level vanishes (:func:`sdm.experiments.rule_bias`: its bias at theta* under noise over its stiffness
     near theta*), beside the rule's measured mean distance in Table 4 (``frame``; Table 2's for ``paper``)."""
-    _require(bias, BIAS_COLUMNS, "the rules' bias")
+    require_columns(bias, BIAS_COLUMNS, "the rules' bias", runs=True)
     lines = []
     for flow in pd.unique(bias["flow"]):
         rows = bias[bias["flow"] == flow].sort_values("level")
@@ -345,8 +328,8 @@ def rules_against_baselines(rule_runs: pd.DataFrame, baseline_runs: pd.DataFrame
         Markdown, one bullet per rule: per level its mean distance and the best baseline's over the
         same runs (1e-3 m), and how many baselines it beats; empty when no (level, run) is shared.
     """
-    _require(rule_runs, RULE_RUN_COLUMNS, "Table 4's runs")
-    _require(baseline_runs, ("method", "level", "run", "distance"), "Table 3's runs")
+    require_columns(rule_runs, RULE_RUN_COLUMNS, "Table 4's runs", runs=True)
+    require_columns(baseline_runs, ("method", "level", "run", "distance"), "Table 3's runs", runs=True)
     lines = []
     for flow in pd.unique(rule_runs["flow"]):
         mine = rule_runs[rule_runs["flow"] == flow]
@@ -372,102 +355,6 @@ def rules_against_baselines(rule_runs: pd.DataFrame, baseline_runs: pd.DataFrame
                        else "does not beat every baseline at every level")
             lines.append(f"- rule `{flow}` beside Table 3's baselines on the same runs {verdict}. Mean distance "
                          f"(1e-3 m): " + "; ".join(parts) + ".")
-    return "\n".join(lines) + "\n" if lines else ""
-
-
-# -- Table 5 ------------------------------------------------------------------------------------------
-
-
-def table5_frame(depth_runs: pd.DataFrame) -> pd.DataFrame:
-    """Table 5: the shift with depth, per true ``c*`` and noise level.
-
-    Args:
-        depth_runs: one row per (c_true, level, run) with :data:`DEPTH_RUN_COLUMNS` (metres).
-
-    Returns:
-        One row per (c_true, level), sorted: ``c_true, level, runs``; the means over the runs of
-        ``error_a_m, error_b_m, error_c_m`` (absolute errors), ``bias_c_m`` (the signed mean of ``c - c*``: positive
-        is too far), ``distance_ab_m`` and ``distance_m``
-        (to ``(a*, b*)`` and to ``(a*, b*, c*)``), ``distance_std_m``; ``meets_bar`` (noise-free
-        rows only, :data:`DEPTH_BAR_M`; ``False`` at noisy levels, where none is set).
-    """
-    _require(depth_runs, DEPTH_RUN_COLUMNS, "Table 5 depth runs")
-    rows = []
-    for (c_true, level), group in depth_runs.groupby(["c_true", "level"], sort=True):
-        row = {"c_true": float(c_true), "level": int(level), "runs": int(len(group))}
-        for column in ("error_a", "error_b", "error_c", "distance_ab", "distance"):
-            row[f"{column}_m"] = float(group[column].mean())
-        row["bias_c_m"] = float((group["c"] - group["c_true"]).mean())
-        row["distance_std_m"] = float(group["distance"].std(ddof=1)) if len(group) > 1 else math.nan
-        row["meets_bar"] = bool(int(level) == 0 and all(row[f"error_{axis}_m"] <= bar for axis, bar in DEPTH_BAR_M.items()))
-        rows.append(row)
-    return pd.DataFrame.from_records(rows)
-
-
-_TABLE5_DISTANCES = ("error_a", "error_b", "error_c", "bias_c", "distance_ab", "distance", "distance_std")
-
-TABLE5_FORMAT = TableFormat(
-    columns=("c_true", "level", "runs", "error_a", "error_b", "error_c", "bias_c", "distance_ab", "distance",
-             "distance_std", "meets_bar"),
-    headers={
-        "c_true": "c* (m)", "level": "noise level", "runs": "runs", "error_a": "|a - a*|", "error_b": "|b - b*|",
-        "error_c": "|c - c*|", "bias_c": "mean c - c*", "distance_ab": "distance in (a, b)",
-        "distance": "distance in (a, b, c)", "distance_std": "std of distance", "meets_bar": "meets bar (noise-free)",
-    },
-    formats={"c_true": "g"} | {c: ".3f" for c in _TABLE5_DISTANCES},
-    caption="Table 5: the shift (a, b, c) with depth, mean absolute errors per true c* and noise level (1e-3 m)",
-    label="tab:table5",
-    notes=(
-        "theta* = (a*, b*, c*); the training set's targets rebuilt for its points moved by theta*; run r at level n "
-        "draws the noise and shuffling of Table 2's run r; (a, b, c) trained from (0, 0, 0) with fit_depth. "
-        "bar (noise-free): mean |a - a*| and |b - b*| at most 2 (1e-3 m), |c - c*| at most 20.",
-    ),
-)
-
-
-def table5_display(frame: pd.DataFrame) -> pd.DataFrame:
-    """Table 5 for Markdown / LaTeX: errors in 1e-3 m under the short names of :data:`TABLE5_FORMAT`."""
-    return in_millimetres(frame, _TABLE5_DISTANCES)
-
-
-def table5_summary(frame: pd.DataFrame) -> str:
-    """Table 5 in plain words (Markdown): the noise-free rows against the depth bar, then the noisy levels."""
-    lines = []
-    for c_true, rows in frame.groupby("c_true", sort=True):
-        parts = []
-        for row in rows.sort_values("level").itertuples():
-            errors = (f"|a - a*| {1e3 * row.error_a_m:.3f}, |b - b*| {1e3 * row.error_b_m:.3f}, "
-                      f"|c - c*| {1e3 * row.error_c_m:.3f}")
-            if row.level == 0:
-                verdict = "meets" if row.meets_bar else "misses"
-                parts.append(f"noise-free {errors} ({verdict} the bar of 2, 2 and 20)")
-            else:
-                parts.append(f"level {row.level} {errors}")
-        runs = ", ".join(sorted({str(int(r)) for r in rows["runs"]}))
-        lines.append(f"- c* = {c_true:g} m ({runs} runs per level), mean errors in 1e-3 m: " + "; ".join(parts) + ".")
-    if not (frame["level"] == 0).any():
-        lines.append("- No noise-free level was run: the depth bar was not checked.")
-    return "\n".join(lines) + "\n"
-
-
-def table5_bias_summary(frame: pd.DataFrame, bias: pd.DataFrame) -> str:
-    """Why ``c`` is biased, in plain words (Markdown): Table 5's signed mean ``c - c*`` beside what
-    :func:`sdm.experiments.depth_bias` measured at theta* (one row per ``flow``, ``c_true``, ``level``, ``zoom``).
-
-    Per c* and noisy level: the measured bias, then each measured rule's predicted fixed point of ``c`` and the
-    share of its depth flow that comes from the points at the edges of the discs, with how often those land on
-    empty blocks against the other points.
-    """
-    lines = []
-    measured = {(float(row.c_true), int(row.level)): row.bias_c_m for row in frame.itertuples()}
-    for (c_true, level), rows in bias[bias["level"] > 0].groupby(["c_true", "level"], sort=True):
-        parts = [f"{row.flow} at zoom {int(row.zoom)}: predicted {1e3 * row.offset_c:+.2f}, "
-                 f"{100 * row.edge_share:.0f}% of its pull from disc edges (their points on empty blocks "
-                 f"{100 * row.unmatched_edge:.1f}%, the others {100 * row.unmatched_inside:.1f}%)"
-                 for row in rows.itertuples()]
-        runs = measured.get((float(c_true), int(level)))
-        head = f"mean c - c* {1e3 * runs:+.2f}" if runs is not None else "no runs"
-        lines.append(f"- c* = {c_true:g} m, level {int(level)} (1e-3 m): {head}; " + "; ".join(parts) + ".")
     return "\n".join(lines) + "\n" if lines else ""
 
 
@@ -497,12 +384,10 @@ def beyond_the_paper(table4: str = "", table4_summary: str = "", table5: str = "
 # -- writing and figures ------------------------------------------------------------------------------
 
 
-def write_research_table(frame: pd.DataFrame, stem: str | Path, which: int) -> list[Path]:
-    """``stem.csv`` (metres, full precision), ``stem.md`` and ``stem.tex`` (1e-3 m) of Table 4 or 5, atomically."""
-    if which not in (4, 5):
-        raise SDMInputError(f"which must be 4 or 5 (the table), got {which!r}")
-    shown, style = (table4_display(frame), TABLE4_FORMAT) if which == 4 else (table5_display(frame), TABLE5_FORMAT)
-    return write_table(frame, stem, style, shown)
+def write_table4(frame: pd.DataFrame, stem: str | Path) -> list[Path]:
+    """``stem.csv`` (metres, full precision), ``stem.md``, ``stem.tex`` and ``stem.html`` (1e-3 m) of Table 4,
+    atomically."""
+    return write_table(frame, stem, TABLE4_FORMAT, table4_display(frame))
 
 
 def rules_figure(frame: pd.DataFrame):
@@ -547,32 +432,4 @@ def rules_figure(frame: pd.DataFrame):
     ax.set_title("Table 4: Table 2 per gradient rule (same noise draws)", fontsize=10)
     ax.legend(fontsize=7)
     ax.grid(True, which="both", alpha=0.3)
-    return fig
-
-
-def depth_figure(frame: pd.DataFrame):
-    """Mean absolute errors of a, b (1e-3 m) and c (1e-2 m) per noise level, one line per true c*.
-
-    Args:
-        frame: :func:`table5_frame`.
-
-    Returns:
-        A matplotlib figure with three panels, the noise-free depth bar dashed.
-    """
-    from .figures import plt
-
-    fig, axes = plt.subplots(1, 3, figsize=(13.5, 4.2), constrained_layout=True)
-    colours = plt.get_cmap("tab10")
-    for ax, (axis, scale, unit) in zip(axes, (("a", 1e3, "1e-3 m"), ("b", 1e3, "1e-3 m"), ("c", 1e2, "1e-2 m"))):
-        for i, (c_true, rows) in enumerate(frame.groupby("c_true", sort=True)):
-            rows = rows.sort_values("level")
-            ax.plot(rows["level"], scale * rows[f"error_{axis}_m"], marker="o", color=colours(i), label=f"c* = {c_true:g} m")
-        ax.axhline(scale * DEPTH_BAR_M[axis], ls="--", color="grey", lw=0.8, label="bar (noise-free)")
-        ax.set_yscale("log")
-        ax.set_xticks(sorted(frame["level"].unique()))
-        ax.set_xlabel("noise level n (pixels)")
-        ax.set_ylabel(f"mean |{axis} - {axis}*| ({unit})")
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0].legend(fontsize=7)
-    fig.suptitle("Table 5: the shift (a, b, c) with depth", fontsize=11)
     return fig

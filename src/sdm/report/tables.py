@@ -86,7 +86,7 @@ def table1_frame(grid: pd.DataFrame) -> pd.DataFrame:
         cells tie on the lowest dev loss, also ``tied`` (those cells) and ``train_loss``: a
         tie-free table is what it was before ties were marked.
     """
-    _require(grid, ("n_epoch", "lr", "dev_loss"), "tuning grid")
+    require_columns(grid, ("n_epoch", "lr", "dev_loss"), "tuning grid")
     if grid.empty:
         raise SDMInputError("tuning grid: no cell")
     frame = grid.sort_values(["n_epoch", "lr"]).reset_index(drop=True)
@@ -135,7 +135,7 @@ def table2_frame(distances: pd.DataFrame, avg_dist_mm: dict[int, float]) -> pd.D
         ``mean, std, q1, q2, q3`` our value and ``paper_<stat>`` (1e-3 m), and ``mean_ratio``
         (ours / paper). ``std`` is the sample standard deviation; quartiles interpolate linearly.
     """
-    _require(distances, ("level", "distance"), "noise distances")
+    require_columns(distances, ("level", "distance"), "noise distances")
     if distances.empty:
         raise SDMInputError("noise distances: no run")
     rows = []
@@ -336,10 +336,14 @@ def _rows(frame: pd.DataFrame, columns: Sequence[str]):
     return zip(*(frame[c].tolist() for c in columns))
 
 
-def _require(frame: pd.DataFrame, columns: Sequence[str], what: str) -> None:
+def require_columns(frame: pd.DataFrame, columns: Sequence[str], what: str, *, runs: bool = False) -> None:
+    """:class:`SDMInputError` naming ``what`` where ``frame`` lacks one of ``columns``; with ``runs``, also where it
+    holds no row (a table of runs without a run)."""
     missing = [c for c in columns if c not in frame]
     if missing:
         raise SDMInputError(f"{what}: missing column(s) {missing}; has {list(frame.columns)}")
+    if runs and frame.empty:
+        raise SDMInputError(f"{what}: no run")
 
 
 def _md_escape(text: str) -> str:
