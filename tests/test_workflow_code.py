@@ -229,8 +229,8 @@ def test_a_library_edit_reruns_the_stages_that_run_it(touched_project, expected_
     assert jobs == expected, (library_file, jobs, expected)
 
 
-def test_cmaes_and_flow_edits_rerun_what_docs_workflow_md_says(touched_project, expected_plans):
-    """The two edits docs/workflow.md spells out: sdm/baselines/cmaes.py reruns Table 3's stages (every method's
+def test_cmaes_and_flow_edits_rerun_what_docs_maintaining_md_says(touched_project, expected_plans):
+    """The two edits docs/maintaining.md spells out: sdm/baselines/cmaes.py reruns Table 3's stages (every method's
     jobs: the notebook imports sdm.baselines, which imports every method), the floor (its search is CMA-ES's)
     and what reads them (Table 4, the report), Table 6's stages (their baselines per configuration search as
     CMA-ES does), Table 7's (sdm.network runs CMA-ES per configuration and the image losses), never Tables 1-2;
@@ -250,7 +250,7 @@ def test_cmaes_and_flow_edits_rerun_what_docs_workflow_md_says(touched_project, 
     ("src/sdm/mapping/flow.py", None),  # a docstring edited
 ])
 def test_comments_docstrings_and_layout_rerun_nothing(touched_project, library_file, text):
-    """Only code counts (docs/workflow.md): a comment, blank lines or a docstring edit plan no job."""
+    """Only code counts (docs/maintaining.md): a comment, blank lines or a docstring edit plan no job."""
     project, _ = touched_project
     path = project / library_file
     original = path.read_text()
@@ -365,9 +365,9 @@ def test_no_library_code_reads_a_docstring():
     assert not offenders
 
 
-def test_the_module_table_of_docs_workflow_md_is_current():
-    """docs/workflow.md's module-to-stages table is what `python workflow/scripts/code_deps.py table` prints."""
-    docs = (ROOT / "docs" / "workflow.md").read_text()
+def test_the_module_table_of_docs_maintaining_md_is_current():
+    """docs/maintaining.md's module-to-stages table is what `python workflow/scripts/code_deps.py table` prints."""
+    docs = (ROOT / "docs" / "maintaining.md").read_text()
     table = code_deps.module_table()
     assert table in docs, "regenerate it: python workflow/scripts/code_deps.py table"
 

@@ -28,7 +28,7 @@ Which modules a notebook reaches follows Python's import semantics: ``import sdm
 count (they run when the function is called). ``sdm/__init__.py`` imports the layer, training
 and metrics, so every notebook reaches those.
 
-    python workflow/scripts/code_deps.py table   # the module-to-stages table of docs/workflow.md
+    python workflow/scripts/code_deps.py table   # the module-to-stages table of docs/maintaining.md
 """
 from __future__ import annotations
 
@@ -259,7 +259,7 @@ def fingerprint(notebook: str) -> str:
     return hashlib.sha256(lines.encode()).hexdigest()
 
 
-# -- the table of docs/workflow.md ---------------------------------------------------------------------
+# -- the table of docs/maintaining.md ------------------------------------------------------------------
 
 def stage_notebooks() -> dict[str, str]:
     """Stage -> the notebook it runs (``notebooks/<stage>.py``: one notebook per stage), from the
@@ -274,7 +274,7 @@ def stage_notebooks() -> dict[str, str]:
 
 
 def module_table() -> str:
-    """The Markdown table of docs/workflow.md: every library file, and the stages whose notebook runs it."""
+    """The Markdown table of docs/maintaining.md: every library file, and the stages whose notebook runs it."""
     stages = stage_notebooks()
     library = sorted(_relative(path) for path in (ROOT / "src" / PACKAGE).rglob("*")
                      if path.is_file() and "__pycache__" not in path.parts)
