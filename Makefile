@@ -55,15 +55,15 @@ sanitize: install
 	ASAN_OPTIONS=detect_leaks=0:halt_on_error=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \
 	sh -c '$(BIN)/python tests/sanitized_kernel.py && $(BIN)/pytest -p no:cacheprovider --capture=sys -q $(SANITIZE_TESTS)'
 
-# The CPU figures, then the GPU section (benchmarks/bench_gpu.py: it says so and stops where CUDA is missing).
+# The CPU figures, then the GPU section (benchmarks/speed/bench_gpu.py: it says so and stops where CUDA is missing).
 bench: install
-	$(BIN)/python benchmarks/bench_sdm.py
-	$(BIN)/python benchmarks/bench_gpu.py
+	$(BIN)/python benchmarks/speed/bench_sdm.py
+	$(BIN)/python benchmarks/speed/bench_gpu.py
 
 # docs/results/timing.md, rewritten whole: `make run`, `make bench` and `make test` timed one after another on a
-# fresh clone of HEAD (install included), and the run's per-job times (benchmarks/timing.py; about 30 minutes).
+# fresh clone of HEAD (install included), and the run's per-job times (benchmarks/tools/timing.py; about 30 minutes).
 timing:
-	$(PYTHON) benchmarks/timing.py
+	$(PYTHON) benchmarks/tools/timing.py
 
 report: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/snakemake --profile profiles/default --report report.html

@@ -34,7 +34,7 @@ def test_calibration_notebook_runs(tmp_path, apollo_sample):
     import subprocess
     import sys
 
-    source = (ROOT / "benchmarks" / "calibration.py").read_text()
+    source = (ROOT / "benchmarks" / "studies" / "calibration.py").read_text()
     marker = '# %% tags=["parameters"]\n'
     head, rest = source.split(marker, 1)
     overrides = (f"apollo_sample = {str(apollo_sample)!r}\nn_images = 300\nn_sample = 200\n"

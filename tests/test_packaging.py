@@ -202,3 +202,7 @@ def test_the_benchmarks_folder_holds_source_only():
     files = listed.stdout.split()
     assert len(files) >= 10
     assert [name for name in files if not name.endswith((".py", ".md"))] == []
+    # each script in the folder that says what it is: a speed benchmark, a study (measurements that chose a
+    # setting or explain a result), or a tool
+    assert [name for name in files if name.endswith(".py")
+            and name.split("/")[1] not in ("speed", "studies", "tools")] == []

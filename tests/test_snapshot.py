@@ -37,7 +37,7 @@ def test_a_number_the_snapshot_does_not_hold_fails_the_check(tmp_path):
                       "Held: 45.47e-3 m, 1.8x, 24.97-45.47e-3 m.\n")
     docs = tmp_path / "method.md"
     docs.write_text("The default run's Table 2 gives 123.457e-3 m at level 2.\n\nUnrelated: 123.457e-3 m.\n\n"
-                    "`benchmarks/flow_rules.py` gives 123.457e-3 m.\n")
+                    "`benchmarks/studies/flow_rules.py` gives 123.457e-3 m.\n")
     found = snapshot.unheld_numbers([readme, docs], values, {readme})
     assert found == [f"{readme}:1: 123.457e-3 m", f"{readme}:3: 97.5x", f"{docs}:1: 123.457e-3 m"]
 

@@ -183,7 +183,7 @@ def test_calibration_on_1000_images(calibration_set):
 
 @pytest.mark.slow
 def test_default_sky_dataset_statistics():
-    """The full default: 5,277 images, 4,248 configurations (build time: benchmarks/bench_sdm.py)."""
+    """The full default: 5,277 images, 4,248 configurations (build time: benchmarks/speed/bench_sdm.py)."""
     images = synthetic_images(5277, seed=0)
     configurations = build_sky_dataset(images, progress=False)
     assert len(configurations) == 4248

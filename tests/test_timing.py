@@ -1,11 +1,11 @@
-"""benchmarks/timing.py (``make timing``): the page it writes from measured commands and Snakemake's benchmark files."""
+"""benchmarks/tools/timing.py (``make timing``): the page it writes from measured commands and Snakemake's benchmark files."""
 from __future__ import annotations
 
 import importlib.util
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-_spec = importlib.util.spec_from_file_location("timing", ROOT / "benchmarks" / "timing.py")
+_spec = importlib.util.spec_from_file_location("timing", ROOT / "benchmarks" / "tools" / "timing.py")
 timing = importlib.util.module_from_spec(_spec)
 _spec.loader.exec_module(timing)
 

@@ -41,7 +41,7 @@ from .train import Refinement, TrainSettings, parse_schedule, refine_runs, train
 #: there (a chunk of 30 runs of 512 configurations is about 0.7 GB). On a CPU the compiled kernel
 #: (:mod:`sdm.mapping.native`) costs per point, not per operation, so packing buys little: groups of 4
 #: were 1.3x faster per run than one run at a time, one group of 30 was 0.76x (working set out of the
-#: core's cache; ``benchmarks/bench_sdm.py``; again for 8 runs of 512 configurations at level 2, CPU
+#: core's cache; ``benchmarks/speed/bench_sdm.py``; again for 8 runs of 512 configurations at level 2, CPU
 #: seconds: 4 1.21x, 8 1.19x). 4 is that measured optimum, and its memory is small.
 NOISE_GROUP_SIZE = 4
 

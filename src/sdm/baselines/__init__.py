@@ -26,7 +26,7 @@ over 10 runs moves from 11.2 to 15.1 and from 16.9 to 18.1 e-3 m). The noise run
 :func:`baseline_noise_runs`), each run bit-identical to its single fit; on one CPU core that shares little,
 for SDM (about 1.2x, docs/method/fast-path.md) as for the gradient baselines, whose steps are dominated by
 arithmetic on their dense per-step tensors (nearest-neighbour matrices, splatted cells, Sinkhorn
-kernels) rather than by per-operation overhead (``benchmarks/bench_baselines.py`` measures both
+kernels) rather than by per-operation overhead (``benchmarks/speed/bench_baselines.py`` measures both
 ways; the ``seconds_per_run`` of Table 3 is the batched cost).
 
 :func:`tune` scores a grid of settings by the dev loss of Table 1 (:func:`sdm.metrics.dev_loss`:

@@ -126,7 +126,7 @@ def fit_runs(train_sets: Sequence[ConfigurationSet], settings: ChamferSettings =
 
     Each step stacks the runs' mini-batches into one ``(R x batch_size)``-configuration batch (one
     ``cdist``, one backward), which shares the per-operation overhead of the steps (on one CPU core
-    only 1.4x per run: the nearest-neighbour arithmetic dominates, ``benchmarks/bench_baselines.py``); each run keeps its own theta, Adam state and generator (:func:`staged_adam_runs`).
+    only 1.4x per run: the nearest-neighbour arithmetic dominates, ``benchmarks/speed/bench_baselines.py``); each run keeps its own theta, Adam state and generator (:func:`staged_adam_runs`).
 
     Args:
         train_sets: ``R`` sets with the same points, offsets and camera (tensors on one device),

@@ -26,7 +26,7 @@ pixel's entry, and only the point that reads its own number back counts. ``w + 1
 number share one int16 entry per padded pixel (one cache line for the write and the read: an
 evaluation is bound by memory latency). Nothing of size ``N x H x W`` is zeroed or counted per
 evaluation: on the default data an evaluation inside a search costs a fifth to a sixth of the
-straightforward count's CPU time (2.0-2.8 ms against 12.2 ms, one thread; benchmarks/bench_cmaes.py).
+straightforward count's CPU time (2.0-2.8 ms against 12.2 ms, one thread; benchmarks/speed/bench_cmaes.py).
 
 Compiled (:func:`sdm.baselines.cmaes_native.pixel_mismatch`, ``sdm_pixel_mismatch`` in ``_native.c``): the
 same groups, the same float operations for each group's shift and its trust check, then one loop
@@ -39,7 +39,7 @@ shifts alone, and near convergence most candidates shift most configurations ali
 the torch count's integers (tests/test_baselines_cmaes.py holds both paths to the straightforward
 count and to each other). On the default data a search costs 0.39 CPU ms per evaluation against
 the torch count's 1.04 (pycma and the per-run set-up included; 0.097 against 0.257 s per run, one
-thread, 10 runs at level 2: benchmarks/bench_cmaes.py, 2026-12-03). Where the kernel is not available (no C
+thread, 10 runs at level 2: benchmarks/speed/bench_cmaes.py, 2026-12-03). Where the kernel is not available (no C
 compiler, ``SDM_NATIVE=0``, CUDA tensors) the torch count runs, one candidate at a time.
 
 Exactness: the shared shift equals each point's own ``floor`` (as computed by

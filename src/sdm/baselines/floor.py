@@ -37,7 +37,7 @@ Stability is built in: the result also holds the floor of the search's state aft
 ``restarts / 2`` restarts (steps 2-3 from that state's best), i.e. of half the budget, so a caller can
 tell how far doubling the budget moves the floor without a second search.
 
-Cost and stability on the default data (512 configurations, one thread; benchmarks/floor_budget.py, runs
+Cost and stability on the default data (512 configurations, one thread; benchmarks/studies/floor_budget.py, runs
 0..4 per level, on a loaded machine): a count is 0.5-0.9 ms; pycma stops on its own (flat fitness) after
 250-450 counts per run, well before a 2,400 budget; with the default 4 restarts a floor costs 1,300-1,550
 counts, 0.9-1.1 CPU s per run. Doubling the budget (the half floor against the full one) moves no mean

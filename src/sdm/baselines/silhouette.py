@@ -177,7 +177,7 @@ def fit_runs(train_sets: Sequence[ConfigurationSet], settings: SilhouetteSetting
     Each step splats the runs' mini-batches as one batch of ``R x batch_size`` silhouettes (run
     ``r``'s points shifted by its own ``theta[r]``), which shares the per-operation overhead of a
     single run's steps (on one CPU core no faster per run: the splatting arithmetic dominates,
-    ``benchmarks/bench_baselines.py``); each run keeps its own theta, Adam state and generator
+    ``benchmarks/speed/bench_baselines.py``); each run keeps its own theta, Adam state and generator
     (:func:`~sdm.baselines.common.staged_adam_runs`).
 
     Args:

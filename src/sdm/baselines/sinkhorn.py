@@ -103,7 +103,7 @@ def fit_runs(train_sets: Sequence[ConfigurationSet], settings: SinkhornSettings 
     Each step solves the OT problems of all runs' mini-batches as one geomloss batch of
     ``R x batch_size`` problems (each problem is solved on its own: geomloss's batch axis never
     mixes), which shares the per-operation overhead of the epsilon-scaling loop (on one CPU
-    core 1.2x per run: geomloss's log-sum-exp dominates, ``benchmarks/bench_baselines.py``); each run keeps its
+    core 1.2x per run: geomloss's log-sum-exp dominates, ``benchmarks/speed/bench_baselines.py``); each run keeps its
     own theta, Adam state and generator (:func:`~sdm.baselines.common.staged_adam_runs`).
 
     Args:

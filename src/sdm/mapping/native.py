@@ -2,7 +2,7 @@
 
 On the CPU the fast path's cost is not the arithmetic but the passes over memory:
 every level runs some twenty torch operations over all points, each a full pass
-plus dispatch (``benchmarks/bench_sdm.py`` measures it). ``_native.c`` does each
+plus dispatch (``benchmarks/speed/bench_sdm.py`` measures it). ``_native.c`` does each
 level in one loop over the points and the paper's flow in one more, with the same
 integer arithmetic and the same floating-point operations in the same order as
 :func:`~sdm.mapping.fast.fast_mapping`'s level loop and

@@ -13,7 +13,7 @@ Each is a :class:`~sdm.mapping.rules.Rule` (``experiment=True``, no compiled for
 :data:`sdm.mapping.rules.RULES` when :mod:`sdm.mapping` is imported; :data:`RESEARCH_RULES` is the registry's
 view of them. Selecting one: by name wherever a rule is named (``TrainSettings(flow="closed")``,
 ``SpatialDomainMapping(flow="closed")``, ``research.rules.names`` of the workflow,
-``benchmarks/flow_rules.py --rules``), or as the object itself
+``benchmarks/studies/flow_rules.py --rules``), or as the object itself
 (``SpatialDomainMapping(flow=RESEARCH_RULES["nearest"])``).
 
 Shapes and signature: those of :mod:`sdm.mapping.rules`.

@@ -278,7 +278,7 @@ def parse_schedule(name: str) -> tuple[str, Refinement | None]:
     their rates, and ``group_crossing``'s kernel half-widths narrowing to 2e-3 m on the last pass
     (:attr:`Refinement.widths`: 16, 8, 4, 2e-3 m for ``:4``).
 
-    Table 4 (``research.rules.names``) and ``benchmarks/flow_rules.py --rules`` name schedules this way.
+    Table 4 (``research.rules.names``) and ``benchmarks/studies/flow_rules.py --rules`` name schedules this way.
 
     Returns:
         ``(flow, refinement)``: the schedule's rule and its :class:`Refinement`, or ``None``.

@@ -11,7 +11,7 @@ Prints, per loss, each setting's largest difference of the predicted shifts (met
 first setting's (the reference), and whether a second run of the reference gave the same bits. A setting the
 processor lacks is reported as such by torch (it falls back) and shown.
 
-    python benchmarks/network_determinism.py [--configs 256] [--epochs 3] [--losses sdm_recommended silhouette]
+    python benchmarks/studies/network_determinism.py [--configs 256] [--epochs 3] [--losses sdm_recommended silhouette]
 """
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ import sys
 import tempfile
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 #: One training in its own process: argv = out.pt configs epochs threads losses...
 TRAIN = """

@@ -1,6 +1,6 @@
 """Seconds per run of the Table 3 baselines: R runs one after another against R runs as one program.
 
-    PYTHONPATH=src python benchmarks/bench_baselines.py SKY.bin SPLIT.json [--runs 60] [--level 2]
+    PYTHONPATH=src python benchmarks/speed/bench_baselines.py SKY.bin SPLIT.json [--runs 60] [--level 2]
         [--methods silhouette,chamfer,sinkhorn,cmaes] [--tuning-dir DIR] [--sequential-runs N]
 
 For each method: runs ``r = 0..R-1`` at noise level ``L`` with Table 2's noisy targets (seed

@@ -1,6 +1,6 @@
 """Table 2 per gradient rule, and each rule's flow at theta* (docs/method/rules.md).
 
-    PYTHONPATH=src python benchmarks/flow_rules.py SKY.bin SPLIT.json [--rules paper,closed_centred_r1] [--runs 20] [--levels 0,1,2,3,4]
+    PYTHONPATH=src python benchmarks/studies/flow_rules.py SKY.bin SPLIT.json [--rules paper,closed_centred_r1] [--runs 20] [--levels 0,1,2,3,4]
 
 On another run's data (the real sample: results/apollocar3d-sample/...), ``--best BEST.json`` trains with that
 run's Table 1 choice instead of the default's, and ``--cmaes TUNING.csv`` adds CMA-ES (that run's tuned cell) on

@@ -1,6 +1,6 @@
 """Seconds per CMA-ES run (Table 3's ``cmaes`` baseline): the straightforward count against the fast ones.
 
-    PYTHONPATH=src python benchmarks/bench_cmaes.py SKY.bin SPLIT.json [--tuning TUNING_CMAES.csv] [--level 2] [--runs 20]
+    PYTHONPATH=src python benchmarks/speed/bench_cmaes.py SKY.bin SPLIT.json [--tuning TUNING_CMAES.csv] [--level 2] [--runs 20]
 
 Protocol: the training set of the split; the tuned settings (the row of the tuning CSV with
 ``best`` True, else the defaults); the noisy targets and seeds of Table 2's runs

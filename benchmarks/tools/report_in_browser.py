@@ -1,6 +1,6 @@
 """Open `make report`'s page in a real browser and check that every figure and table shows.
 
-    python benchmarks/report_in_browser.py report.html SCREENSHOTS_DIR [--browser chromium]
+    python benchmarks/tools/report_in_browser.py report.html SCREENSHOTS_DIR [--browser chromium]
 
 Starts the browser headless with its DevTools protocol (Chromium or Chrome; tornado, installed with the
 workflow's Jupyter, speaks the protocol's websocket), opens the page, and for each result category

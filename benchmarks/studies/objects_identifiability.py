@@ -1,6 +1,6 @@
 """A car's exact-match set of shifts per screen scale, and what each disc rule costs (docs/method/objects.md).
 
-    PYTHONPATH=src python benchmarks/objects_identifiability.py SKY SPLIT [--config config.yaml] [--scales 1 2 4 8]
+    PYTHONPATH=src python benchmarks/studies/objects_identifiability.py SKY SPLIT [--config config.yaml] [--scales 1 2 4 8]
         [--first 8] [--configurations 16] [--runs 1] [--seed 1000] [--disc pixels] [--out FILE]
 
 Protocol: training configurations ``first .. first + configurations - 1`` of SKY and SPLIT (Table 6 takes the

@@ -1,6 +1,6 @@
 """Depth table: train (a, b, c) on a Sky split's training set retargeted to theta* = (a, b, c).
 
-    PYTHONPATH=src python benchmarks/depth.py SKY.bin SPLIT.json [--depths -1,0.5,1] [--levels 0] [--runs 20] [--flow paper]
+    PYTHONPATH=src python benchmarks/studies/depth.py SKY.bin SPLIT.json [--depths -1,0.5,1] [--levels 0] [--runs 20] [--flow paper]
         [--depth-lr-scale 20] [--depth-zoom 1] [--epochs 2] [--group 20] [--csv runs.csv]
 
 Run r at noise level n: targets of the shift (0.517, 0.303, c) (``sdm.depth.depth_targets``), moved by

@@ -19,14 +19,14 @@ Prints, in one run on one thread:
     configurations, the tuned settings of the default workflow (n_epoch 2, lr 1e-4),
     batched with the default group size, compiled; and the torch path's time for them,
     extrapolated from one group per level, with the ratio;
-  * the GPU's figures are ``benchmarks/bench_gpu.py``'s (``make bench`` runs both).
+  * the GPU's figures are ``benchmarks/speed/bench_gpu.py``'s (``make bench`` runs both).
 
 Times are given as wall seconds and as CPU seconds of this process (the
 latter is what one core spends, whatever else runs on the machine). Ratios are
 measured in the same run, so they hold on a noisy machine; the absolute figures
 are for reading, never for asserting.
 
-    python benchmarks/bench_sdm.py [--configs 512] [--seed 0] [--train-repeats 20] [--runs 30] [--table2-runs 60]
+    python benchmarks/speed/bench_sdm.py [--configs 512] [--seed 0] [--train-repeats 20] [--runs 30] [--table2-runs 60]
                                    [--json out.json]
 """
 from __future__ import annotations
@@ -249,7 +249,7 @@ def main() -> None:
           f"against {per_car['still_shared_ms']:.1f} ms, {per_car['still_ratio']:.2f}x")
 
     many, tables = [], []
-    for device in ["cpu"]:  # the GPU's figures: benchmarks/bench_gpu.py
+    for device in ["cpu"]:  # the GPU's figures: benchmarks/speed/bench_gpu.py
         many.append(runs_together_vs_alone(data, args.runs, device))
         report_runs(many[-1])
         if args.table2_runs:

@@ -5,7 +5,7 @@ The default run pairs Table 4's 60 runs per level with Table 3's CMA-ES on runs 
 the time budget). This runs CMA-ES (the default run's tuned settings) on every run a rule's files hold and
 prints both means per level and their ratio, measured in one run:
 
-    PYTHONPATH=src python benchmarks/against_cmaes.py results/sky/sky.bin results/split/split.json \\
+    PYTHONPATH=src python benchmarks/studies/against_cmaes.py results/sky/sky.bin results/split/split.json \\
         results/baselines/tuning_cmaes.csv 'results/research/rules/closed_centred_r1_then_group_crossing_x4_level*.csv'
 """
 from __future__ import annotations

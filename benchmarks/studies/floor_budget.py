@@ -1,6 +1,6 @@
 """The floor per noise level (sdm.baselines.floor), its stability under doubling and its cost.
 
-    PYTHONPATH=src python benchmarks/floor_budget.py results/sky/sky.bin results/split/split.json \
+    PYTHONPATH=src python benchmarks/studies/floor_budget.py results/sky/sky.bin results/split/split.json \
         [--levels 0 1 2 3 4] [--runs 5] [--seed 0] [--restarts 4] [--budget 2400] [--csv out.csv]
 
 Protocol: the training set of the split; the paired runs ``(level, r)``, r = 0..R-1, of every table

@@ -1,6 +1,6 @@
 """Table 6's runs on configurations and seeds no table holds, at a screen scale (docs/method/objects.md).
 
-    PYTHONPATH=src python benchmarks/objects_dev.py SKY SPLIT [--config config.yaml] [--scale 1] [--disc pixels]
+    PYTHONPATH=src python benchmarks/studies/objects_dev.py SKY SPLIT [--config config.yaml] [--scale 1] [--disc pixels]
         [--sharing car] [--levels 0 2] [--runs 3] [--first 8] [--configurations 8] [--seed 1000]
         [--methods sdm_paper sdm_schedule cmaes cmaes_car floor] [--sigma0 S] [--penalty W] [--rows LR N_EPOCH S]
 

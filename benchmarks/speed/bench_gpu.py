@@ -21,7 +21,7 @@ Prints, in one run, where ``torch.cuda.is_available()`` (else one line saying so
 ``--json`` writes the figures; ``--markdown`` writes them as the tables of a Markdown page.
 Timings are for reading, never for asserting; the ratios are measured in this one run.
 
-    python benchmarks/bench_gpu.py [--author-layer smap.py] [--json out.json] [--markdown out.md]
+    python benchmarks/speed/bench_gpu.py [--author-layer smap.py] [--json out.json] [--markdown out.md]
 """
 from __future__ import annotations
 

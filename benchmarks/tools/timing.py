@@ -1,12 +1,12 @@
 """How long the main commands take on a fresh clone: writes docs/results/timing.md (``make timing``).
 
-    python benchmarks/timing.py [--clone DIR] [--keep]
+    python benchmarks/tools/timing.py [--clone DIR] [--keep]
 
 Clones the committed HEAD of this repository into a temporary folder (or ``--clone DIR``, which must not
 exist), then runs there, one after another, each under a wall clock:
 
 1. ``make run``   (creates the clone's ``.venv`` first: the install is part of its time);
-2. ``make bench`` (the layer's speed, ``benchmarks/bench_sdm.py``);
+2. ``make bench`` (the layer's speed, ``benchmarks/speed/bench_sdm.py``);
 3. ``make test``  (the test suite).
 
 It then reads the default run's per-job times from the clone's ``results/benchmarks/<job>.tsv`` (Snakemake's
@@ -32,7 +32,7 @@ import tempfile
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 OUTPUT = ROOT / "docs" / "results" / "timing.md"
 #: The commands timed, in the order they run (the first installs the clone's environment).
 COMMANDS = ("make run", "make bench", "make test")
@@ -84,7 +84,7 @@ def page(results: list[dict], jobs: list[tuple[str, float, float]], commit: str,
     lines = [
         "# How long the commands take",
         "",
-        "Written by `make timing` (`benchmarks/timing.py`); do not edit by hand. History lives in git.",
+        "Written by `make timing` (`benchmarks/tools/timing.py`); do not edit by hand. History lives in git.",
         "",
         f"- Commit: `{commit}`, cloned fresh (`git clone`), each command run there in turn.",
         f"- Date: {date} (UTC).",

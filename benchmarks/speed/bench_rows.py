@@ -1,6 +1,6 @@
 """CPU seconds per configuration of CMA-ES on per-row shifts, against the number of cars per image.
 
-    PYTHONPATH=src python benchmarks/bench_rows.py [--cars 1 2 4 8] [--configs 12] [--default 36] [--floor]
+    PYTHONPATH=src python benchmarks/speed/bench_rows.py [--cars 1 2 4 8] [--configs 12] [--default 36] [--floor]
 
 Protocol: one thread, one process. For each ``K`` of ``--cars``: ``--configs`` images of ``K`` cars on a
 screen grid (``tests/sharing_scenes.py``: discs apart, depths 12-60 m), one row per car, theta* drawn
@@ -28,7 +28,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import torch  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
 
 from sharing_scenes import car_grid_scene, set_with_cars  # noqa: E402
 

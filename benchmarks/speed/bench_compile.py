@@ -6,7 +6,7 @@ Prints, in one run on one CPU thread, for the layer's loss at zoom 1 on a batch 
 with the default inductor backend (and its first, compiling call). Ratios are measured in the same run;
 the absolute figures are for reading.
 
-    python benchmarks/bench_compile.py [--steps 200]
+    python benchmarks/speed/bench_compile.py [--steps 200]
 """
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ from pathlib import Path
 
 import torch
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
 from scenes import configuration_set  # noqa: E402
 
 from sdm.mapping import SpatialDomainMapping  # noqa: E402

@@ -7,7 +7,7 @@ alternating, and prints the median of each and their ratio; then the same for th
 stage's whole read (``load_split``: decode + the train and dev ``ConfigurationSet``).
 One thread. Ratios are measured in the same run; the absolute figures are for reading only.
 
-    python benchmarks/bench_sky_verify.py [--sky results/sky/sky.bin] [--repeats 7]
+    python benchmarks/speed/bench_sky_verify.py [--sky results/sky/sky.bin] [--repeats 7]
 
 Without ``--sky`` it builds the default-size file in a temporary folder first (about 15 s).
 """
