@@ -170,7 +170,7 @@ def test_noise_runs_of_a_method_without_fit_runs_fit_each_run_alone(monkeypatch)
 def test_sdm_batched_equals_its_single_runs(monkeypatch):
     """sdm_layer.fit_runs is one train_runs call over its runs (the grouping is baseline_noise_runs'), run for run
     fit()."""
-    from sdm import experiments
+    from sdm.experiments import runs as experiments
     from sdm.baselines import sdm_layer
     from sdm.train import TrainSettings
 

@@ -26,7 +26,6 @@ MAX_FUNCTION_LINES = 80  # docstring excluded
 #: Files over MAX_FILE_LINES, with their line count today: they may only shrink.
 OVERSIZED_FILES = {
     "baselines/cmaes.py": 573,
-    "experiments.py": 518,
     "network.py": 664,
     "sharing.py": 527,
 }

@@ -227,7 +227,7 @@ def test_noise_runs_equal_single_noise_runs(sky768, flow):
 
 def test_paired_runs_pack_group_size_runs_per_train_runs_call(sky768, monkeypatch):
     """Table 2's and Table 5's runs go group_size at a time through one train_runs call each."""
-    from sdm import experiments
+    from sdm.experiments import runs as experiments
 
     calls = []
     original = experiments.train_runs
