@@ -150,7 +150,7 @@ def test_dense_reference_in_the_large_c_limit_equals_the_fast_path(seed, zoom, a
     points = shifted(batch, (a, b))
     target = zoom_out(batch.targets, zoom)
     fast = fast_mapping(points, batch.pixels, batch.config, batch.rank, target, 4, zoom, CAM)
-    dense = dense_mapping(points, batch.pixels, batch.config, batch.rank, target, 4, zoom, CAM, c=1e9)
+    dense = dense_mapping(points, batch.pixels, batch.config, batch.rank, target, 4, zoom, CAM, sharpness=1e9)
     assert torch.equal(fast.out_pixels, dense.out_pixels)
     assert torch.equal(fast.entered, dense.entered) and torch.equal(fast.matched, dense.matched)
     assert torch.equal(fast.landed, dense.landed)
@@ -159,13 +159,14 @@ def test_dense_reference_in_the_large_c_limit_equals_the_fast_path(seed, zoom, a
     assert float(fast.loss) == pytest.approx(float(dense.loss), rel=1e-9, abs=1e-9)
 
 
-def test_dense_output_converges_to_the_fast_path_as_c_grows():
+def test_dense_output_converges_to_the_fast_path_as_its_sharpness_grows():
     batch = ConfigurationSet.from_configurations(configurations(2, 5)).batch(range(2))
     points = shifted(batch, (0.31, 0.17))
     fast = fast_mapping(points, batch.pixels, batch.config, batch.rank, batch.targets, 4, 0, CAM)
     differing = []
-    for c in (3.0, 30.0, 300.0, 3e3, 1e9):
-        dense = dense_mapping(points, batch.pixels, batch.config, batch.rank, batch.targets, 4, 0, CAM, c=c)
+    for sharpness in (3.0, 30.0, 300.0, 3e3, 1e9):
+        dense = dense_mapping(points, batch.pixels, batch.config, batch.rank, batch.targets, 4, 0, CAM,
+                              sharpness=sharpness)
         differing.append(int((dense.out_pixels != fast.out_pixels).any(1).sum()))
     assert differing[0] > 0 and differing[-1] == 0
     assert differing == sorted(differing, reverse=True)
@@ -219,7 +220,7 @@ def test_explain_point_agrees_with_the_layer():
     q, pixels = single_point()
     target = torch.zeros(H, W, dtype=torch.bool)
     target[61, 101] = True
-    info = explain_point(q[0], tuple(pixels[0].tolist()), target, level=0, c=20.0)
+    info = explain_point(q[0], tuple(pixels[0].tolist()), target, level=0, sharpness=20.0)
     assert info["kernel"].sum().item() == pytest.approx(1.0)
     assert tuple(info["landing"].tolist()) == (60, 100) and info["kernel"][1, 1] == info["kernel"].max()
     assert info["matched"] is False
@@ -275,7 +276,7 @@ def test_screen_not_divisible_by_two_to_the_s():
 
 @pytest.mark.parametrize(
     "kwargs, message",
-    [({"zoom": 5}, "zoom must be"), ({"method": "sparse"}, "method must be"), ({"c": 0.0}, "shape constant")],
+    [({"zoom": 5}, "zoom must be"), ({"method": "sparse"}, "method must be"), ({"sharpness": 0.0}, "sharpness")],
 )
 def test_bad_layer_settings(kwargs, message):
     with pytest.raises(SDMInputError, match=message):

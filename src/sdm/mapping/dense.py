@@ -7,8 +7,8 @@ them:
 1. For each active cell, the nine *XY-adjustments* ``T``: the points at the
    cell's depth that project onto the centres of the 3x3 neighbouring blocks
    (on the original screen: ``((I + k + 0.5) B, (J + l + 0.5) B)``).
-2. The kernel ``D = softmax(-c ||p - T||)`` over the nine (the paper prints
-   ``+c``; the nearest adjustment must get the largest weight).
+2. The kernel ``D = softmax(-c ||p - T||)`` over the nine, ``c`` its sharpness (``sharpness``; the paper
+   prints ``+c``; the nearest adjustment must get the largest weight).
 3. Aggregation ``C`` (Comment 1): an entry of ``D`` counts as 1 when it exceeds
    1/2 and as 0 otherwise (the paper's "c large enough"); each output cell takes
    the ``rmin`` of the points whose kernel selects it. With a finite ``c`` a
@@ -45,7 +45,7 @@ def dense_mapping(
     steps: int,
     zoom: int,
     camera: Camera,
-    c: float = 1e9,
+    sharpness: float = 1e9,
 ) -> MappingResult:
     """Grid-formulation SDM over levels ``steps..zoom``; same contract as :func:`~sdm.mapping.fast.fast_mapping`.
 
@@ -53,7 +53,7 @@ def dense_mapping(
         points, pixels, config, rank, target, steps, zoom, camera: as in
             :func:`~sdm.mapping.fast.fast_mapping`; each configuration must hold
             at most one point per pixel (a proper 2D representation).
-        c: kernel shape constant, 1/metres.
+        sharpness: the kernel's sharpness, the paper's ``c`` in ``softmax(-c ||p - T||)``, 1/metres.
 
     Returns:
         :class:`MappingResult`.
@@ -79,7 +79,7 @@ def dense_mapping(
         adjustments = _adjustments(sub["z"], level, camera)  # (n, S, 9, h, w, 2) metres
         offset = torch.stack((sub["x"], sub["y"]), -1)[:, :, None] - adjustments  # p - T
         distance = offset.norm(dim=-1)  # (n, S, 9, h, w)
-        kernel = torch.softmax(-c * distance, dim=2)
+        kernel = torch.softmax(-sharpness * distance, dim=2)
         selected = (kernel > 0.5) & active[:, :, None]
         if level == zoom:
             # Each point's input block and landing block (the nearest adjustment, argmax D) at the loss level.

@@ -14,7 +14,7 @@ def explain_point(
     pixel: tuple[int, int],
     target: torch.Tensor,
     level: int = 0,
-    c: float = 20.0,
+    sharpness: float = 20.0,
     camera: Camera = APOLLO_CAMERA_5,
 ) -> dict:
     """Forward and backward of one SDM level for a single point.
@@ -27,7 +27,7 @@ def explain_point(
         pixel: ``(row, col)`` the pixel it sits in at this level's input.
         target: ``(H, W)`` bool target at full resolution, on the device of ``point``.
         level: zoom level ``k`` (blocks of ``2^k`` pixels).
-        c: kernel shape constant, 1/metres (finite, so the kernel is visibly soft).
+        sharpness: the kernel's sharpness, the paper's ``c``, 1/metres (finite, so the kernel is visibly soft).
         camera: camera and screen.
 
     Returns:
@@ -49,7 +49,7 @@ def explain_point(
     blocks, centres = window.blocks()[0], nine(window.centres)[0]  # (9, 2) blocks, (9, 2) screen pixels
     adjustments = camera.backproject(centres, point[2].expand(9))
     distance = (point[:2] - adjustments[:, :2]).norm(dim=-1)
-    kernel = torch.softmax(-c * distance, dim=0)
+    kernel = torch.softmax(-sharpness * distance, dim=0)
     nearest = int(distance.argmin())
     in_grid, active = window.on_grid[0], window.active[0]
     landing = blocks[nearest]

@@ -112,7 +112,7 @@ class SpatialDomainMapping(nn.Module):
         s: coarsest zoom level; both screen sides must be divisible by ``2^s``.
         zoom: the level whose output is compared with the zoomed-out target.
         method: ``"fast"`` (point rows) or ``"dense"`` (the paper's grids, for reference).
-        c: kernel shape constant of the dense path, 1/metres (ignored by ``"fast"``,
+        sharpness: the dense path's kernel sharpness, the paper's ``c``, 1/metres (ignored by ``"fast"``,
             which is the ``c -> infinity`` limit).
         flow: the gradient rule: a name of :data:`sdm.mapping.rules.RULES` (default ``"paper"``, eq. 19), a
             :class:`~sdm.mapping.rules.Rule`, or a function with :func:`~sdm.mapping.flow.dynamic_flow`'s
@@ -134,7 +134,7 @@ class SpatialDomainMapping(nn.Module):
     Rule('closed_centred_r1', compiled=CENTRED)
     """
 
-    def __init__(self, camera: Camera = APOLLO_CAMERA_5, s: int = 4, zoom: int = 0, method: str = "fast", c: float = 1e9,
+    def __init__(self, camera: Camera = APOLLO_CAMERA_5, s: int = 4, zoom: int = 0, method: str = "fast", sharpness: float = 1e9,
                  flow="paper", fit_depth: bool = False):
         super().__init__()
         check_divisible(camera.screen_shape, s)
@@ -142,9 +142,10 @@ class SpatialDomainMapping(nn.Module):
             raise SDMInputError(f"zoom must be an integer in [0, s] = [0, {s}], got {zoom!r}")
         if method not in METHODS:
             raise SDMInputError(f"method must be one of {sorted(METHODS)}, got {method!r}")
-        if not c > 0:
-            raise SDMInputError(f"the kernel shape constant c must be positive, got {c!r}")
-        self.camera, self.s, self.zoom, self.method, self.c = camera, int(s), int(zoom), method, float(c)
+        if not sharpness > 0:
+            raise SDMInputError(f"sharpness (the dense kernel's c) must be positive, got {sharpness!r}")
+        self.camera, self.s, self.zoom, self.method = camera, int(s), int(zoom), method
+        self.sharpness = float(sharpness)
         self.rule = RULES.resolve(flow)
         self.flow_rule = self.rule.flow  # dynamic_flow itself for "paper": the kernel's flow (fast_mapping)
         self.fit_depth = bool(fit_depth)
@@ -198,7 +199,7 @@ class SpatialDomainMapping(nn.Module):
         if rank is None:
             rank = priority_rank(points.detach()[:, 2])
         zoomed = target if target_is_zoomed else zoom_out(target, self.zoom)
-        options = {"c": self.c} if self.method == "dense" else {"flow_rule": self.flow_rule}
+        options = {"sharpness": self.sharpness} if self.method == "dense" else {"flow_rule": self.flow_rule}
         loss, flow, out_pixels, entered, matched, landed = SDMFunction.apply(
             points, pixels, config, rank, zoomed, self.s, self.zoom, self.camera, self.method, options
         )
