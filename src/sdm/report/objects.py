@@ -203,7 +203,7 @@ def against_start(table: pd.DataFrame, sharing: str, scale: int = 1) -> list[dic
 
 def _removed_words(row: dict) -> str:
     """One level in words: the share of the start's error SDM removes, the best peer's, the CPU ratio."""
-    words = (f"level {row['level']}: SDM ({LABELS[row['rule']]}) removes {100 * row['removed']:.0f} % of its start's "
+    words = (f"level {row['level']}: {LABELS[row['rule']]} removes {100 * row['removed']:.0f} % of its start's "
              f"error ({100 * row['closer']:.0f} % of units end closer)")
     if row["peer"] is not None:
         worse = " (worse than doing nothing)" if row["peer_removed"] < 0 else ""
@@ -249,6 +249,8 @@ def write_table6(frame: pd.DataFrame, stem: str | Path) -> list[Path]:
     """Table 6's CSV (metres), Markdown, LaTeX and HTML (1e-3 m)."""
     shown = frame.assign(mean=1e3 * frame["mean_m"], median=1e3 * frame["median_m"], q3=1e3 * frame["q3_m"],
                          start=1e3 * frame["start_m"], method=frame["method"].map(LABELS))
+    if "extent_a_m" in frame.columns:
+        shown = shown.assign(extent_a=1e3 * frame["extent_a_m"], extent_b=1e3 * frame["extent_b_m"])
     return write_table(frame, stem, TABLE6_FORMAT, shown)
 
 
@@ -305,9 +307,13 @@ def _bars(table: pd.DataFrame, scale: int) -> list[str]:
         if (level, "sdm_schedule") in car.index:
             row = car.loc[(level, "sdm_schedule")]
             moon = f"; moonshot at most 0.1x: {_bar(row['of_start'] <= 0.1)}" if level == 0 else ""
+            start_median = (f" against the shared start's {1e3 * car.loc[(level, 'start'), 'median_m']:.1f}e-3 m"
+                            if (level, "start") in car.index else "")
             lines.append(f"- Car level, noise {level}: the recommended schedule ends at {row['of_start']:.2f}x its "
                          f"start's mean distance ({1e3 * row['mean_m']:.1f} against {1e3 * row['start_m']:.1f}e-3 m); "
-                         f"at most {bar}x: {_bar(row['of_start'] <= bar)}{moon}.")
+                         f"at most {bar}x: {_bar(row['of_start'] <= bar)}{moon}. Its median is "
+                         f"{1e3 * row['median_m']:.1f}e-3 m{start_median}; {100 * (1 - row['closer']):.0f} % of the "
+                         "cars end no closer than their start.")
     floors = own[(own["method"] == "floor") & (own["level"] == 0)]
     if len(floors):
         worst = floors.loc[floors["of_start"].idxmax()]
