@@ -87,7 +87,7 @@ def test_config_yaml_runs_table6_on_two_screens_the_scaling_on_the_first():
     screens = objects["screens"]
     assert [screen["scale"] for screen in screens] == [12, 1]
     assert objects["scaling"]["scale"] == 12
-    assert screens[0]["rows"] == {"lr": 5.0e-3, "n_epoch": 16, "s": 6}
+    assert screens[0]["rows"] == {"lr": 2.5e-3, "n_epoch": 16, "s": 6}
     assert screens[0]["cmaes"]["car_step"] == 0.1 and screens[0]["cmaes"]["step"] == 0.03
     assert 0 in objects["levels"] and 2 in objects["levels"] and objects["runs"] >= 20
 
