@@ -177,7 +177,8 @@ def test_scaling_reports_the_exact_sets_and_the_crossover():
 
 @pytest.mark.parametrize("rows, expected", [
     ([(2, 2.0, 1.0, 3.0, "p", 50.0), (8, 1.5, 1.0, 3.0, "p", 40.0)], "No crossover: at every K measured (2-8)"),
-    ([(2, 2.0, 1.0, 3.0, "p", 50.0), (8, 0.5, 1.0, 3.0, "p", 40.0)], "it overtakes from K = 8 on."),
+    ([(2, 2.0, 1.0, 3.0, "p", 50.0), (8, 0.5, 1.0, 3.0, "p", 40.0)], "it overtakes the best peer from K = 8 on."),
+    ([(2, 0.5, 1.0, 3.0, "p", 50.0), (8, 2.0, 1.0, 3.0, "p", 40.0)], "the best peer overtakes it from K = 8 on."),
     ([(2, 0.5, 1.0, 3.0, "p", 50.0), (8, 0.5, 4.0, 3.0, "p", 40.0)],
      "at every K measured (2-8). The best peer ends farther than doing nothing at K = 8."),
 ])

@@ -18,7 +18,7 @@ LABELS = {
     "sdm_paper": "SDM, the paper's rule",
     "sdm_schedule": "SDM, the recommended schedule",
     "cmaes": "CMA-ES per configuration",
-    "cmaes_car": "CMA-ES per car (block sweeps)",
+    "cmaes_car": "CMA-ES per unit (block sweeps)",
     "cmaes_reg": "CMA-ES, regularised toward its start",
     "silhouette": "soft silhouette",
     "floor": "floor (nearest minimiser)",
@@ -206,9 +206,9 @@ def _removed_words(row: dict) -> str:
     words = (f"level {row['level']}: {LABELS[row['rule']]} removes {100 * row['removed']:.0f} % of its start's "
              f"error ({100 * row['closer']:.0f} % of units end closer)")
     if row["peer"] is not None:
-        worse = " (worse than doing nothing)" if row["peer_removed"] < 0 else ""
-        words += (f", the best peer ({LABELS[row['peer']]}) {100 * row['peer_removed']:.0f} %{worse} at "
-                  f"{row['speed']:.0f}x SDM's CPU time")
+        removed = (f"{100 * row['peer_removed']:.0f} %" if row["peer_removed"] >= 0 else
+                   f"none: it ends {100 * -row['peer_removed']:.0f} % farther than its start (worse than doing nothing)")
+        words += f", the best peer ({LABELS[row['peer']]}) {removed}, at {row['speed']:.0f}x SDM's CPU time"
     return words
 
 
@@ -401,10 +401,11 @@ def _crossover(crossed: list[tuple]) -> str:
         words = f"SDM's best ends closer to theta* than the best peer's at every K measured ({ks[0]}-{ks[-1]})."
     else:
         first = min(closer)
+        behind = min(farther)
         words = (f"SDM's best ends closer to theta* than the best peer's at K = {', '.join(map(str, closer))} and "
-                 f"farther at K = {', '.join(map(str, farther))}" + (f": it overtakes from K = {first} on."
-                                                                     if all(k >= first for k in closer) and
-                                                                     all(k < first for k in farther) else "."))
+                 f"farther at K = {', '.join(map(str, farther))}"
+                 + (f": it overtakes the best peer from K = {first} on." if all(k < first for k in farther) else
+                    f": the best peer overtakes it from K = {behind} on." if all(k < behind for k in closer) else "."))
     if worse:
         words += f" The best peer ends farther than doing nothing at K = {', '.join(map(str, worse))}."
     return words
@@ -421,19 +422,23 @@ def plot_table6(table: pd.DataFrame, path: str | Path) -> Path:
     fig, axes = plt.subplots(1, len(panels), figsize=(4 * len(panels), 3.6), sharey=False, squeeze=False)
     for ax, (scale, sharing) in zip(axes[0], panels):
         rows = _of_scale(table, scale, sharing)
-        for method in ROWS:
+        for index, method in enumerate(ROWS):
             own = rows[rows["method"] == method].sort_values("level")
             if len(own):
                 reference = method in REFERENCES or method == EXACT_SET
                 ax.plot(own["level"], 1e3 * own["mean_m"], marker="." if reference else "o",
                         linestyle=":" if reference else "-",
-                        color={"prior": "grey", "start": "black", EXACT_SET: "tab:olive"}.get(method),
+                        color={"prior": "grey", "start": "black"}.get(method, f"C{index % 10}"),
                         label=LABELS[method])
         ax.set_title(f"scale {scale}: {UNIT[sharing]}", fontsize=9)
         ax.set_xlabel("noise level (pixels)")
         ax.set_yscale("log")
     axes[0][0].set_ylabel("mean distance per unit (1e-3 m)")
-    axes[0][-1].legend(fontsize=6)
+    handles = {}
+    for ax in axes[0]:  # one legend for every panel: a method keeps its colour everywhere
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(label, handle)
+    fig.legend(list(handles.values()), list(handles), fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
     fig.tight_layout()
     return save_figure(fig, path)
 
