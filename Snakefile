@@ -45,7 +45,8 @@ wildcard_constraints:
     method=one_of(BASELINES),
     flow=one_of(RULE_LABELS),
     c=one_of(DEPTH_SHIFTS),
-    sharing=one_of(OBJECT_SHARINGS),
+    sharing=one_of(SHARING_LABELS),
+    scale=r"\d+",
     cars=r"\d+",
     loss=one_of(NETWORK_LOSSES),
 

@@ -11,15 +11,17 @@
 # ---
 
 # %% [markdown]
-# # Table 6: the paired runs of one sharing level at one noise level
+# # Table 6: the paired runs of one sharing level at one noise level on one screen
 #
 # The paper's fundamental problem: each point carries its own shift, and the camera is what shifts points share.
 # Here the first configurations of the training split get a shift per configuration, per car, or a camera plus
 # a residual per car, drawn from the documented distribution (`sdm.sharing.TruthDistribution`); their targets
 # are rendered from those shifts and get Table 2's noise. SDM (the paper's rule and the recommended schedule),
-# CMA-ES per configuration, the soft-silhouette baseline and the floor all fit the same targets of a run
-# (`sdm.objects.objects_runs`; docs/method/objects.md). One row per (run, method, unit); the stage `table6`
-# gathers the files.
+# the black-box searches, the soft-silhouette baseline and the floor all fit the same targets of a run
+# (`sdm.objects.objects_runs`; docs/method/objects.md), on a screen `scale` times finer than the Sky screen
+# (`sdm.sky.rescaled_configuration`). On the first run every unit's exact-match set is scanned: what its pixels
+# identify (`sdm.identifiability.exact_sets`). One row per (run, method, unit), each naming its scale; the stage
+# `table6` gathers the files.
 
 # %% tags=["parameters"]
 sky = "results/sky/sky.bin"  # input
@@ -37,6 +39,8 @@ cmaes = {"evaluations_per_unknown": 150}
 floor = {"evaluations_per_unknown": 50, "restarts": 2}
 silhouette = {"lr": 0.1, "sigma": 0.5, "batch_size": 8, "steps": 27}
 screen = {"scale": 1, "disc": "pixels"}  # the screen scale (128 x 256 is 1) and the disc rule (sdm.sky)
+methods = ["sdm_paper", "sdm_schedule", "cmaes", "cmaes_car", "cmaes_reg", "silhouette", "floor"]  # sdm.objects.METHODS
+identifiability = {"reach": 0.6, "step": 0.01}  # the exact-match scan at scale 1, metres (divided by the scale)
 seed = 0  # noise.seed: run r at level n draws theta*, its noise and its seeds from (seed, n, r)
 s = 4
 batch_size = 8
@@ -67,7 +71,11 @@ settings = settings_from_config(truth, warm, rows, schedule, cmaes, floor, silho
 print(f"{len(data)} configurations, {data.points.shape[0]} points, {int(n_cars.sum())} cars on screen")
 
 # %%
-results = objects_runs(data, sharing, level, list(range(runs)), seed, settings, n_cars=n_cars, progress=True)
+scale = int(screen["scale"])
+scan = (float(identifiability["reach"]) / scale, float(identifiability["step"]) / scale)
+results = objects_runs(data, sharing, level, list(range(runs)), seed, settings, n_cars=n_cars, methods=methods,
+                       progress=True, scan=scan)
+results.insert(0, "scale", scale)
 write_csv(runs_file, results)
 scored = results[results["method"] != "hidden"]
-display((1000 * scored.groupby("method")[["distance", "cpu_s"]].mean()).round(2))
+display((1000 * scored.groupby("method")[["distance", "cpu_s", "extent_a", "extent_b"]].mean()).round(2))

@@ -16,8 +16,9 @@
 # Synthetic images with exactly K visible cars each (`sdm.data.set_with_cars`), one shift per car drawn as
 # Table 6's (`sdm.sharing.TruthDistribution`). SDM's rows train with several epoch budgets and CMA-ES per
 # configuration searches with several evaluation budgets, from the same shared start; each gives a point
-# (CPU seconds per configuration, distance per car) of its curve (`sdm.objects.scaling_runs`). The stage
-# `table6` draws the curves.
+# (CPU seconds per configuration, distance per car) of its curve (`sdm.objects.scaling_runs`), with the do-nothing
+# references and, on the first run, each car's exact-match set (`sdm.identifiability.exact_sets`). The images are
+# built on the screen `screen["scale"]` times finer than the Sky screen. The stage `table6` draws the curves.
 
 # %% tags=["parameters"]
 scaling_file = "results/research/objects/scaling_2.csv"  # output: one row per (run, method, budget)
@@ -31,6 +32,7 @@ cmaes = {"evaluations_per_unknown": 150}
 floor = {"evaluations_per_unknown": 50, "restarts": 2}
 silhouette = {"lr": 0.1, "sigma": 0.5, "batch_size": 8, "steps": 27}
 screen = {"scale": 1, "disc": "pixels"}  # the screen scale (128 x 256 is 1) and the disc rule (sdm.sky)
+identifiability = {"reach": 0.6, "step": 0.01}  # the exact-match scan at scale 1, metres (divided by the scale)
 seed = 0
 s = 4
 batch_size = 8
@@ -57,7 +59,10 @@ settings = settings_from_config(truth, warm, rows, schedule, cmaes, floor, silho
 print(f"{len(data)} images with {cars} cars each, {data.points.shape[0]} points")
 
 # %%
+scale = int(screen["scale"])
 results = scaling_runs(data, cars, int(scaling["level"]), list(range(int(scaling["runs"]))), seed, settings,
-                       scaling["epochs"], scaling["budgets"], progress=True)
+                       scaling["epochs"], scaling["budgets"], progress=True,
+                       scan=(float(identifiability["reach"]) / scale, float(identifiability["step"]) / scale))
+results.insert(0, "scale", scale)
 write_csv(scaling_file, results)
 display(results.groupby(["method", "budget"])[["mean", "median", "cpu_s"]].mean())

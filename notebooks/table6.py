@@ -13,11 +13,12 @@
 # %% [markdown]
 # # Table 6: parameters attached to points
 #
-# Gathers `objects_runs` (one file per sharing level and noise level) and `objects_scaling` (one file per K cars
-# per image): per sharing level, noise level and method, the distance per unit to theta* (mean, median, Q3) and
-# the CPU time per configuration, Table 2's runs quoted as the shared level; the figure of the means; the
-# scaling figure (error against CPU time, one curve per K); the summary in plain words
-# (`sdm.report.objects`; docs/method/objects.md).
+# Gathers `objects_runs` (one file per screen, sharing level and noise level) and `objects_scaling` (one file per K
+# cars per image): per screen scale, sharing level, noise level and method, the distance per unit to theta* (mean,
+# median, Q3) against doing nothing, the exact-match set's median extent and the CPU time per configuration,
+# Table 2's runs quoted as the shared level; the figure of the means; the scaling figure (error against CPU time,
+# one curve per K); the summary in plain words (`sdm.report.objects`; docs/method/objects.md); and every run's
+# per-unit records in one compressed file, so that any paired comparison can be checked without rerunning.
 
 # %% tags=["parameters"]
 runs_files = []  # input: objects_runs' files
@@ -28,29 +29,32 @@ table6_md = "results/tables/table6.md"  # output
 table6_tex = "results/tables/table6.tex"  # output
 table6_html = "results/tables/table6.html"  # output
 table6_summary = "results/tables/table6_summary.md"  # output
+table6_units = "results/tables/table6_units.csv.gz"  # output: every per-unit record and scaling record, gzip
 figure = "results/figures/objects.png"  # output
 scaling_figure = "results/figures/objects_scaling.png"  # output
-levels = [0, 1, 2, 3, 4]
 runs = 20
 threads = 1
 
 # %%
 from pathlib import Path
 
-import pandas as pd
 from IPython.display import Image, Markdown, display
 
-from sdm.io import write_text
+from sdm.io import write_bytes, write_text
 from sdm.report import objects as report
+from sdm.report.io import read_csv
 
-frames = [pd.read_csv(path) for path in runs_files]
-shared = pd.read_csv(table2_distances)
+frames = [read_csv(path) for path in runs_files]
+levels = sorted({int(level) for frame in frames for level in frame["level"]})
+shared = read_csv(table2_distances)
 table = report.table6(frames, shared[shared["level"].isin(levels)])
 report.write_table6(table, Path(table6_csv).with_suffix(""))
 display(Markdown(Path(table6_md).read_text()))
 
 # %%
-scaling = report.scaling_table([pd.read_csv(path) for path in scaling_files]) if scaling_files else None
+scaling_frames = [read_csv(path) for path in scaling_files]
+scaling = report.scaling_table(scaling_frames) if scaling_frames else None
+write_bytes(table6_units, report.units_archive(frames, scaling_frames))
 summary = report.table6_summary(table, scaling)
 write_text(table6_summary, summary)
 display(Markdown(summary))

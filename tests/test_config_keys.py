@@ -55,13 +55,49 @@ def _set(config: dict, path: str, value) -> dict:
                                                  r"test configurations"),
     ("research.objects.silhouette.batch_size", 500, r"config key 'research\.objects\.silhouette\.batch_size': at "
                                                     r"most research\.objects\.configurations"),
+    ("research.objects.screens", [{"scale": 12}, {"scale": 1}, {"scale": 12, "disc": "metres"}],
+     r"config key 'research\.objects\.screens': each scale once \(a scale names its rows and its files\), got 12 2 "
+     r"times in \[12, 1, 12\]"),
+    ("research.objects.scaling.scale", 4, r"config key 'research\.objects\.scaling\.scale': one of "
+                                          r"research\.objects\.screens' scales \[12, 1\] .*got 4"),
+    ("research.objects.screens", [{"disc": "pixels"}], r"config key 'research\.objects\.screens\[0\]': 'scale' is a "
+                                                       r"required property"),
+    ("research.objects.screens", [{"scale": 0}], r"config key 'research\.objects\.screens\[0\]\.scale': 0 is less "
+                                                 r"than the minimum of 1"),
+    ("research.objects.screens", [{"scale": 2, "methods": ["adam"]}],
+     r"config key 'research\.objects\.screens\[0\]\.methods\[0\]': 'adam' is not one of"),
+    ("research.objects.screens", [{"scale": 2, "zoom": 3}],
+     r"config key 'research\.objects\.screens\[0\]': Additional properties are not allowed \('zoom' was unexpected\)"),
+    ("research.objects.methods", [], r"config key 'research\.objects\.methods': \[\] should be non-empty"),
+    ("research.objects.identifiability.step", 0, r"config key 'research\.objects\.identifiability\.step': 0 is less "
+                                                 r"than or equal to the minimum of 0"),
 ], ids=["unknown-key", "unknown-rule", "schedule-for-a-rule", "sizes", "train-batch", "refine-batch",
-        "silhouette-batch"])
+        "silhouette-batch", "screen-twice", "scaling-off-screen", "screen-without-scale", "screen-scale-0",
+        "screen-method", "screen-key", "no-methods", "scan-step"])
 def test_a_bad_research_key_is_refused_naming_its_path(path, value, message):
     """On main each of these passed the checks before the run and failed (if at all) inside the stages."""
     config = _set(_config(), path, value)
     with pytest.raises(ConfigError, match=message):
         _checked(config)
+
+
+def test_config_yaml_runs_table6_on_two_screens_the_scaling_on_the_first():
+    """The chosen screen (scale 12, its dev-chosen settings) and the paper's (scale 1) beside it."""
+    objects = _config()["research"]["objects"]
+    screens = objects["screens"]
+    assert [screen["scale"] for screen in screens] == [12, 1]
+    assert objects["scaling"]["scale"] == 12
+    assert screens[0]["rows"] == {"lr": 2.5e-3, "n_epoch": 16, "s": 6}
+    assert screens[0]["cmaes"]["car_step"] == 0.1 and screens[0]["cmaes"]["step"] == 0.03
+    assert 0 in objects["levels"] and 2 in objects["levels"] and objects["runs"] >= 20
+
+
+def test_a_good_screen_list_passes():
+    config = _set(_config(), "research.objects.screens", [{"scale": 2, "disc": "metres", "levels": [1],
+                                                            "sharings": ["car"], "methods": ["floor"],
+                                                            "rows": {"lr": 1e-3, "n_epoch": 2, "s": 1},
+                                                            "cmaes": {"evaluations_per_unknown": 5}}])
+    _checked(_set(config, "research.objects.scaling.scale", 2))
 
 
 def test_the_workflow_refuses_a_bad_key_before_any_job(tmp_path):

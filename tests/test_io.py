@@ -171,3 +171,11 @@ def test_a_csv_rewritten_leaves_no_stale_checksum(tmp_path):
     with pytest.raises(RuntimeError, match="stopped"):
         sdm.io.write_csv(path, Failing())
     assert not (tmp_path / "t.csv.sha256").exists() and sdm.io.csv_damage(path) is None
+
+
+def test_no_stage_notebook_reads_a_csv_unchecked():
+    """The stages read their CSVs through sdm.report.io.read_csv (checksum first), never pandas' reader directly."""
+    notebooks = sorted((ROOT / "notebooks").glob("*.py"))
+    assert len(notebooks) > 20
+    unchecked = [path.name for path in notebooks if "pd.read_csv(" in path.read_text()]
+    assert unchecked == []

@@ -10,8 +10,9 @@ import torch
 from sdm.baselines.rows import RowsCMAESSettings, RowsFloorSettings
 from sdm.baselines.silhouette import SilhouetteSettings
 from sdm.errors import SDMInputError
-from sdm.objects import METHODS, REFERENCES, ObjectsSettings, objects_runs, scaling_runs
-from sdm.report.objects import scaling_table, table6, table6_summary, verdict_sentence
+from sdm.objects import EXACT_SET, METHODS, REFERENCES, ObjectsSettings, objects_runs, scaling_runs
+from sdm.report.objects import (read_units_archive, scaling_table, table6, table6_summary, units_archive,
+                                verdict_sentence)
 from sdm.train import TrainSettings
 
 from sdm.batch import ConfigurationSet
@@ -82,7 +83,7 @@ def test_table6_and_its_words(data):
     words = table6_summary(table, None)
     assert "A configuration's shift" in words and "of its start's error" in words
     assert "the best peer" in verdict_sentence(table)
-    old = table.drop(columns=["start_m", "of_start", "closer"])  # a snapshot made before the references
+    old = table.drop(columns=["scale", "start_m", "of_start", "closer", "extent_a_m", "extent_b_m"])  # an old snapshot
     old = old[old["method"].isin(METHODS) | (old["sharing"] == "shared")]
     assert "CMA-ES's mean distance" in verdict_sentence(old)
 
@@ -106,3 +107,82 @@ def test_bad_level_and_method_are_named(data):
         objects_runs(data, "shared", 0, [0], seed=0, settings=SETTINGS)
     with pytest.raises(SDMInputError, match="methods must be of"):
         objects_runs(data, "car", 0, [0], seed=0, settings=SETTINGS, methods=["adam"])
+
+
+def test_exact_sets_are_scored_on_the_first_run_and_read_beside_the_distances(data):
+    runs = objects_runs(data, "car", 0, [0, 1], seed=6, settings=SETTINGS, methods=["sdm_paper"], scan=(0.3, 0.02))
+    sets = runs[runs["method"] == EXACT_SET]
+    assert set(sets["run"]) == {0}  # the first run only
+    others = runs[(runs["method"] == "sdm_paper") & (runs["run"] == 0)]
+    assert sorted(sets["unit"]) == sorted(others["unit"])  # every unit of the run
+    assert (sets["extent_a"] > 0).all() and (sets["extent_b"] > 0).all()
+    assert runs.loc[runs["method"] != EXACT_SET, "extent_a"].isna().all()
+    table = table6([runs.assign(scale=2)])
+    assert set(table["scale"]) == {2}
+    row = table[table["method"] == "sdm_paper"].iloc[0]
+    assert row["extent_a_m"] == pytest.approx(sets["extent_a"].median())
+    assert row["extent_b_m"] == pytest.approx(sets["extent_b"].median())
+    assert table[table["method"] == EXACT_SET].iloc[0]["mean_m"] == pytest.approx(sets["distance"].mean())
+    assert "its pixels identify it to a median" in table6_summary(table, None)
+
+
+def test_the_floor_is_theta_star_where_theta_star_reproduces_the_target(data):
+    clean = objects_runs(data, "car", 0, [0], seed=7, settings=SETTINGS, methods=["floor"])
+    floor = clean[clean["method"] == "floor"]
+    assert (floor["distance"] == 0).all()
+    assert (floor[["a", "b"]].to_numpy() == floor[["a_true", "b_true"]].to_numpy()).all()
+    noisy = objects_runs(data, "car", 2, [0], seed=7, settings=SETTINGS, methods=["floor"])
+    assert noisy.loc[noisy["method"] == "floor", "distance"].max() > 0  # under noise it searches
+
+
+def test_two_screens_give_two_blocks_each_naming_its_scale(data):
+    fine = objects_runs(data, "car", 0, [0], seed=8, settings=SETTINGS, methods=["sdm_paper", "cmaes_car"])
+    table = table6([fine.assign(scale=4), fine.assign(scale=1)],
+                   pd.DataFrame({"level": [0], "run": [0], "distance": [1e-3]}))
+    assert list(dict.fromkeys(table["scale"])) == [4, 1]  # the first screen first
+    assert table.loc[table["sharing"] == "shared", "scale"].tolist() == [1]  # Table 2's runs: the Sky screen
+    assert len(table[(table["scale"] == 4) & (table["method"] == "sdm_paper")]) == 1
+    words = table6_summary(table, None)
+    assert "scale 4 (512 x 1024)" in words and "scale 1 (128 x 256, the paper's)" in words
+    assert words.index("scale 4") < words.index("scale 1 (")
+    assert verdict_sentence(table).count("with a car's shift unknown") == 2
+
+
+def test_the_units_archive_holds_every_record(data, tmp_path):
+    runs = objects_runs(data, "configuration", 0, [0], seed=9, settings=SETTINGS, methods=["sdm_paper"])
+    from sdm.data import set_with_cars
+
+    scaled = scaling_runs(set_with_cars(16, 1, seed=0), 1, 0, [0], seed=1, settings=SETTINGS, epochs=[1], budgets=[5])
+    archive = units_archive([runs.assign(scale=1)], [scaled.assign(scale=1)])
+    assert archive == units_archive([runs.assign(scale=1)], [scaled.assign(scale=1)])  # no time stamp
+    (tmp_path / "units.csv.gz").write_bytes(archive)
+    back = read_units_archive(tmp_path / "units.csv.gz")
+    assert len(back) == len(runs) + len(scaled)
+    own = back[back["table"] == "runs"].reset_index(drop=True)
+    assert own["distance"].to_numpy() == pytest.approx(runs["distance"].to_numpy(), rel=1e-6)
+    assert (own["method"] == runs["method"]).all()
+
+
+def test_scaling_reports_the_exact_sets_and_the_crossover():
+    from sdm.data import set_with_cars
+
+    cars = set_with_cars(16, 2, seed=0)
+    frame = scaling_runs(cars, 2, 0, [0, 1], seed=1, settings=SETTINGS, epochs=[1], budgets=[5], scan=(0.3, 0.02))
+    sets = frame[frame["method"] == EXACT_SET]
+    assert len(sets) == 1 and sets.iloc[0]["run"] == 0 and sets.iloc[0]["extent_a"] > 0
+    words = table6_summary(table6([]), scaling_table([frame.assign(scale=3)]))
+    assert "scale 3" in words and "exact-match set" in words
+    assert "crossover" in words or "closer to theta* than" in words
+
+
+@pytest.mark.parametrize("rows, expected", [
+    ([(2, 2.0, 1.0, 3.0, "p", 50.0), (8, 1.5, 1.0, 3.0, "p", 40.0)], "No crossover: at every K measured (2-8)"),
+    ([(2, 2.0, 1.0, 3.0, "p", 50.0), (8, 0.5, 1.0, 3.0, "p", 40.0)], "it overtakes the best peer from K = 8 on."),
+    ([(2, 0.5, 1.0, 3.0, "p", 50.0), (8, 2.0, 1.0, 3.0, "p", 40.0)], "the best peer overtakes it from K = 8 on."),
+    ([(2, 0.5, 1.0, 3.0, "p", 50.0), (8, 0.5, 4.0, 3.0, "p", 40.0)],
+     "at every K measured (2-8). The best peer ends farther than doing nothing at K = 8."),
+])
+def test_the_crossover_in_words(rows, expected):
+    from sdm.report.objects import _crossover
+
+    assert expected in _crossover(rows)

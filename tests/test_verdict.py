@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import pandas as pd
+import pytest
 
 from sdm import paper
 from sdm.report.verdict import best_methods, recommended_rule, verdict
@@ -103,3 +104,44 @@ def test_the_recommended_rule_line_names_the_data_and_the_worst_ratio_to_cmaes_o
     assert "worst mean against CMA-ES's on the same runs is 1.65x, at level 4 on the synthetic default; within 2x" \
         in alone
     assert "Measured on" not in verdict(_table1(), _table2([0.5] * 5), table4=_table4(means), rules=list(means))
+
+
+def _table6_verdict_script():
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "workflow" / "scripts" / "table6_verdict.py"
+    spec = importlib.util.spec_from_file_location("table6_verdict", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_the_table6_verdict_line_is_written_from_the_snapshot(tmp_path, monkeypatch):
+    """workflow/scripts/table6_verdict.py replaces exactly the Table 6 line of the verdict and the README, with the
+    sentence of the snapshot's table, and refuses a file without that line."""
+    import pandas as pd
+
+    from sdm.report.objects import verdict_sentence
+
+    script = _table6_verdict_script()
+    (tmp_path / "docs" / "results" / "objects").mkdir(parents=True)
+    (tmp_path / "docs" / "results" / "report").mkdir(parents=True)
+    table = pd.DataFrame([{"scale": 12, "sharing": "car", "level": 0, "method": m, "units": 10, "hidden": 0,
+                           "mean_m": v, "median_m": v, "q3_m": v, "start_m": 0.2, "of_start": v / 0.2,
+                           "closer": 0.9, "extent_a_m": 0.03, "extent_b_m": 0.02, "cpu_ms": c}
+                          for m, v, c in (("start", 0.2, 1.0), ("sdm_schedule", 0.1, 2.0), ("cmaes_car", 0.05, 400.0))])
+    table.to_csv(tmp_path / "docs" / "results" / "objects" / "table6.csv", index=False)
+    old = "- **Parameters attached to points (Table 6):** old words"
+    for name in ("docs/results/report/verdict.md", "README.md"):
+        (tmp_path / name).write_text(f"before\n{old}\n- **SDM inside a network (Table 7):** kept\n")
+    monkeypatch.setattr(script, "ROOT", tmp_path)
+    assert script.main() == 0
+    for name in ("docs/results/report/verdict.md", "README.md"):
+        lines = (tmp_path / name).read_text().split("\n")
+        assert lines[0] == "before" and lines[2] == "- **SDM inside a network (Table 7):** kept"
+        assert lines[1] == "- **Parameters attached to points (Table 6):** " + verdict_sentence(table)
+    assert "scale 12" in lines[1] and "50 %" in lines[1]
+    (tmp_path / "README.md").write_text("no verdict here\n")
+    with pytest.raises(SystemExit, match="README.md: 0 lines begin"):
+        script.main()

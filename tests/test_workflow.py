@@ -270,7 +270,9 @@ def _research_jobs(config: dict) -> dict[str, int]:
         jobs |= {"depth_runs": len(depth["shifts_c"]) * len(depth["levels"]), "table5": 1}
     objects = config["research"].get("objects", {})
     if objects.get("enabled"):
-        jobs |= {"objects_runs": len(objects["sharings"]) * len(objects["levels"]),
+        screens = objects.get("screens") or [{"scale": 1}]
+        jobs |= {"objects_runs": sum(len(screen.get("sharings", objects["sharings"]))
+                                     * len(screen.get("levels", objects["levels"])) for screen in screens),
                  "objects_scaling": len(objects["scaling"]["cars"]), "table6": 1}
     network = config["research"].get("network", {})
     if network.get("enabled"):
@@ -702,8 +704,10 @@ def _objects_cases() -> dict[str, tuple[dict, str | None]]:
         "runs": (2, "objects_runs"),
         "configurations": (32, "objects_runs"),
         "batch_size": (4, "objects_runs"),
-        "screen.scale": (2, "objects_runs"),
-        "screen.disc": ("metres", "objects_runs"),
+        "screens": ([{"scale": 1}, {"scale": 3, "sharings": ["car"], "levels": [0]}], "objects_runs"),
+        "methods": (["sdm_paper", "floor"], "objects_runs"),
+        "identifiability.reach": (0.3, "objects_runs"),
+        "identifiability.step": (0.02, "objects_runs"),
         "truth.camera_sd": (0.1, "objects_runs"),
         "truth.car_sd": (0.1, "objects_runs"),
         "truth.residual_sd": (0.01, "objects_runs"),
@@ -723,6 +727,7 @@ def _objects_cases() -> dict[str, tuple[dict, str | None]]:
         "silhouette.sigma": (1.0, "objects_runs"),
         "silhouette.batch_size": (16, "objects_runs"),
         "silhouette.steps": (4, "objects_runs"),
+        "scaling.scale": (2, "objects_scaling"),  # the .test config's second screen
         "scaling.cars": ([4], "objects_scaling"),
         "scaling.n_images": (17, "objects_scaling"),
         "scaling.seed": (1, "objects_scaling"),

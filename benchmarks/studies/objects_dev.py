@@ -3,13 +3,17 @@
     PYTHONPATH=src python benchmarks/studies/objects_dev.py SKY SPLIT [--config config.yaml] [--scale 1] [--disc pixels]
         [--sharing car] [--levels 0 2] [--runs 3] [--first 8] [--configurations 8] [--seed 1000]
         [--methods sdm_paper sdm_schedule cmaes cmaes_car floor] [--sigma0 S] [--penalty W] [--rows LR N_EPOCH S]
+        [--tails]
 
 Protocol: :func:`sdm.objects.objects_runs` with the config's ``research.objects`` settings on training
 configurations ``first .. first + configurations - 1`` (Table 6 takes the first ones), rebuilt on the screen
 scaled ``--scale`` times (:func:`sdm.sky.rescaled_configuration`), runs ``0 .. runs - 1`` seeded from ``--seed``
 (Table 6 from ``noise.seed``). ``--sigma0`` replaces every search's initial step (metres), ``--penalty`` the regularised
 search's weight, ``--rows`` SDM's rows' schedule. Prints Table 6's rows
-(:func:`sdm.report.objects.table6`: each method's mean against its start's, 1e-3 m) and the CPU seconds.
+(:func:`sdm.report.objects.table6`: each method's mean against its start's, 1e-3 m) and the CPU seconds; with
+``--tails``, per level and method, where its mean comes from: its median over its start's median, the share of units
+that end farther than their start, the mean of the others over the start's mean, and the share of the method's summed
+distance those farther units carry.
 """
 from __future__ import annotations
 
@@ -18,6 +22,7 @@ import sys
 import time
 from dataclasses import replace
 
+import pandas as pd
 import torch
 import yaml
 
@@ -48,6 +53,7 @@ def main(argv=None) -> int:
     parser.add_argument("--penalty", type=float, default=None)
     parser.add_argument("--rows", type=float, nargs=3, default=None, metavar=("LR", "N_EPOCH", "S"),
                         help="SDM's rows' rate, epochs per level and levels")
+    parser.add_argument("--tails", action="store_true", help="where each mean comes from (the module's text)")
     args = parser.parse_args(argv)
     single_thread(1)
     config = yaml.safe_load(open(args.config))
@@ -81,7 +87,25 @@ def main(argv=None) -> int:
           f"x {settings.rows.n_epoch} epochs, s {settings.rows.s}")
     print(shown[["level", "method", "units", "mean", "start", "of_start", "closer", "cpu_ms"]]
           .to_string(index=False, float_format=lambda v: f"{v:.3f}"))
+    if args.tails:
+        print(tails(pd.concat(frames, ignore_index=True)).to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     return 0
+
+
+def tails(records: pd.DataFrame) -> pd.DataFrame:
+    """Per (level, method) of :func:`sdm.objects.objects_runs`' records: ``median_of_start`` (its median distance over
+    its start's median), ``farther`` (the share of units ending farther than their start), ``rest_of_start`` (the
+    mean of the other units over the start's mean on all units) and ``farther_share`` (the share of its summed
+    distance the farther units carry)."""
+    rows = []
+    scored = records[~records["method"].isin(["hidden", "start", "prior"])]
+    for (level, method), own in scored.groupby(["level", "method"], sort=False):
+        far = own["distance"] > own["start"]
+        rows.append({"level": level, "method": method, "units": len(own),
+                     "median_of_start": own["distance"].median() / own["start"].median(),
+                     "farther": far.mean(), "rest_of_start": own.loc[~far, "distance"].mean() / own["start"].mean(),
+                     "farther_share": own.loc[far, "distance"].sum() / own["distance"].sum()})
+    return pd.DataFrame(rows)
 
 
 if __name__ == "__main__":

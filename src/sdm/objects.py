@@ -30,6 +30,10 @@ The methods (:data:`METHODS`):
 * ``floor``: each configuration's exact-mismatch minimiser nearest theta*
   (:func:`sdm.baselines.rows.floor_configurations`; theta* itself without noise).
 
+What the pixels identify (:data:`EXACT_SET`, where asked for): on a job's first run, each unit's set of shifts that
+reproduce its noise-free target exactly (the others at theta*), its extent per axis and the mean distance of its
+points from theta*, the error of a method that lands anywhere in it.
+
 The do-nothing references (:data:`REFERENCES`), scored on the same units: ``start``, the paper's rule's shared
 start that SDM's paper-rule rows, CMA-ES and the silhouette are given, and ``prior``, theta*'s mean (the centre
 of :class:`sdm.sharing.TruthDistribution`, a guess that looks at no pixel). Every record carries the distance of
@@ -46,17 +50,26 @@ from typing import Sequence
 
 import pandas as pd
 import torch
+from tqdm.std import tqdm  # plain text: renders in notebooks without ipywidgets
 
 from . import sharing as S
+from .baselines import silhouette
+from .baselines.rows import (RowsCMAESSettings, RowsFloorSettings, configuration_objective, fit_blocks,
+                             fit_configurations, floor_configurations)
+from .baselines.silhouette import SilhouetteSettings
 from .batch import ConfigurationSet
 from .errors import SDMInputError
 from .experiments import noisy_targets, run_seed
+from .identifiability import exact_sets
 from .train import TrainSettings, parse_schedule, rates_per_point, refine_runs, train_runs
 
 #: The methods of Table 6, in its row order.
 METHODS = ("sdm_paper", "sdm_schedule", "cmaes", "cmaes_car", "cmaes_reg", "silhouette", "floor")
 #: The do-nothing references of Table 6, scored beside the methods (no fit; see the module's text).
 REFERENCES = ("start", "prior")
+#: What the pixels identify: a unit's exact-match set (:func:`sdm.identifiability.exact_sets`), scored on the units of
+#: a job's first run (its mean distance from theta*; the set's extent per axis in ``extent_a``, ``extent_b``).
+EXACT_SET = "exact_set"
 #: The sharing levels Table 6 runs (the shared level is Table 2's runs, quoted).
 SHARINGS = ("configuration", "car", "camera+car")
 
@@ -130,8 +143,6 @@ def search_units(method: str, data: ConfigurationSet, units: S.Units, settings: 
     """One of the black-box searches on every configuration's exact count, from ``theta0`` ``(U, 2)`` metres:
     ``cmaes`` (joint, the count alone), ``cmaes_car`` (block sweeps, ``settings.car_sigma0``) or ``cmaes_reg``
     (joint, with ``settings.cmaes.penalty``). Returns :class:`sdm.baselines.rows.RowsResult`."""
-    from .baselines.rows import fit_blocks, fit_configurations
-
     if method == "cmaes_car":
         return fit_blocks(data, units, replace(settings.cmaes, penalty=0.0, sigma0=settings.car_sigma0), seed,
                           theta0=theta0)
@@ -169,7 +180,8 @@ def paired_targets(data: ConfigurationSet, sharing: S.Sharing, units: S.Units, n
 
 def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[int], seed: int,
                  settings: ObjectsSettings, n_cars: torch.Tensor | None = None,
-                 methods: Sequence[str] = METHODS, progress: bool = False) -> pd.DataFrame:
+                 methods: Sequence[str] = METHODS, progress: bool = False,
+                 scan: tuple[float, float] | None = None) -> pd.DataFrame:
     """Table 6's runs of one sharing ``level`` at one ``noise`` level: one record per (run, method, unit).
 
     Run ``r`` takes ``run_seed(seed, noise, r)``: it draws theta* (:func:`sdm.sharing.draw_truth`), the noise
@@ -180,18 +192,18 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
         level: one of :data:`SHARINGS`; noise: the noise level of the targets (Table 2's).
         n_cars: ``(N,)`` cars per configuration (on screen, hidden or not), to count the hidden ones.
         methods: a subset of :data:`METHODS`; the :data:`REFERENCES` are always scored.
+        scan: ``(reach, step)`` metres: score :data:`EXACT_SET` on the first run's units (:func:`exact_set_records`);
+            ``None``: not.
 
     Returns:
         A DataFrame with columns ``sharing, level, run, seed, method, config, car, unit, a, b, a_true, b_true,
-        distance, start, cpu_s`` (``car`` -1 for a configuration's unit; ``start`` the distance of the method's
-        start on the unit, the paper's shared start for the floor and the references; ``cpu_s`` the run's CPU
-        seconds per configuration with units), and per run a row of method ``"hidden"`` whose ``unit`` counts the cars
-        that own no point (no row, nothing to estimate; left out of every mean).
+        distance, start, cpu_s, extent_a, extent_b`` (``car`` -1 for a configuration's unit; ``start`` the distance
+        of the method's start on the unit, the paper's shared start for the floor and the references; ``cpu_s`` the
+        run's CPU seconds per configuration with units; ``extent_a``, ``extent_b`` metres, the exact-match set's
+        extent per axis on :data:`EXACT_SET`'s records, NaN on the others), and per run a row of method ``"hidden"``
+        whose ``unit`` counts the cars that own no point (no row, nothing to estimate; left out of every mean).
     """
-    from tqdm.std import tqdm
 
-    from .baselines import silhouette
-    from .baselines.rows import floor_configurations
 
     if level not in SHARINGS:
         raise SDMInputError(f"level must be one of {', '.join(SHARINGS)}, got {level!r}")
@@ -203,7 +215,8 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
     unit_car = _unit_cars(sharing, units)
     owners = max(int((units.offsets[1:] > units.offsets[:-1]).sum()), 1)
     records = []
-    for run in tqdm(list(runs), desc=f"{level}, noise {noise}", unit="run", disable=not progress, leave=False):
+    for index, run in enumerate(tqdm(list(runs), desc=f"{level}, noise {noise}", unit="run", disable=not progress,
+                                     leave=False)):
         own_seed, targets, true_totals = paired_targets(data, sharing, units, noise, run, seed, settings.truth)
         noisy = data.with_targets(targets)
         estimates = {}
@@ -231,11 +244,13 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
                 estimates[method] = (totals, _cpu() - began + shared_seconds, S.unit_totals(table, units))
             elif method == "floor":
                 began = _cpu()
-                floor = floor_configurations(noisy, units, true_totals, settings.floor, own_seed)
+                floor = floor_configurations(noisy, units, true_totals, settings.floor, own_seed,
+                                             configs=_missed_by_truth(noisy, units, true_totals))
                 estimates[method] = (floor.totals, _cpu() - began, None)
         start_totals = S.unit_totals(_start_table(sharing, paper_start[0]), units)
         estimates["start"] = (start_totals, paper_start[1], start_totals)
         estimates["prior"] = (prior_totals(settings.truth, len(units)), 0.0, start_totals)
+        nan = float("nan")
         for method, (totals, seconds, given) in estimates.items():
             distance = (totals - true_totals).norm(dim=1)
             # the floor is given theta* itself: its row reads against the start the others are given
@@ -246,16 +261,58 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
                                 "a": float(totals[u, 0]), "b": float(totals[u, 1]),
                                 "a_true": float(true_totals[u, 0]), "b_true": float(true_totals[u, 1]),
                                 "distance": float(distance[u]), "start": float(start_distance[u]),
-                                "cpu_s": seconds / owners})
+                                "cpu_s": seconds / owners, "extent_a": nan, "extent_b": nan})
+        if scan is not None and index == 0:
+            sets, seconds = exact_set_records(data, sharing, units, own_seed, settings.truth, scan)
+            start_distance = (start_totals - true_totals).norm(dim=1)
+            for u in range(len(units)):
+                records.append({"sharing": level, "level": noise, "run": run, "seed": own_seed, "method": EXACT_SET,
+                                "config": int(units.config[u]), "car": int(unit_car[u]), "unit": u,
+                                "a": nan, "b": nan, "a_true": float(true_totals[u, 0]),
+                                "b_true": float(true_totals[u, 1]), "distance": float(sets.distance[u]),
+                                "start": float(start_distance[u]), "cpu_s": seconds / owners,
+                                "extent_a": float(sets.extent[u, 0]), "extent_b": float(sets.extent[u, 1])})
         records.append({"sharing": level, "level": noise, "run": run, "seed": own_seed, "method": "hidden",
                         "config": -1, "car": -1, "unit": int(sharing.hidden.shape[0]), "a": 0.0, "b": 0.0,
-                        "a_true": 0.0, "b_true": 0.0, "distance": 0.0, "start": 0.0, "cpu_s": 0.0})
+                        "a_true": 0.0, "b_true": 0.0, "distance": 0.0, "start": 0.0, "cpu_s": 0.0,
+                        "extent_a": nan, "extent_b": nan})
     return pd.DataFrame.from_records(records, columns=RUN_COLUMNS)
 
 
 #: The columns of :func:`objects_runs`' records.
 RUN_COLUMNS = ["sharing", "level", "run", "seed", "method", "config", "car", "unit", "a", "b", "a_true", "b_true",
-               "distance", "start", "cpu_s"]
+               "distance", "start", "cpu_s", "extent_a", "extent_b"]
+
+
+def _missed_by_truth(data: ConfigurationSet, units: S.Units, truth: torch.Tensor) -> list[int]:
+    """The configurations with units whose target theta* does not reproduce exactly (count > 0 at ``truth``).
+
+    Elsewhere theta* attains the least count, 0, and is the floor's answer (:func:`sdm.baselines.rows.nearest_minimiser`
+    keeps theta* wherever it attains the least count): no search is needed. Without noise that is every configuration.
+    """
+    missed = []
+    for index in range(len(data)):
+        first, last = int(units.offsets[index]), int(units.offsets[index + 1])
+        if last > first and int(configuration_objective(data, units, index).counts(
+                truth[first:last].to(data.device).unsqueeze(0))[0]) != 0:
+            missed.append(index)
+    return missed
+
+
+def exact_set_records(data: ConfigurationSet, sharing: S.Sharing, units: S.Units, own_seed: int,
+                      truth: S.TruthDistribution, scan: tuple[float, float]):
+    """The exact-match set of every unit for a run's theta* (drawn from ``own_seed`` as :func:`paired_targets` does),
+    scanned on its noise-free targets with ``scan = (reach, step)`` metres (:func:`sdm.identifiability.exact_sets`).
+
+    Returns:
+        ``(sets, seconds)``: :class:`sdm.identifiability.ExactSets` over every unit and the scan's CPU seconds.
+    """
+    began = _cpu()
+    theta = S.draw_truth(sharing, own_seed, truth)
+    clean = data.with_targets(S.render_targets(data, theta, sharing.param_index))
+    reach, step = scan
+    sets = exact_sets(clean, units, S.unit_totals(theta, units), reach=float(reach), step=float(step))
+    return sets, _cpu() - began
 
 
 def _unit_cars(sharing: S.Sharing, units: S.Units) -> torch.Tensor:
@@ -266,26 +323,28 @@ def _unit_cars(sharing: S.Sharing, units: S.Units) -> torch.Tensor:
 
 def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence[int], seed: int,
                  settings: ObjectsSettings, epochs: Sequence[int], budgets: Sequence[int],
-                 progress: bool = False) -> pd.DataFrame:
+                 progress: bool = False, scan: tuple[float, float] | None = None) -> pd.DataFrame:
     """Error against CPU time per configuration, one row per car, for SDM and CMA-ES at several budgets.
 
     Images with exactly ``n_cars`` cars each (:func:`sdm.data.set_with_cars`), one row per car. SDM (the
     paper's rule, :func:`sdm_rows`) runs with ``n_epoch`` in ``epochs`` for its rows; CMA-ES jointly (``cmaes``)
     and per car (``cmaes_car``, block sweeps) with ``evaluations_per_unknown`` in ``budgets``, from SDM's shared
     start. The do-nothing references
-    (:data:`REFERENCES`: the shared start both are given, theta*'s mean) are scored per run with budget 0.
+    (:data:`REFERENCES`: the shared start both are given, theta*'s mean) are scored per run with budget 0; with
+    ``scan = (reach, step)`` metres, :data:`EXACT_SET` on the first run's cars (:func:`exact_set_records`).
 
     Returns:
-        A DataFrame with columns ``cars, level, run, method, budget, mean, median, start, closer, cpu_s``
-        (distances in metres over the run's cars; ``start`` the mean distance of the shared start over the same
-        cars, ``closer`` the share of cars that end closer than the start; ``cpu_s`` per configuration).
+        A DataFrame with columns ``cars, level, run, method, budget, mean, median, start, closer, cpu_s, extent_a,
+        extent_b`` (distances in metres over the run's cars; ``start`` the mean distance of the shared start over
+        the same cars, ``closer`` the share of cars that end closer than the start; ``cpu_s`` per configuration;
+        ``extent_a``, ``extent_b`` the median over the cars of the exact-match set's extent per axis, metres, on
+        :data:`EXACT_SET`'s record, NaN on the others).
     """
-    from tqdm.std import tqdm
-
     sharing = S.sharing("car", data)
     units = S.units(data, sharing.param_index, sharing.n_rows)
     records = []
-    for run in tqdm(list(runs), desc=f"{n_cars} cars", unit="run", disable=not progress, leave=False):
+    for index, run in enumerate(tqdm(list(runs), desc=f"{n_cars} cars", unit="run", disable=not progress,
+                                     leave=False)):
         own_seed, targets, true_totals = paired_targets(data, sharing, units, noise, run, seed, settings.truth)
         start, shared_seconds = paper_start = shared_start(data, targets, own_seed, settings)
         start_totals = S.unit_totals(_start_table(sharing, start), units)
@@ -297,6 +356,15 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
 
         record("start", 0, start_totals, shared_seconds)
         record("prior", 0, prior_totals(settings.truth, len(units)), 0.0)
+        if scan is not None and index == 0:
+            sets, seconds = exact_set_records(data, sharing, units, own_seed, settings.truth, scan)
+            set_record = _scaling_record(n_cars, noise, run, EXACT_SET, 0, torch.zeros_like(start_error),
+                                         start_error, seconds / len(data))
+            set_record |= {"mean": float(sets.distance.mean()), "median": float(sets.distance.median()),
+                           "closer": float((sets.distance < start_error.norm(dim=1)).to(torch.float64).mean()),
+                           "extent_a": float(sets.extent[:, 0].median()),
+                           "extent_b": float(sets.extent[:, 1].median())}
+            records.append(set_record)
         for n_epoch in epochs:
             theta, _, seconds, _ = sdm_rows(
                 data, targets, sharing, own_seed, replace(settings, rows=replace(settings.rows, n_epoch=int(n_epoch))),
@@ -312,14 +380,16 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
 
 
 #: The columns of :func:`scaling_runs`' records.
-SCALING_COLUMNS = ["cars", "level", "run", "method", "budget", "mean", "median", "start", "closer", "cpu_s"]
+SCALING_COLUMNS = ["cars", "level", "run", "method", "budget", "mean", "median", "start", "closer", "cpu_s",
+                   "extent_a", "extent_b"]
 
 
 def _scaling_record(n_cars, noise, run, method, budget, error, start_error, cpu_s) -> dict:
     distance, start = error.norm(dim=1), start_error.norm(dim=1)
     return {"cars": int(n_cars), "level": int(noise), "run": int(run), "method": method, "budget": int(budget),
             "mean": float(distance.mean()), "median": float(distance.median()), "start": float(start.mean()),
-            "closer": float((distance < start).to(torch.float64).mean()), "cpu_s": float(cpu_s)}
+            "closer": float((distance < start).to(torch.float64).mean()), "cpu_s": float(cpu_s),
+            "extent_a": float("nan"), "extent_b": float("nan")}
 
 
 def search_settings(warm: dict, rows: dict, schedule: str, cmaes: dict, s: int, batch_size: int,
@@ -327,8 +397,6 @@ def search_settings(warm: dict, rows: dict, schedule: str, cmaes: dict, s: int, 
     """SDM's and CMA-ES's settings per configuration from the config's ``research.objects`` ``warm``, ``rows``,
     ``schedule`` and ``cmaes`` and the ``train`` section: :class:`ObjectsSettings` without floor or silhouette
     (Table 7 runs neither; :func:`settings_from_config` adds them for Table 6)."""
-    from .baselines.rows import RowsCMAESSettings
-
     common = dict(batch_size=int(batch_size), lr_decay=float(lr_decay), zoom=0)
     return ObjectsSettings(
         warm=TrainSettings(lr=float(warm["lr"]), n_epoch=int(warm["n_epoch"]), s=int(s), **common),
@@ -350,9 +418,6 @@ def settings_from_sections(section: dict, train: dict) -> ObjectsSettings:
 def settings_from_config(truth: dict, warm: dict, rows: dict, schedule: str, cmaes: dict, floor: dict,
                          silhouette: dict, s: int, batch_size: int, lr_decay: float) -> ObjectsSettings:
     """:class:`ObjectsSettings` from the config's ``research.objects`` values and the ``train`` section."""
-    from .baselines.rows import RowsFloorSettings
-    from .baselines.silhouette import SilhouetteSettings
-
     return replace(
         search_settings(warm, rows, schedule, cmaes, s, batch_size, lr_decay),
         floor=RowsFloorSettings(evaluations_per_unknown=int(floor["evaluations_per_unknown"]),

@@ -273,9 +273,28 @@ def _check_research(config: Mapping[str, Any], noise_runs: int) -> None:
                               f"({objects.get('batch_size')}), got {scaling.get('n_images')}")
         _at_most((objects.get("silhouette") or {}).get("batch_size"), int(objects.get("configurations", 1)),
                  "research.objects.silhouette.batch_size", "research.objects.configurations, a run's configurations")
+        _check_screens(objects)
     network = research.get("network") or {}
     if network.get("enabled"):
         _check_network(network, int(config["sky"]["n_images"]))
+
+
+def _check_screens(objects: Mapping[str, Any]) -> None:
+    """Table 6's screens: each scale once (a scale names its rows and its files), and the scaling on one of them."""
+    scales = [screen.get("scale") for screen in objects.get("screens") or [{"scale": 1}]]
+    twice = sorted({scale for scale in scales if scales.count(scale) > 1})
+    if twice:
+        raise ConfigError(f"config key 'research.objects.screens': each scale once (a scale names its rows and its "
+                          f"files), got {twice[0]} {scales.count(twice[0])} times in {scales}")
+    for index, screen in enumerate(objects.get("screens") or []):
+        if "configurations" in screen and int(screen["configurations"]) > int(objects.get("configurations", 1)):
+            raise ConfigError(f"config key 'research.objects.screens[{index}].configurations': at most "
+                              f"research.objects.configurations ({objects.get('configurations')}), got "
+                              f"{screen['configurations']}")
+    scale = (objects.get("scaling") or {}).get("scale", 1)
+    if scale not in scales:
+        raise ConfigError(f"config key 'research.objects.scaling.scale': one of research.objects.screens' scales "
+                          f"{scales} (the scaling runs on that screen's disc, rows and cmaes), got {scale!r}")
 
 
 def _check_network(network: Mapping[str, Any], n_sky: int) -> None:

@@ -1,6 +1,8 @@
 """Table 6 and its figures: parameters attached to points (:mod:`sdm.objects`), gathered and put in words."""
 from __future__ import annotations
 
+import gzip
+import io
 import math
 from pathlib import Path
 from typing import Sequence
@@ -8,7 +10,7 @@ from typing import Sequence
 import numpy as np
 import pandas as pd
 
-from ..objects import METHODS, REFERENCES
+from ..objects import EXACT_SET, METHODS, REFERENCES
 from .tables import TableFormat, write_table
 
 #: Method labels, as the table and figures print them.
@@ -16,15 +18,16 @@ LABELS = {
     "sdm_paper": "SDM, the paper's rule",
     "sdm_schedule": "SDM, the recommended schedule",
     "cmaes": "CMA-ES per configuration",
-    "cmaes_car": "CMA-ES per car (block sweeps)",
+    "cmaes_car": "CMA-ES per unit (block sweeps)",
     "cmaes_reg": "CMA-ES, regularised toward its start",
     "silhouette": "soft silhouette",
     "floor": "floor (nearest minimiser)",
     "start": "do nothing: the shared start",
     "prior": "do nothing: theta*'s mean",
+    EXACT_SET: "any point of the exact-match set",
 }
-#: Table 6's rows per (sharing, level): the do-nothing references first, then the methods.
-ROWS = REFERENCES + METHODS
+#: Table 6's rows per (scale, sharing, level): the do-nothing references first, what the pixels identify, the methods.
+ROWS = REFERENCES + (EXACT_SET,) + METHODS
 #: The black-box peers SDM is compared with (the floor is a reference, not a peer).
 PEERS = ("cmaes", "cmaes_car", "cmaes_reg", "silhouette")
 #: The sharing levels in table order; "shared" is Table 2's runs.
@@ -34,13 +37,14 @@ UNIT = {"shared": "the shared shift", "configuration": "a configuration's shift"
         "camera+car": "a car's camera + residual"}
 
 TABLE6_FORMAT = TableFormat(
-    columns=("sharing", "level", "method", "units", "hidden", "mean", "median", "q3", "start", "of_start", "closer",
-             "cpu_ms"),
-    headers={"sharing": "sharing", "level": "noise level", "method": "method", "units": "units scored",
-             "hidden": "hidden cars", "mean": "mean", "median": "median", "q3": "Q3", "start": "its start's mean",
-             "of_start": "x start", "closer": "closer than start", "cpu_ms": "CPU ms / config"},
+    columns=("scale", "sharing", "level", "method", "units", "hidden", "mean", "median", "q3", "start", "of_start",
+             "closer", "extent_a", "extent_b", "cpu_ms"),
+    headers={"scale": "screen scale", "sharing": "sharing", "level": "noise level", "method": "method",
+             "units": "units scored", "hidden": "hidden cars", "mean": "mean", "median": "median", "q3": "Q3",
+             "start": "its start's mean", "of_start": "x start", "closer": "closer than start",
+             "extent_a": "exact set a", "extent_b": "exact set b", "cpu_ms": "CPU ms / config"},
     formats={"mean": ".2f", "median": ".2f", "q3": ".2f", "start": ".2f", "of_start": ".2f", "closer": ".2f",
-             "cpu_ms": ".2f"},
+             "extent_a": ".1f", "extent_b": ".1f", "cpu_ms": ".2f"},
     caption="Table 6: parameters attached to points, distance per unit to theta* (1e-3 m) and CPU time",
     label="tab:table6",
     notes=(
@@ -56,6 +60,10 @@ TABLE6_FORMAT = TableFormat(
         "silhouette start there) and theta*'s mean (no pixel looked at). Its start's mean: the mean distance of the "
         "start the method was given, on the same units (the shared start for the floor, which is given theta*). "
         "x start: the method's mean over that (paired); closer than start: the share of units it ends closer.",
+        "Screen scale: the screen is scale times the Sky screen's 128 x 256 (the paper's case is 1). Exact set a, b: "
+        "the median over the units of the first run of each job of the extent per axis of the set of shifts that "
+        "reproduce the unit's noise-free target exactly (1e-3 m): what its pixels identify. The row 'any point of "
+        "the exact-match set' is the mean distance from theta* of a point of that set.",
     ),
 )
 
@@ -63,49 +71,98 @@ TABLE6_FORMAT = TableFormat(
 def table6(run_frames: Sequence[pd.DataFrame], table2_distances: pd.DataFrame | None = None) -> pd.DataFrame:
     """Table 6 from :func:`sdm.objects.objects_runs`' frames and Table 2's per-run distances.
 
+    A frame without a ``scale`` column is of scale 1 (the Sky screen); Table 2's runs are the shared level there.
+
     Returns:
-        One row per (sharing, noise level, method): ``units`` scored, ``hidden`` cars over the runs, the mean,
-        median and Q3 distance (metres) and CPU milliseconds per configuration.
+        One row per (scale, sharing, noise level, method): ``units`` scored, ``hidden`` cars over the runs, the mean,
+        median and Q3 distance (metres), the start's mean on the same units, the paired fraction ``of_start`` and the
+        share ``closer`` than the start, the median exact-match extent per axis ``extent_a_m``, ``extent_b_m``
+        (metres, over the :data:`sdm.objects.EXACT_SET` units of the group; NaN where none was scanned) and CPU
+        milliseconds per configuration. Scales in their order in the frames (the first screen first).
     """
     rows = []
+    frame = pd.concat(run_frames, ignore_index=True) if run_frames else pd.DataFrame()
+    if len(frame) and "scale" not in frame.columns:
+        frame = frame.assign(scale=1)
+    scales = list(dict.fromkeys(int(v) for v in frame["scale"])) if len(frame) else []
     if table2_distances is not None and len(table2_distances):
         for level, group in table2_distances.groupby("level", sort=True):
             d = group["distance"].to_numpy(dtype=float)
-            rows.append(_row("shared", int(level), "sdm_paper", d, 0, math.nan))
-    frame = pd.concat(run_frames, ignore_index=True) if run_frames else pd.DataFrame()
-    for (sharing, level), group in (frame.groupby(["sharing", "level"], sort=False) if len(frame) else []):
+            rows.append(_row(1, "shared", int(level), "sdm_paper", d, 0, math.nan))
+        scales = scales if 1 in scales else scales + [1]
+    for (scale, sharing, level), group in (frame.groupby(["scale", "sharing", "level"], sort=False)
+                                           if len(frame) else []):
         hidden = int(group.loc[group["method"] == "hidden", "unit"].sum())
+        sets = group[group["method"] == EXACT_SET]
+        extent = ((float(sets["extent_a"].median()), float(sets["extent_b"].median())) if len(sets)
+                  else (math.nan, math.nan))
         for method in ROWS:
             own = group[group["method"] == method]
             if len(own):
                 per_run = own.groupby("run")["cpu_s"].first()
-                rows.append(_row(sharing, int(level), method, own["distance"].to_numpy(dtype=float), hidden,
-                                 1000 * float(per_run.mean()), own["start"].to_numpy(dtype=float)))
-    table = pd.DataFrame(rows, columns=["sharing", "level", "method", "units", "hidden", "mean_m", "median_m", "q3_m",
-                                        "start_m", "of_start", "closer", "cpu_ms"])
+                rows.append(_row(int(scale), sharing, int(level), method, own["distance"].to_numpy(dtype=float),
+                                 hidden, 1000 * float(per_run.mean()), own["start"].to_numpy(dtype=float), extent))
+    table = pd.DataFrame(rows, columns=["scale", "sharing", "level", "method", "units", "hidden", "mean_m", "median_m",
+                                        "q3_m", "start_m", "of_start", "closer", "extent_a_m", "extent_b_m", "cpu_ms"])
     order = {name: i for i, name in enumerate(SHARING_ORDER)}
     methods = {name: i for i, name in enumerate(ROWS)}
-    return table.sort_values(["sharing", "level", "method"], key=lambda c: c.map(order) if c.name == "sharing"
-                             else c.map(methods) if c.name == "method" else c, kind="stable").reset_index(drop=True)
+    screens = {scale: i for i, scale in enumerate(scales)}
+    keys = {"scale": screens, "sharing": order, "method": methods}
+    return table.sort_values(["scale", "sharing", "level", "method"],
+                             key=lambda c: c.map(keys[c.name]) if c.name in keys else c,
+                             kind="stable").reset_index(drop=True)
 
 
-def _row(sharing, level, method, distances: np.ndarray, hidden: int, cpu_ms: float,
-         start: np.ndarray | None = None) -> dict:
+def _row(scale, sharing, level, method, distances: np.ndarray, hidden: int, cpu_ms: float,
+         start: np.ndarray | None = None, extent: tuple[float, float] = (math.nan, math.nan)) -> dict:
     """One row; ``start``: the distances of the method's start on the same units (paired), or None (Table 2's)."""
     paired = start is not None and start.size and float(start.mean()) > 0
-    return {"sharing": sharing, "level": level, "method": method, "units": int(distances.size), "hidden": hidden,
-            "mean_m": float(distances.mean()), "median_m": float(np.median(distances)),
+    return {"scale": scale, "sharing": sharing, "level": level, "method": method, "units": int(distances.size),
+            "hidden": hidden, "mean_m": float(distances.mean()), "median_m": float(np.median(distances)),
             "q3_m": float(np.quantile(distances, 0.75)),
             "start_m": float(start.mean()) if start is not None and start.size else math.nan,
             "of_start": float(distances.mean() / start.mean()) if paired else math.nan,
-            "closer": float((distances < start).mean()) if paired else math.nan, "cpu_ms": cpu_ms}
+            "closer": float((distances < start).mean()) if paired else math.nan,
+            "extent_a_m": extent[0], "extent_b_m": extent[1], "cpu_ms": cpu_ms}
 
 
-def against_cmaes(table: pd.DataFrame, sharing: str) -> list[tuple[int, str, float, float]]:
-    """Per noise level of ``sharing``: ``(level, rule, ratio, speed)``, SDM's closer rule (the lower mean of the two),
-    its mean over CMA-ES's and CMA-ES's CPU time over its own; levels without CMA-ES or SDM are left out."""
+def units_archive(run_frames: Sequence[pd.DataFrame], scaling_frames: Sequence[pd.DataFrame] = ()) -> bytes:
+    """Every per-unit record of Table 6's runs and every record of the scaling, as one gzip-compressed CSV (bytes;
+    no time stamp, so the same records give the same bytes).
+
+    Columns: those of :data:`sdm.objects.RUN_COLUMNS` with ``scale`` first, and ``table`` (``runs`` or ``scaling``)
+    before them; a scaling record keeps its own columns (:data:`sdm.objects.SCALING_COLUMNS`), empty elsewhere.
+    Numbers with 7 significant digits (distances to 1e-7 m at most).
+    """
+    parts = [frame.assign(table="runs") for frame in run_frames]
+    parts += [frame.assign(table="scaling") for frame in scaling_frames]
+    frame = pd.concat(parts, ignore_index=True) if parts else pd.DataFrame(columns=["table"])
+    frame = frame[["table"] + [c for c in frame.columns if c != "table"]]
+    text = frame.to_csv(index=False, float_format="%.7g", lineterminator="\n")
+    return gzip.compress(text.encode(), compresslevel=9, mtime=0)
+
+
+def read_units_archive(path: str | Path) -> pd.DataFrame:
+    """The records :func:`units_archive` wrote to ``path``."""
+    return pd.read_csv(io.BytesIO(gzip.decompress(Path(path).read_bytes())), low_memory=False)
+
+
+def _scales(table: pd.DataFrame) -> list[int]:
+    """The table's screen scales in its order (the chosen screen first); a table without them is of scale 1."""
+    return list(dict.fromkeys(int(v) for v in table["scale"])) if "scale" in table.columns else [1]
+
+
+def _of_scale(table: pd.DataFrame, scale: int, sharing: str) -> pd.DataFrame:
+    rows = table[table["sharing"] == sharing]
+    return rows[rows["scale"] == scale] if "scale" in table.columns else rows
+
+
+def against_cmaes(table: pd.DataFrame, sharing: str, scale: int = 1) -> list[tuple[int, str, float, float]]:
+    """Per noise level of ``sharing`` on the screen of ``scale``: ``(level, rule, ratio, speed)``, SDM's closer rule
+    (the lower mean of the two), its mean over CMA-ES's and CMA-ES's CPU time over its own; levels without CMA-ES or
+    SDM are left out."""
     out = []
-    for level, group in table[table["sharing"] == sharing].groupby("level", sort=True):
+    for level, group in _of_scale(table, scale, sharing).groupby("level", sort=True):
         by = group.set_index("method")
         rules = [m for m in ("sdm_paper", "sdm_schedule") if m in by.index]
         if "cmaes" not in by.index or not rules:
@@ -116,13 +173,13 @@ def against_cmaes(table: pd.DataFrame, sharing: str) -> list[tuple[int, str, flo
     return out
 
 
-def against_start(table: pd.DataFrame, sharing: str) -> list[dict]:
-    """Per noise level of ``sharing``, in terms of doing nothing: SDM's closer rule and the best peer (:data:`PEERS`,
-    the lower mean), each with the share of its start's error it removes (``1 - x start``, paired on the same units)
-    and the share of units it ends closer than its start, and the peer's CPU time over SDM's. Needs the reference
-    columns (``of_start``); levels without SDM are left out."""
+def against_start(table: pd.DataFrame, sharing: str, scale: int = 1) -> list[dict]:
+    """Per noise level of ``sharing`` on the screen of ``scale``, in terms of doing nothing: SDM's closer rule and the
+    best peer (:data:`PEERS`, the lower mean), each with the share of its start's error it removes (``1 - x start``,
+    paired on the same units) and the share of units it ends closer than its start, and the peer's CPU time over
+    SDM's. Needs the reference columns (``of_start``); levels without SDM are left out."""
     out = []
-    for level, group in table[table["sharing"] == sharing].groupby("level", sort=True):
+    for level, group in _of_scale(table, scale, sharing).groupby("level", sort=True):
         by = group.set_index("method")
         rules = [m for m in ("sdm_paper", "sdm_schedule") if m in by.index]
         if not rules:
@@ -133,6 +190,8 @@ def against_start(table: pd.DataFrame, sharing: str) -> list[dict]:
         row = {"level": int(level), "rule": best, "removed": 1 - float(by.loc[best, "of_start"]),
                "closer": float(by.loc[best, "closer"]), "start_m": float(by.loc[best, "start_m"]),
                "prior_m": float(by.loc["prior", "mean_m"]) if "prior" in by.index else math.nan,
+               "extent": (float(by.loc[best, "extent_a_m"]), float(by.loc[best, "extent_b_m"]))
+               if "extent_a_m" in by.columns else (math.nan, math.nan),
                "peer": peer}
         if peer is not None:
             row |= {"peer_removed": 1 - float(by.loc[peer, "of_start"]), "peer_closer": float(by.loc[peer, "closer"]),
@@ -144,26 +203,32 @@ def against_start(table: pd.DataFrame, sharing: str) -> list[dict]:
 
 def _removed_words(row: dict) -> str:
     """One level in words: the share of the start's error SDM removes, the best peer's, the CPU ratio."""
-    words = (f"level {row['level']}: SDM ({LABELS[row['rule']]}) removes {100 * row['removed']:.0f} % of its start's "
+    words = (f"level {row['level']}: {LABELS[row['rule']]} removes {100 * row['removed']:.0f} % of its start's "
              f"error ({100 * row['closer']:.0f} % of units end closer)")
     if row["peer"] is not None:
-        worse = " (worse than doing nothing)" if row["peer_removed"] < 0 else ""
-        words += (f", the best peer ({LABELS[row['peer']]}) {100 * row['peer_removed']:.0f} %{worse} at "
-                  f"{row['speed']:.0f}x SDM's CPU time")
+        removed = (f"{100 * row['peer_removed']:.0f} %" if row["peer_removed"] >= 0 else
+                   f"none: it ends {100 * -row['peer_removed']:.0f} % farther than its start (worse than doing nothing)")
+        words += f", the best peer ({LABELS[row['peer']]}) {removed}, at {row['speed']:.0f}x SDM's CPU time"
     return words
 
 
+def _screen_words(scale: int) -> str:
+    return f"on the screen of scale {scale} ({128 * scale} x {256 * scale}{', the paper' + chr(39) + 's' if scale == 1 else ''})"
+
+
 def verdict_sentence(table: pd.DataFrame) -> str:
-    """Table 6 in one sentence for the verdict: per sharing level, SDM's best rule's mean against CMA-ES's over
-    the noise levels (the range of the ratio) and how much less CPU time it takes per configuration; in terms of
-    doing nothing where the table has its references (the share of the start's error SDM and the best peer
-    remove)."""
+    """Table 6 in one sentence for the verdict: per screen scale and sharing level, the share of the start's error
+    SDM and the best peer remove and the CPU ratio where the table has its references; else SDM's best rule's mean
+    against CMA-ES's over the noise levels (the range of the ratio) and how much less CPU time it takes per
+    configuration."""
     if "of_start" in table.columns:
         parts = []
-        for sharing in SHARING_ORDER[1:]:
-            rows = against_start(table, sharing)
-            if rows:
-                parts.append(f"with {UNIT[sharing]} unknown, " + "; ".join(_removed_words(row) for row in rows))
+        for scale in _scales(table):
+            for sharing in SHARING_ORDER[1:]:
+                rows = against_start(table, sharing, scale)
+                if rows:
+                    parts.append(f"{_screen_words(scale)}, with {UNIT[sharing]} unknown, "
+                                 + "; ".join(_removed_words(row) for row in rows))
         return ("; ".join(parts) + " (docs/results/objects/).") if parts else "no sharing level was run."
     parts = []
     for sharing in SHARING_ORDER[1:]:
@@ -184,70 +249,126 @@ def write_table6(frame: pd.DataFrame, stem: str | Path) -> list[Path]:
     """Table 6's CSV (metres), Markdown, LaTeX and HTML (1e-3 m)."""
     shown = frame.assign(mean=1e3 * frame["mean_m"], median=1e3 * frame["median_m"], q3=1e3 * frame["q3_m"],
                          start=1e3 * frame["start_m"], method=frame["method"].map(LABELS))
+    if "extent_a_m" in frame.columns:
+        shown = shown.assign(extent_a=1e3 * frame["extent_a_m"], extent_b=1e3 * frame["extent_b_m"])
     return write_table(frame, stem, TABLE6_FORMAT, shown)
 
 
 def scaling_table(frames: Sequence[pd.DataFrame]) -> pd.DataFrame:
-    """Per (cars, method, budget): the mean over runs of the run's mean and median distance, its start's mean
-    distance on the same cars, the share of cars ending closer than the start, and CPU s per config."""
+    """Per (scale, cars, method, budget): the mean over runs of the run's mean and median distance, its start's mean
+    distance on the same cars, the share of cars ending closer than the start, CPU s per config, and the exact-match
+    set's median extent per axis (its record only). A frame without ``scale`` is of scale 1."""
     frame = pd.concat(frames, ignore_index=True)
-    columns = [c for c in ("mean", "median", "start", "closer", "cpu_s") if c in frame.columns]
-    return frame.groupby(["cars", "method", "budget"], sort=True)[columns].mean().reset_index()
+    if "scale" not in frame.columns:
+        frame = frame.assign(scale=1)
+    columns = [c for c in ("mean", "median", "start", "closer", "cpu_s", "extent_a", "extent_b") if c in frame.columns]
+    return frame.groupby(["scale", "cars", "method", "budget"], sort=True)[columns].mean().reset_index()
 
 
 def _bar(met: bool) -> str:
     return "met" if met else "missed"
 
 
+def _mm(value: float) -> str:
+    return f"{1e3 * value:.1f}e-3 m"
+
+
 def table6_summary(table: pd.DataFrame, scaling: pd.DataFrame | None) -> str:
-    """Table 6 in plain words (Markdown): per sharing level and noise level, the share of its start's error that
-    SDM and the best peer remove and their CPU time ratio; the bars of the car level; the scaling against doing
-    nothing."""
+    """Table 6 in plain words (Markdown): per screen scale, sharing level and noise level, the share of its start's
+    error that SDM and the best peer remove and their CPU time ratio, beside the exact-match set's extent; the bars
+    per screen; the scaling against doing nothing and the best peer."""
     lines = ["## Table 6 in words", ""]
-    for sharing in SHARING_ORDER[1:]:
-        rows = table[table["sharing"] == sharing]
-        if not len(rows):
-            continue
-        hidden = int(rows["hidden"].max())
-        lines.append(f"- **{UNIT[sharing].capitalize()}** ({hidden} hidden cars over the runs, left out): "
-                     + "; ".join(_removed_words(row) for row in against_start(table, sharing)) + ".")
-    car = table[table["sharing"] == "car"].set_index(["level", "method"])
-    if ("sdm_schedule" in set(car.index.get_level_values(1))) and 0 in set(car.index.get_level_values(0)):
-        lines += [""]
-        for level, bar in ((0, 0.2), (2, 0.5)):
-            if (level, "sdm_schedule") in car.index:
-                row = car.loc[(level, "sdm_schedule")]
-                lines.append(f"- Car level, noise {level}: the recommended schedule ends at {row['of_start']:.2f}x "
-                             f"its start's mean distance ({1e3 * row['mean_m']:.1f} against "
-                             f"{1e3 * row['start_m']:.1f}e-3 m); at most {bar}x: {_bar(row['of_start'] <= bar)}.")
-        floors = table[(table["method"] == "floor") & (table["level"] == 0)]
-        if len(floors):
-            worst = floors.loc[floors["of_start"].idxmax()]
-            lines.append(f"- The floor without noise: at most {worst['of_start']:.3f}x the start's error over the "
-                         f"sharing levels (worst: {worst['sharing']}); at most 0.05x: "
-                         f"{_bar(worst['of_start'] <= 0.05)}.")
-        worse = table[(table["level"] == 0) & table["method"].isin(METHODS) & (table["of_start"] > 1)]
+    for scale in _scales(table):
+        lines += [f"### {_screen_words(scale).capitalize()}", ""]
+        for sharing in SHARING_ORDER[1:]:
+            rows = _of_scale(table, scale, sharing)
+            if not len(rows):
+                continue
+            hidden = int(rows["hidden"].max())
+            compared = against_start(table, sharing, scale)
+            extent = compared[0]["extent"] if compared else (math.nan, math.nan)
+            where = (f"; its pixels identify it to a median {1e3 * extent[0]:.1f} x {1e3 * extent[1]:.1f}e-3 m "
+                     "(the exact-match set's extent, a x b)" if not math.isnan(extent[0]) else "")
+            lines.append(f"- **{UNIT[sharing].capitalize()}** ({hidden} hidden cars over the runs, left out{where}): "
+                         + "; ".join(_removed_words(row) for row in compared) + ".")
+        lines += [""] + _bars(table, scale) + [""]
+    if scaling is not None and len(scaling):
+        lines += _scaling_words(scaling)
+    return "\n".join(lines).rstrip("\n") + "\n"
+
+
+def _bars(table: pd.DataFrame, scale: int) -> list[str]:
+    """The bars of one screen: the car level's schedule noise-free and at level 2, every method closer than its start
+    noise-free, the floor, SDM against the best peer at the car level."""
+    own = table[table["scale"] == scale] if "scale" in table.columns else table
+    lines = []
+    car = own[own["sharing"] == "car"].set_index(["level", "method"])
+    for level, bar in ((0, 0.2), (2, 0.5)):
+        if (level, "sdm_schedule") in car.index:
+            row = car.loc[(level, "sdm_schedule")]
+            moon = f"; moonshot at most 0.1x: {_bar(row['of_start'] <= 0.1)}" if level == 0 else ""
+            start_median = (f" against the shared start's {1e3 * car.loc[(level, 'start'), 'median_m']:.1f}e-3 m"
+                            if (level, "start") in car.index else "")
+            lines.append(f"- Car level, noise {level}: the recommended schedule ends at {row['of_start']:.2f}x its "
+                         f"start's mean distance ({1e3 * row['mean_m']:.1f} against {1e3 * row['start_m']:.1f}e-3 m); "
+                         f"at most {bar}x: {_bar(row['of_start'] <= bar)}{moon}. Its median is "
+                         f"{1e3 * row['median_m']:.1f}e-3 m{start_median}; {100 * (1 - row['closer']):.0f} % of the "
+                         "cars end no closer than their start.")
+    floors = own[(own["method"] == "floor") & (own["level"] == 0)]
+    if len(floors):
+        worst = floors.loc[floors["of_start"].idxmax()]
+        lines.append(f"- The floor without noise: at most {worst['of_start']:.3f}x the start's error over the "
+                     f"sharing levels (worst: {worst['sharing']}); at most 0.05x: {_bar(worst['of_start'] <= 0.05)}.")
+    noise_free = own[(own["level"] == 0) & own["method"].isin(METHODS)]
+    if len(noise_free):
+        worse = noise_free[noise_free["of_start"] > 1]
         lines.append("- Without noise, every method ends closer than its start on average." if not len(worse) else
                      "- Without noise, these end farther than their start on average: " + "; ".join(
                          f"{LABELS[r['method']]} ({r['sharing']}, {r['of_start']:.2f}x)" for _, r in worse.iterrows())
                      + ".")
-    if scaling is not None and len(scaling):
-        lines += ["", "**Scaling with the number of cars per image** (one shift per car, error against CPU time per "
-                  "configuration; x start: the mean over the shared start's mean on the same cars):", ""]
-        for cars, group in scaling.groupby("cars", sort=True):
+    for row in against_start(table, "car", scale):
+        if row["peer"] is None:
+            continue
+        if row["peer_removed"] < 0:
+            lines.append(f"- Car level, noise {row['level']}: the best peer ({LABELS[row['peer']]}) ends farther than "
+                         "its start: no ratio to it is a comparison.")
+            continue
+        within, cheap = row["ratio"] <= 1.5, row["speed"] >= 10
+        lines.append(f"- Car level, noise {row['level']}: SDM's mean is {row['ratio']:.2f}x the best peer's "
+                     f"({LABELS[row['peer']]}) at 1/{row['speed']:.0f} of its CPU time; within 1.5x at no more than "
+                     f"1/10 of its time: {_bar(within and cheap)}.")
+    return lines
+
+
+def _scaling_words(scaling: pd.DataFrame) -> list[str]:
+    """The scaling in words: per K, doing nothing, SDM's best and the best peer's best against the start, the
+    exact-match extent, the bar for K >= 8; then the crossover against the best peer."""
+    lines = []
+    for scale, on_screen in scaling.groupby("scale", sort=False):
+        lines += [f"### Scaling with the number of cars per image, {_screen_words(int(scale))}", "",
+                  "One shift per car, error against CPU time per configuration; x start: the mean over the shared "
+                  "start's mean on the same cars.", ""]
+        crossed = []
+        for cars, group in on_screen.groupby("cars", sort=True):
             sdm = group[group["method"] == "sdm_paper"]
             cma = group[group["method"].isin(["cmaes", "cmaes_car"])]  # the best peer: joint or per car
             if not len(sdm) or not len(cma):
                 continue
             best_sdm, best_cma = sdm.loc[sdm["mean"].idxmin()], cma.loc[cma["mean"].idxmin()]
             peer = LABELS[best_cma["method"]]
-            start = float(best_sdm["start"]) if "start" in group.columns else math.nan
+            start = float(best_sdm["start"])
             prior = group.loc[group["method"] == "prior", "mean"]
-            line = (f"- K = {cars} ({2 * cars} unknowns): doing nothing {1e3 * start:.1f}e-3 m (the shared start)"
-                    + (f", {1e3 * float(prior.iloc[0]):.1f}e-3 m (theta*'s mean)" if len(prior) else "")
+            sets = group[group["method"] == EXACT_SET]
+            line = (f"- K = {cars} ({2 * cars} unknowns): doing nothing {_mm(start)} (the shared start)"
+                    + (f", {_mm(float(prior.iloc[0]))} (theta*'s mean)" if len(prior) else "")
+                    + (f"; exact-match set {1e3 * float(sets['extent_a'].iloc[0]):.1f} x "
+                       f"{1e3 * float(sets['extent_b'].iloc[0]):.1f}e-3 m, any point of it "
+                       f"{float(sets['mean'].iloc[0]) / start:.2f}x start" if len(sets) else "")
                     + f"; SDM's best {best_sdm['mean'] / start:.2f}x start at {1e3 * best_sdm['cpu_s']:.2f} ms, "
-                    f"the best peer's ({peer}, budget {int(best_cma['budget'])}) {best_cma['mean'] / start:.2f}x start "
-                    f"at {1e3 * best_cma['cpu_s']:.1f} ms per configuration.")
+                    f"the best peer's ({peer}, budget {int(best_cma['budget'])}) {best_cma['mean'] / start:.2f}x "
+                    f"start at {1e3 * best_cma['cpu_s']:.1f} ms per configuration.")
+            crossed.append((int(cars), float(best_sdm["mean"]), float(best_cma["mean"]), start, peer,
+                            float(best_cma["cpu_s"] / best_sdm["cpu_s"])))
             if cars >= 8:
                 if best_cma["mean"] > start:
                     line += " The best peer ends farther than doing nothing here: no ratio to it is a comparison."
@@ -258,53 +379,98 @@ def table6_summary(table: pd.DataFrame, scaling: pd.DataFrame | None) -> str:
                              f"{_bar(within and cheap)} ({best_sdm['mean'] / best_cma['mean']:.2f}x its mean, "
                              f"{best_cma['cpu_s'] / best_sdm['cpu_s']:.0f}x less time).")
             lines.append(line)
-    return "\n".join(lines) + "\n"
+        if crossed:
+            lines += ["", "- " + _crossover(crossed)]
+        lines.append("")
+    return lines
+
+
+def _crossover(crossed: list[tuple]) -> str:
+    """The crossover against the best peer in plain words, from ``(K, SDM's best, peer's best, start, peer, time
+    ratio)`` per K."""
+    closer = [k for k, sdm, peer, *_ in crossed if sdm < peer]
+    farther = [k for k, sdm, peer, *_ in crossed if sdm >= peer]
+    worse = [k for k, _, peer, start, *_ in crossed if peer > start]
+    ks = [k for k, *_ in crossed]
+    if not closer:
+        ratios = [sdm / peer for _, sdm, peer, *_ in crossed]
+        words = (f"No crossover: at every K measured ({ks[0]}-{ks[-1]}) the best peer ends closer to theta* than SDM's "
+                 f"best (SDM at {min(ratios):.2f}-{max(ratios):.2f}x its mean), at "
+                 f"{min(r for *_, r in crossed):.0f}-{max(r for *_, r in crossed):.0f}x SDM's CPU time.")
+    elif not farther:
+        words = f"SDM's best ends closer to theta* than the best peer's at every K measured ({ks[0]}-{ks[-1]})."
+    else:
+        first = min(closer)
+        behind = min(farther)
+        words = (f"SDM's best ends closer to theta* than the best peer's at K = {', '.join(map(str, closer))} and "
+                 f"farther at K = {', '.join(map(str, farther))}"
+                 + (f": it overtakes the best peer from K = {first} on." if all(k < first for k in farther) else
+                    f": the best peer overtakes it from K = {behind} on." if all(k < behind for k in closer) else "."))
+    if worse:
+        words += f" The best peer ends farther than doing nothing at K = {', '.join(map(str, worse))}."
+    return words
 
 
 def plot_table6(table: pd.DataFrame, path: str | Path) -> Path:
-    """Mean distance per unit against the noise level, one panel per sharing level, one line per method."""
+    """Mean distance per unit against the noise level, one panel per (screen scale, sharing level), one line per
+    method; the do-nothing references and the exact-match set dotted."""
     from .figures import plt, save_figure
 
-    sharings = [s for s in SHARING_ORDER if s in set(table["sharing"])]
-    fig, axes = plt.subplots(1, len(sharings), figsize=(4 * len(sharings), 3.4), sharey=False, squeeze=False)
-    for ax, sharing in zip(axes[0], sharings):
-        rows = table[table["sharing"] == sharing]
-        for method in ROWS:
+    table = table if "scale" in table.columns else table.assign(scale=1)
+    panels = [(scale, sharing) for scale in _scales(table) for sharing in SHARING_ORDER
+              if len(_of_scale(table, scale, sharing))]
+    fig, axes = plt.subplots(1, len(panels), figsize=(4 * len(panels), 3.6), sharey=False, squeeze=False)
+    for ax, (scale, sharing) in zip(axes[0], panels):
+        rows = _of_scale(table, scale, sharing)
+        for index, method in enumerate(ROWS):
             own = rows[rows["method"] == method].sort_values("level")
             if len(own):
-                ax.plot(own["level"], 1e3 * own["mean_m"], marker="." if method in REFERENCES else "o",
-                        linestyle=":" if method in REFERENCES else "-", color="grey" if method == "prior" else None,
+                reference = method in REFERENCES or method == EXACT_SET
+                ax.plot(own["level"], 1e3 * own["mean_m"], marker="." if reference else "o",
+                        linestyle=":" if reference else "-",
+                        color={"prior": "grey", "start": "black"}.get(method, f"C{index % 10}"),
                         label=LABELS[method])
-        ax.set_title(UNIT[sharing])
+        ax.set_title(f"scale {scale}: {UNIT[sharing]}", fontsize=9)
         ax.set_xlabel("noise level (pixels)")
         ax.set_yscale("log")
     axes[0][0].set_ylabel("mean distance per unit (1e-3 m)")
-    axes[0][-1].legend(fontsize=7)
+    handles = {}
+    for ax in axes[0]:  # one legend for every panel: a method keeps its colour everywhere
+        for handle, label in zip(*ax.get_legend_handles_labels()):
+            handles.setdefault(label, handle)
+    fig.legend(list(handles.values()), list(handles), fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
     fig.tight_layout()
     return save_figure(fig, path)
 
 
 def plot_scaling(scaling: pd.DataFrame, path: str | Path) -> Path:
-    """Mean distance per car against CPU seconds per configuration: one curve per K and method."""
+    """Mean distance per car against CPU seconds per configuration: one curve per K and method, doing nothing (the
+    shared start) as a dotted line per K; one panel per screen scale."""
     from .figures import plt, save_figure
 
-    fig, ax = plt.subplots(figsize=(6.5, 4.2))
-    cars = sorted(set(scaling["cars"]))
-    colours = plt.cm.viridis(np.linspace(0, 0.9, max(len(cars), 1)))
-    for colour, k in zip(colours, cars):
-        for method, style, name in (("sdm_paper", "-o", "SDM"), ("cmaes", "--s", "CMA-ES"),
-                                    ("cmaes_car", "-.^", "CMA-ES per car")):
-            own = scaling[(scaling["cars"] == k) & (scaling["method"] == method)].sort_values("cpu_s")
-            if len(own):
-                ax.plot(own["cpu_s"], 1e3 * own["mean"], style, color=colour, markersize=4, label=f"K = {k}, {name}")
-        start = scaling[(scaling["cars"] == k) & (scaling["method"] == "start")]
-        if len(start):
-            ax.axhline(1e3 * float(start["mean"].iloc[0]), color=colour, linestyle=":", linewidth=0.8)
-    ax.set_xscale("log")
-    ax.set_xlabel("CPU seconds per configuration")
-    ax.set_ylabel("mean distance per car (1e-3 m)")
-    ax.set_title("One shift per car: SDM (solid), CMA-ES (dashed, per car dash-dot), doing nothing (dotted)")
-    ax.legend(fontsize=6, ncol=2)
+    scaling = scaling if "scale" in scaling.columns else scaling.assign(scale=1)
+    scales = list(dict.fromkeys(int(v) for v in scaling["scale"]))
+    fig, axes = plt.subplots(1, len(scales), figsize=(6.5 * len(scales), 4.6), squeeze=False)
+    for ax, scale in zip(axes[0], scales):
+        own_scale = scaling[scaling["scale"] == scale]
+        cars = sorted(set(own_scale["cars"]))
+        colours = plt.cm.viridis(np.linspace(0, 0.9, max(len(cars), 1)))
+        for colour, k in zip(colours, cars):
+            for method, style, name in (("sdm_paper", "-o", "SDM"), ("cmaes", "--s", "CMA-ES"),
+                                        ("cmaes_car", "-.^", "CMA-ES per car")):
+                own = own_scale[(own_scale["cars"] == k) & (own_scale["method"] == method)].sort_values("cpu_s")
+                if len(own):
+                    ax.plot(own["cpu_s"], 1e3 * own["mean"], style, color=colour, markersize=4,
+                            label=f"K = {k}, {name}")
+            start = own_scale[(own_scale["cars"] == k) & (own_scale["method"] == "start")]
+            if len(start):
+                ax.axhline(1e3 * float(start["mean"].iloc[0]), color=colour, linestyle=":", linewidth=0.8)
+        ax.set_xscale("log")
+        ax.set_yscale("log")
+        ax.set_xlabel("CPU seconds per configuration")
+        ax.set_ylabel("mean distance per car (1e-3 m)")
+        ax.set_title(f"Scale {scale}, one shift per car: SDM (solid), CMA-ES (dashed, per car dash-dot),\n"
+                     "doing nothing: the shared start (dotted)", fontsize=9)
+        ax.legend(fontsize=6, ncol=2)
     fig.tight_layout()
     return save_figure(fig, path)
-
