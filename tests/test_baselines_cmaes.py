@@ -239,8 +239,9 @@ warnings.simplefilter("error")
 if sys.argv[1] == "preloaded":
     import matplotlib, scipy.stats  # a process that has them: pycma sees them as a plain import would
 from scenes import configuration_set
-from sdm.baselines.cmaes import CMAESSettings, PixelMismatch, cmaes_search, pycma
-cma = pycma()
+from sdm.baselines.cmaes import CMAESSettings, PixelMismatch, cmaes_search
+from sdm.baselines.pycma import import_cma
+cma = import_cma()
 hidden = [name for name in ("scipy.stats", "matplotlib") if name not in sys.modules]
 import matplotlib, scipy.stats  # importable again afterwards
 data = configuration_set(24, seed=3)
@@ -250,8 +251,8 @@ print(repr((hidden, result.theta, result.evaluations, result.history)))
 
 
 @pytest.mark.slow
-def test_pycma_is_imported_without_its_plots_and_surrogates_and_searches_the_same():
-    """pycma() imports cma without scipy.stats and matplotlib (most of its import time), silently, leaves both
+def test_cma_is_imported_without_its_plots_and_surrogates_and_searches_the_same():
+    """import_cma() imports cma without scipy.stats and matplotlib (most of its import time), silently, leaves both
     importable, and a search gives the same theta, history and count as in a process that imported them first."""
     pytest.importorskip("cma")
     import subprocess

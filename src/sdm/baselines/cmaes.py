@@ -55,15 +55,15 @@ Budget: at most ``budget`` objective evaluations (pycma's ``maxfevals``; a gener
 so up to ``popsize - 1`` more), starting from ``theta0`` with step size ``sigma0`` metres. pycma also
 stops on its own criteria (``tolx``, flat fitness); the result is the best candidate evaluated.
 
-``cma`` is imported when a fit starts (:func:`pycma`): it is a dependency of the workflow's baseline stage, not of
-the ``sdm`` library. pycma seeds numpy's global generator with the run's seed (its ``seed`` option).
+``cma`` is imported when a fit starts (:func:`sdm.baselines.pycma.import_cma`): it is a dependency of the
+workflow's baseline stage, not of the ``sdm`` library. pycma seeds numpy's global generator with the run's
+seed (its ``seed`` option).
 """
 from __future__ import annotations
 
 import math
 import sys
 import time
-import warnings
 from dataclasses import dataclass
 from typing import Sequence
 
@@ -75,6 +75,7 @@ from ..errors import SDMInputError
 from ..mapping.build import serves
 from .cmaes_native import pixel_mismatch
 from .common import FitResult, check_positive, check_positive_int, timed
+from .pycma import import_cma
 
 
 @dataclass(frozen=True)
@@ -434,12 +435,10 @@ class PixelMismatch:
     def reference(self, theta) -> int:
         """The same count, point by point: every point's own pixel, each pixel rendered counted once.
 
-        The fallback of :meth:`many` for the rare ``theta`` where a group's shared shift cannot be
-        trusted. Every point on screen writes its number into its pixel's entry of an ``N x H x W``
-        scratch; the point whose write survived (it reads its own number back) stands for the pixel,
-        so a pixel covered by several points counts once, and only the ``P`` entries written are read
-        (nothing of size ``N x H x W`` is zeroed or counted). The rendered pixels that are on target
-        count ``-1``, the others ``+1``, beside the ``|target|`` pixels. Does not count as an evaluation.
+        The fallback of :meth:`many` where a group's shared shift cannot be trusted; no evaluation. Each
+        point on screen writes its number into its pixel's entry of an ``N x H x W`` scratch; the point
+        that reads its own number back stands for the pixel (counted once), nothing of that size is
+        zeroed or counted: rendered pixels count -1 on target, +1 off it, beside ``|target|``.
         """
         height, width = self.camera.screen_shape
         origin, gain, base, owner = self.layout.reference_terms()
@@ -455,35 +454,6 @@ class PixelMismatch:
         return int(rendered.numel()) + int(self._active.shape[0]) - 2 * overlap
 
 
-#: What pycma's own import pulls in for features no search here uses: ``scipy.stats`` (the rank correlation of its
-#: surrogate models) and ``matplotlib`` (its plots). pycma treats both as optional (it catches their ImportError);
-#: together they are most of its import's CPU time (about 1.3 of 1.4 s against 0.1 s without them).
-PYCMA_OPTIONAL = ("scipy.stats", "matplotlib")
-
-
-def pycma():
-    """The ``cma`` module, imported without :data:`PYCMA_OPTIONAL` where this process has not imported them.
-
-    While ``cma`` is imported, those modules read as absent (``sys.modules[name] = None``); afterwards they are
-    importable again as ever. A module already imported stays as it is (pycma then sees it, as a plain import
-    would). The searches are the same either way: the options of :func:`cmaes_search` use neither.
-    """
-    if "cma" in sys.modules:
-        return sys.modules["cma"]
-    hidden = [name for name in PYCMA_OPTIONAL if name not in sys.modules]
-    for name in hidden:
-        sys.modules[name] = None
-    try:
-        with warnings.catch_warnings():  # its notice that cma.plot() is not available: no search plots
-            warnings.filterwarnings("ignore", message="Could not import matplotlib", category=UserWarning)
-            import cma
-    finally:
-        for name in hidden:
-            if name in sys.modules and sys.modules[name] is None:
-                del sys.modules[name]
-    return cma
-
-
 def cmaes_search(objective: PixelMismatch, settings: CMAESSettings, seed: int, theta0) -> FitResult:
     """One CMA-ES run on ``objective`` (``seconds`` left 0).
 
@@ -492,7 +462,7 @@ def cmaes_search(objective: PixelMismatch, settings: CMAESSettings, seed: int, t
     (:mod:`sdm.baselines.rows`). The result's theta is the best candidate as a ``d``-tuple; the history
     records ``a, b`` of the best so far only when ``d = 2``.
     """
-    cma = pycma()
+    cma = import_cma()
     options = {
         "seed": int(seed) % (2**31 - 2) + 1,
         "maxfevals": int(settings.budget),
