@@ -11,9 +11,11 @@ TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 
 install: $(VENV)/.installed
 
+# pip upgrades itself only when older than 22 (an editable install from pyproject.toml needs 21.3).
 $(VENV)/.installed: pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -c 'import sys, pip; sys.exit(int(pip.__version__.split(".")[0]) < 22)' \
+		|| $(BIN)/python -m pip install --quiet --upgrade pip
 	$(if $(TORCH_INDEX),$(BIN)/python -m pip install --quiet --no-deps -c constraints.txt --index-url $(TORCH_INDEX) torch)
 	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[experiments,workflow,test,baselines]'
 	touch $@

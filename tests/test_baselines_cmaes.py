@@ -231,3 +231,43 @@ def test_fit_runs_checks_its_arguments(small):
     with pytest.raises(SDMInputError, match="seeds"):
         fit_runs([small, small], CMAESSettings(), [1])
     assert fit_runs([], CMAESSettings(), []) == []
+
+
+PYCMA_PROBE = """
+import sys, warnings
+warnings.simplefilter("error")
+if sys.argv[1] == "preloaded":
+    import matplotlib, scipy.stats  # a process that has them: pycma sees them as a plain import would
+from scenes import configuration_set
+from sdm.baselines.cmaes import CMAESSettings, PixelMismatch, cmaes_search
+from sdm.baselines.pycma import import_cma
+cma = import_cma()
+hidden = [name for name in ("scipy.stats", "matplotlib") if name not in sys.modules]
+import matplotlib, scipy.stats  # importable again afterwards
+data = configuration_set(24, seed=3)
+result = cmaes_search(PixelMismatch(data), CMAESSettings(budget=60), 5, (0.0, 0.0))
+print(repr((hidden, result.theta, result.evaluations, result.history)))
+"""
+
+
+@pytest.mark.slow
+def test_cma_is_imported_without_its_plots_and_surrogates_and_searches_the_same():
+    """import_cma() imports cma without scipy.stats and matplotlib (most of its import time), silently, leaves both
+    importable, and a search gives the same theta, history and count as in a process that imported them first."""
+    pytest.importorskip("cma")
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    tests = Path(__file__).parent
+    env = {**__import__("os").environ, "PYTHONPATH": f"{tests}:{tests.parent / 'src'}"}
+
+    def probe(mode):
+        out = subprocess.run([sys.executable, "-c", PYCMA_PROBE, mode], capture_output=True, text=True, env=env,
+                             timeout=300)
+        assert out.returncode == 0, out.stderr
+        return eval(out.stdout.strip().splitlines()[-1], {"__builtins__": {}}, {})
+
+    alone, preloaded = probe("alone"), probe("preloaded")
+    assert alone[0] == ["scipy.stats", "matplotlib"] and preloaded[0] == []
+    assert alone[1:] == preloaded[1:]

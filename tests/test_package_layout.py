@@ -38,7 +38,7 @@ OVERSIZED_FUNCTIONS = {
 #: Imports inside a function, each ``(file, function, module)``: optional dependencies, imported where they are
 #: needed so that the layer and the tables that do not use them run without them (pyproject.toml's extras).
 OPTIONAL_IMPORTS = {
-    ("baselines/cmaes.py", "cmaes_search", "cma"),  # pycma: the `baselines` extra
+    ("baselines/pycma.py", "import_cma", "cma"),  # pycma: the `baselines` extra
     ("baselines/sinkhorn.py", "fit_runs", "geomloss"),  # the `baselines` extra
     ("baselines/common.py", "to_frame", "pandas"),  # the `experiments` extra
     ("train/settings.py", "to_frame", "pandas"),  # the layer's History as a table, for the experiments

@@ -203,6 +203,10 @@ def test_dag_jobs_finds_a_changed_param_and_nothing_else(tmp_path):
         dumped = subprocess.run([*tool, "dump", f"{name}.jsonl", "--snakefile", str(ROOT / "Snakefile")],
                                 cwd=tmp_path, capture_output=True, text=True, timeout=300)
         assert dumped.returncode == 0, dumped.stdout + dumped.stderr
+    # the DAG's longest chain, printed by the dump: the data stages, tuning, Table 2 and the tables after it
+    chain = next(line for line in dumped.stdout.splitlines() if line.startswith("longest chain: "))
+    assert chain.startswith("longest chain: 11 jobs: synthetic -> data -> sample -> sky -> split -> tune_"), chain
+    assert chain.endswith(" -> best -> noise_level0_chunk0 -> tables -> table3 -> report"), chain
     jobs = (tmp_path / "before.jsonl").read_text().splitlines()
     assert len(jobs) == sum(planned(snakemake("-n", "--quiet", "rules", cwd=tmp_path)).values()) + 1  # + all
     same = subprocess.run([*tool, "compare", "before.jsonl", "again.jsonl"], cwd=tmp_path, capture_output=True,

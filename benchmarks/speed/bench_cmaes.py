@@ -52,7 +52,7 @@ class ReferenceMismatch(cmaes.PixelMismatch):
         self.train_set = train_set
         self.layout = _ReferenceLayout(train_set, self.camera)
         self.evaluations = 0
-        self._active, self._target_ids = train_set.targets.nonzero(), None
+        self._active = train_set.targets.nonzero()
 
     def many(self, thetas) -> list[int]:
         self.evaluations += len(thetas)

@@ -2,11 +2,12 @@
 
     python workflow/scripts/dag_jobs.py dump JOBS.jsonl [SNAKEMAKE ARGUMENTS...]   # adds -n
     python workflow/scripts/dag_jobs.py compare BEFORE.jsonl AFTER.jsonl
+    python workflow/scripts/dag_jobs.py chain JOBS.jsonl
 
 ``dump`` runs ``snakemake -n`` with the given arguments (from where snakemake would run) and writes one
 JSON line per job: its rule, wildcards, named inputs, outputs and logs with their flags (``report``
 captions included), benchmark, params, threads, resources, conda environment, script and whether it
-is a local rule. ``compare`` prints the jobs and fields that differ and ``SAME n jobs`` or ``DIFFERENT``
+is a local rule, then prints the DAG's longest chain (``chain``). ``compare`` prints the jobs and fields that differ and ``SAME n jobs`` or ``DIFFERENT``
 (exit status 0 or 1). What means nothing to a stage is left out of the comparison: the order of a rule's
 named files (stages read them by name) and the order of the target rule's inputs.
 
@@ -66,7 +67,7 @@ def dump(out_path: str, arguments: list[str]) -> int:
     finally:
         with open(out_path, "w") as out:
             out.write("".join(f"{line}\n" for line in sorted(records)))
-    return 0
+    return chain(out_path)
 
 
 def _load(path: str) -> dict:
@@ -83,6 +84,53 @@ def _load(path: str) -> dict:
             raise SystemExit(f"{path}: job {key} twice")
         jobs[key] = job
     return jobs
+
+
+def _job_name(job: dict) -> str:
+    """A job as its files name it: its benchmark file's stem (``baselines_cmaes``), else its rule."""
+    return job["benchmark"].rsplit("/", 1)[-1].removesuffix(".tsv") if job["benchmark"] != "None" else job["rule"]
+
+
+def _cpu_seconds(job: dict) -> float | None:
+    """The CPU seconds in a job's benchmark file (Snakemake's ``cpu_time`` column), None without one."""
+    try:
+        with open(job["benchmark"]) as table:
+            header, row = (table.readline().rstrip("\n").split("\t") for _ in range(2))
+        return float(row[header.index("cpu_time")])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def longest_chain(jobs: list[dict], weight) -> tuple[list[dict], float]:
+    """The chain of ``jobs`` (each the producer of an input of the next) of the largest sum of ``weight(job)``,
+    and that sum; the target rule ``all`` is left out."""
+    jobs = [job for job in jobs if job["rule"] != "all"]
+    producer = {path: index for index, job in enumerate(jobs) for path in job["output"]["all"]}
+    before = [sorted({producer[path] for path in job["input"]["all"] if path in producer}) for job in jobs]
+    best: dict[int, tuple[float, list[int]]] = {}
+
+    def reach(index: int) -> tuple[float, list[int]]:  # the heaviest chain ending at job `index`
+        if index not in best:
+            total, chain = max((reach(earlier) for earlier in before[index]), default=(0.0, []),
+                               key=lambda found: found[0])
+            best[index] = (total + weight(jobs[index]), chain + [index])
+        return best[index]
+
+    total, chain = max((reach(index) for index in range(len(jobs))), default=(0.0, []), key=lambda found: found[0])
+    return [jobs[index] for index in chain], total
+
+
+def chain(path: str) -> int:
+    """Print the longest chain of the dump at ``path``: by jobs, and by CPU seconds where every job has them."""
+    jobs = [json.loads(line) for line in open(path)]
+    by_count, count = longest_chain(jobs, lambda job: 1)
+    print(f"longest chain: {int(count)} jobs: {' -> '.join(_job_name(job) for job in by_count)}")
+    if jobs and all(_cpu_seconds(job) is not None for job in jobs if job["rule"] != "all"):
+        by_cpu, seconds = longest_chain(jobs, _cpu_seconds)
+        every = sum(_cpu_seconds(job) for job in jobs if job["rule"] != "all")
+        steps = " -> ".join(f"{_job_name(job)} ({_cpu_seconds(job):.1f} s)" for job in by_cpu)
+        print(f"longest chain by CPU: {seconds:.1f} s of the jobs' {every:.1f} s: {steps}")
+    return 0
 
 
 def compare(before_path: str, after_path: str) -> int:
@@ -102,6 +150,8 @@ def compare(before_path: str, after_path: str) -> int:
 if __name__ == "__main__":
     if len(sys.argv) >= 3 and sys.argv[1] == "dump":
         sys.exit(dump(sys.argv[2], sys.argv[3:]))
+    if len(sys.argv) == 3 and sys.argv[1] == "chain":
+        sys.exit(chain(sys.argv[2]))
     if len(sys.argv) == 4 and sys.argv[1] == "compare":
         sys.exit(compare(sys.argv[2], sys.argv[3]))
     sys.exit(__doc__)

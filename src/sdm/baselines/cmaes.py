@@ -26,7 +26,8 @@ pixel's entry, and only the point that reads its own number back counts. ``w + 1
 number share one int16 entry per padded pixel (one cache line for the write and the read: an
 evaluation is bound by memory latency). Nothing of size ``N x H x W`` is zeroed or counted per
 evaluation: on the default data an evaluation inside a search costs a fifth to a sixth of the
-straightforward count's CPU time (2.0-2.8 ms against 12.2 ms, one thread; benchmarks/speed/bench_cmaes.py).
+count of a whole N x H x W bitmap per evaluation (2.0-2.8 ms against 12.2 ms, one thread;
+benchmarks/speed/bench_cmaes.py).
 
 Compiled (:func:`sdm.baselines.cmaes_native.pixel_mismatch`, ``sdm_pixel_mismatch`` in ``_native.c``): the
 same groups, the same float operations for each group's shift and its trust check, then one loop
@@ -43,7 +44,7 @@ thread, 10 runs at level 2: benchmarks/speed/bench_cmaes.py, 2026-12-03). Where 
 compiler, ``SDM_NATIVE=0``, CUDA tensors) the torch count runs, one candidate at a time.
 
 Exactness: the shared shift equals each point's own ``floor`` (as computed by
-:meth:`PixelMismatch.reference`, the straightforward count) unless ``frac(row_0) + b g_r`` lies
+:meth:`PixelMismatch.reference`, the point-by-point count) unless ``frac(row_0) + b g_r`` lies
 within ``1e-7`` pixel of an integer for some group (the float rounding of both computations is
 below ``1e-9`` pixel for coordinates and shifts under ``1e6`` pixels). Such a candidate (and any
 beyond ``1e6`` pixels) is counted by :meth:`PixelMismatch.reference`: the fast count is the
@@ -54,8 +55,9 @@ Budget: at most ``budget`` objective evaluations (pycma's ``maxfevals``; a gener
 so up to ``popsize - 1`` more), starting from ``theta0`` with step size ``sigma0`` metres. pycma also
 stops on its own criteria (``tolx``, flat fitness); the result is the best candidate evaluated.
 
-``cma`` is imported when a fit starts: it is a dependency of the workflow's baseline stage, not of
-the ``sdm`` library. pycma seeds numpy's global generator with the run's seed (its ``seed`` option).
+``cma`` is imported when a fit starts (:func:`sdm.baselines.pycma.import_cma`): it is a dependency of the
+workflow's baseline stage, not of the ``sdm`` library. pycma seeds numpy's global generator with the run's
+seed (its ``seed`` option).
 """
 from __future__ import annotations
 
@@ -73,6 +75,7 @@ from ..errors import SDMInputError
 from ..mapping.build import serves
 from .cmaes_native import pixel_mismatch
 from .common import FitResult, check_positive, check_positive_int, timed
+from .pycma import import_cma
 
 
 @dataclass(frozen=True)
@@ -270,17 +273,19 @@ class ShiftLayout:
         high = None if compact else table.view(self.half_dtype)[1 if sys.byteorder == "little" else 0::2]
         return table, high, on_target
 
-    def reference_terms(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """``(origin, gain, base)`` of :meth:`PixelMismatch.reference`, computed on its first call and kept
+    def reference_terms(self) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """``(origin, gain, base, owner)`` of :meth:`PixelMismatch.reference`, made on its first call and kept
         (they depend on the points only: the runs of :func:`fit_runs` share them): ``(P, 2)`` float64
         screen ``(row, col)`` at ``theta = 0`` and pixels per metre of ``(b, a)`` (:func:`_projection`),
-        ``(P,)`` int64 each point's configuration times ``H W``."""
+        ``(P,)`` int64 each point's configuration times ``H W``, and ``(N H W,)`` int32 scratch (any
+        content) where each rendered point writes its number."""
         if self._reference is None:
             height, width = self.camera.screen_shape
             origin, gain = _projection(self._points, self.camera)
             base = torch.repeat_interleave(torch.arange(self._counts.shape[0], device=origin.device),
                                            self._counts) * (height * width)
-            self._reference = (origin, gain, base)
+            owner = torch.empty(self._counts.shape[0] * height * width, dtype=torch.int32, device=origin.device)
+            self._reference = (origin, gain, base, owner)
         return self._reference
 
     @property
@@ -385,7 +390,6 @@ class PixelMismatch:
         self._memo = MismatchMemo(self.layout) if self.native else None
         self.evaluations = 0
         self.fallbacks = 0
-        self._target_ids = None
 
     def __call__(self, theta) -> int:
         """False positives + false negatives at zoom 0, summed over the configurations (pixels)."""
@@ -429,28 +433,25 @@ class PixelMismatch:
         return self.n_target + int(tripled.sum()) // 3
 
     def reference(self, theta) -> int:
-        """The same count, straightforwardly: every point's pixel, a bitmap of ``N x H x W`` cells.
+        """The same count, point by point: every point's own pixel, each pixel rendered counted once.
 
-        The fallback of :meth:`many` for the rare ``theta`` where a group's shared shift cannot be
-        trusted; slower (allocates and counts the whole bitmap). Does not count as an evaluation.
+        The fallback of :meth:`many` where a group's shared shift cannot be trusted; no evaluation. Each
+        point on screen writes its number into its pixel's entry of an ``N x H x W`` scratch; the point
+        that reads its own number back stands for the pixel (counted once), nothing of that size is
+        zeroed or counted: rendered pixels count -1 on target, +1 off it, beside ``|target|``.
         """
         height, width = self.camera.screen_shape
-        origin, gain, base = self.layout.reference_terms()
-        if self._target_ids is None:
-            active = self._active
-            self._target_ids = active[:, 0] * (height * width) + active[:, 1] * width + active[:, 2]  # (K,) int64
-        target_ids = self._target_ids
+        origin, gain, base, owner = self.layout.reference_terms()
         shift = torch.tensor([float(theta[1]), float(theta[0])], dtype=origin.dtype, device=origin.device)
         pixels = torch.floor(torch.addcmul(origin, gain, shift)).to(torch.int64)  # (P, 2) row, col
         row, col = pixels.unbind(-1)
         keep = (row >= 0) & (row < height) & (col >= 0) & (col < width)
         ids = (base + row * width + col)[keep]
-        rendered = torch.zeros(len(self.train_set) * height * width, dtype=torch.bool, device=origin.device)
-        rendered[ids] = True
-        # count_nonzero, not sum: summing a bool tensor this size first converts it to int64 (20x slower)
-        n_rendered = int(rendered.count_nonzero())
-        overlap = int(rendered[target_ids].count_nonzero())
-        return n_rendered + int(target_ids.numel()) - 2 * overlap
+        number = torch.arange(ids.numel(), dtype=owner.dtype, device=owner.device)
+        owner[ids] = number  # of several writes to one entry, one survives: which one does not matter
+        rendered = ids[owner[ids] == number]  # (R,) each rendered pixel once
+        overlap = int(self.train_set.targets.reshape(-1)[rendered].count_nonzero())
+        return int(rendered.numel()) + int(self._active.shape[0]) - 2 * overlap
 
 
 def cmaes_search(objective: PixelMismatch, settings: CMAESSettings, seed: int, theta0) -> FitResult:
@@ -461,8 +462,7 @@ def cmaes_search(objective: PixelMismatch, settings: CMAESSettings, seed: int, t
     (:mod:`sdm.baselines.rows`). The result's theta is the best candidate as a ``d``-tuple; the history
     records ``a, b`` of the best so far only when ``d = 2``.
     """
-    import cma
-
+    cma = import_cma()
     options = {
         "seed": int(seed) % (2**31 - 2) + 1,
         "maxfevals": int(settings.budget),
