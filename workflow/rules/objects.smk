@@ -22,29 +22,39 @@ def objects_screen(scale):
     return {key: OBJECTS.get(key) for key in SCREEN_KEYS}
 
 
-OBJECT_JOBS = [{"scale": int(screen["scale"]), "sharing": label, "level": int(level)}
-               for screen in (OBJECTS.get("screens", []) if OBJECTS_ON else [])
-               for label, name in SHARING_LABELS.items() if name in objects_screen(screen["scale"])["sharings"]
-               for level in objects_screen(screen["scale"])["levels"]]
+OBJECT_JOBS = [
+    {"scale": int(screen["scale"]), "sharing": label, "level": int(level)}
+    for screen in (OBJECTS.get("screens", []) if OBJECTS_ON else [])
+    for label, name in SHARING_LABELS.items()
+    if name in objects_screen(screen["scale"])["sharings"]
+    for level in objects_screen(screen["scale"])["levels"]
+]
 
 
 def objects_settings(scale):
     """The settings every Table 6 stage reads (its section of the config, in name order), those of the screen of
     `scale` (a number, or a params function of the job's wildcard `scale`)."""
+
     def of(key):
         if callable(scale):
             return lambda wildcards: objects_screen(scale(wildcards))[key]
         return objects_screen(scale)[key]
 
     common = {key: OBJECTS.get(key) for key in ("truth", "warm", "schedule", "floor", "identifiability")}
-    screen = {"screen": (lambda wildcards: {"scale": int(scale(wildcards)), "disc": of("disc")(wildcards)})
-              if callable(scale) else {"scale": int(scale), "disc": of("disc")}}
+    screen = {
+        "screen": (
+            (lambda wildcards: {"scale": int(scale(wildcards)), "disc": of("disc")(wildcards)})
+            if callable(scale)
+            else {"scale": int(scale), "disc": of("disc")}
+        )
+    }
     return dict(**common, rows=of("rows"), cmaes=of("cmaes"), **screen)
 
 
 def objects_batches(scale):
     """The run's configurations on the screen of `scale` (a params function of the job's wildcards), and SDM's and
     the silhouette's batch sizes: the section's, at most those configurations."""
+
     def configurations(wildcards):
         return int(objects_screen(scale(wildcards))["configurations"])
 
@@ -52,8 +62,11 @@ def objects_batches(scale):
         own = dict(OBJECTS.get("silhouette") or {})
         return own | {"batch_size": min(int(own["batch_size"]), configurations(wildcards))} if own else own
 
-    return dict(configurations=configurations, silhouette=silhouette,
-                batch_size=lambda wildcards: min(int(OBJECTS.get("batch_size")), configurations(wildcards)))
+    return dict(
+        configurations=configurations,
+        silhouette=silhouette,
+        batch_size=lambda wildcards: min(int(OBJECTS.get("batch_size")), configurations(wildcards)),
+    )
 
 
 notebook_stage(
