@@ -27,7 +27,6 @@ MAX_FUNCTION_LINES = 80  # docstring excluded
 OVERSIZED_FILES = {
     "baselines/cmaes.py": 573,
     "network.py": 664,
-    "sharing.py": 527,
 }
 
 #: Functions over MAX_FUNCTION_LINES (``file:qualified name``), with their length today: they may only shrink.
