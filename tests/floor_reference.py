@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sdm.baselines.cmaes import PixelMismatch, _projection
+from sdm.baselines.mismatch import PixelMismatch, _projection
 
 
 def borders(train_set, axis: int, low: float, high: float) -> np.ndarray:

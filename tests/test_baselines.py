@@ -25,7 +25,7 @@ from sdm.baselines import (
 from sdm.baselines import chamfer as chamfer_module
 from sdm.baselines import common
 from sdm.baselines import silhouette as silhouette_module
-from sdm.baselines.cmaes import PixelMismatch
+from sdm.baselines.mismatch import PixelMismatch
 from sdm.errors import SDMInputError
 from sdm.experiments import noise_runs as sdm_noise_runs
 from sdm.experiments import settings_for

@@ -1,4 +1,4 @@
-"""The fast pixel-mismatch count of the CMA-ES baseline and its batched runs (sdm.baselines.cmaes).
+"""The fast pixel-mismatch count of the CMA-ES baseline (sdm.baselines.mismatch) and its batched runs.
 
 The fast count moves groups of points rigidly (same configuration, depth and sub-pixel offset)
 and must give exactly the straightforward count: every point projected, floored, the rendered
@@ -15,8 +15,9 @@ import torch
 
 from scenes import configuration_set
 from sdm import SKY_SHIFT
-from sdm.baselines import cmaes
-from sdm.baselines.cmaes import CMAESSettings, PixelMismatch, ShiftLayout, fit, fit_runs
+from sdm.baselines import cmaes, mismatch
+from sdm.baselines.cmaes import CMAESSettings, fit, fit_runs
+from sdm.baselines.mismatch import PixelMismatch, ShiftLayout
 from sdm.errors import SDMInputError
 from sdm.experiments import noisy_targets
 from sdm.mapping import native
@@ -80,7 +81,7 @@ def test_fast_count_is_the_straightforward_count(small, level, path):
 @pytest.mark.parametrize("path", PATHS)
 def test_one_pixel_tiles_take_the_wide_table(small, monkeypatch, path):
     """Tiles of one pixel: a group per point, hundreds per configuration, so (torch) int32 entries with int16 codes."""
-    monkeypatch.setattr(cmaes, "TILE", 1)
+    monkeypatch.setattr(mismatch, "TILE", 1)
     with counting(path):
         objective = PixelMismatch(small)
     assert objective.table.dtype == (torch.int8 if objective.native else torch.int32)
@@ -145,7 +146,7 @@ def test_compiled_count_reuses_configurations_that_shift_alike_and_stays_exact(s
     with counting("compiled"):
         objective = PixelMismatch(noisy)
         other = PixelMismatch(small, layout=objective.layout)
-    assert objective._memo.slots == cmaes.MismatchMemo.SLOTS
+    assert objective._memo.slots == mismatch.MismatchMemo.SLOTS
     near = random_thetas(18, seed=40, spread=1e-3)
     calls = [near[:6], near[3:9], [near[4], near[4], *near[9:13]], near[12:18]]
     for thetas in calls:
@@ -239,7 +240,8 @@ warnings.simplefilter("error")
 if sys.argv[1] == "preloaded":
     import matplotlib, scipy.stats  # a process that has them: pycma sees them as a plain import would
 from scenes import configuration_set
-from sdm.baselines.cmaes import CMAESSettings, PixelMismatch, cmaes_search
+from sdm.baselines.cmaes import CMAESSettings, cmaes_search
+from sdm.baselines.mismatch import PixelMismatch
 from sdm.baselines.pycma import import_cma
 cma = import_cma()
 hidden = [name for name in ("scipy.stats", "matplotlib") if name not in sys.modules]

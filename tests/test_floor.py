@@ -10,7 +10,7 @@ import pytest
 from floor_reference import cell_minimum, grid_minimum
 from scenes import configuration_set
 from sdm import SKY_SHIFT
-from sdm.baselines.cmaes import PixelMismatch
+from sdm.baselines.mismatch import PixelMismatch
 from sdm.baselines.floor import FLOOR_COLUMNS, FloorSettings, floor_runs, floor_search
 from sdm.errors import SDMInputError
 from sdm.experiments import noisy_targets, run_seed

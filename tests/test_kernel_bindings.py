@@ -11,7 +11,7 @@ import pytest
 import torch
 
 from scenes import configuration_set
-from sdm.baselines.cmaes import MismatchMemo, PixelMismatch
+from sdm.baselines.mismatch import MismatchMemo, PixelMismatch
 from sdm.baselines.cmaes_native import pixel_mismatch
 from sdm.errors import SDMInputError
 from sdm.mapping import build

@@ -25,14 +25,11 @@ MAX_FUNCTION_LINES = 80  # docstring excluded
 
 #: Files over MAX_FILE_LINES, with their line count today: they may only shrink.
 OVERSIZED_FILES = {
-    "baselines/cmaes.py": 573,
     "network.py": 664,
 }
 
 #: Functions over MAX_FUNCTION_LINES (``file:qualified name``), with their length today: they may only shrink.
-OVERSIZED_FUNCTIONS = {
-    "baselines/cmaes.py:ShiftLayout.__init__": 94,
-}
+OVERSIZED_FUNCTIONS: dict[str, int] = {}
 
 #: Imports inside a function, each ``(file, function, module)``: optional dependencies, imported where they are
 #: needed so that the layer and the tables that do not use them run without them (pyproject.toml's extras).

@@ -29,7 +29,7 @@ import time
 import pandas as pd
 import torch
 
-from sdm.baselines import cmaes
+from sdm.baselines import cmaes, mismatch
 from sdm.baselines.common import FitResult
 from sdm.experiments import load_split, noisy_targets, run_seed
 from sdm.mapping import native
@@ -41,10 +41,10 @@ class _ReferenceLayout:
     def __init__(self, train_set, camera) -> None:
         self.camera, self._points, self._counts, self._reference = camera, train_set.points, train_set.counts, None
 
-    reference_terms = cmaes.ShiftLayout.reference_terms
+    reference_terms = mismatch.ShiftLayout.reference_terms
 
 
-class ReferenceMismatch(cmaes.PixelMismatch):
+class ReferenceMismatch(mismatch.PixelMismatch):
     """:class:`PixelMismatch` counted by :meth:`reference` only, without building the fast layout."""
 
     def __init__(self, train_set, camera=None) -> None:

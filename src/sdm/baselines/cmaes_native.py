@@ -20,8 +20,8 @@ def pixel_mismatch(*, thetas: torch.Tensor, gain: torch.Tensor, frac_bounds: tor
                    stamp: torch.Tensor) -> torch.Tensor:
     """The exact zoom-0 pixel mismatch of ``K`` candidates in one pass over the points (``sdm_pixel_mismatch``).
 
-    The arrays of a :class:`~sdm.baselines.cmaes.ShiftLayout` of ``P`` points in ``G`` rigid groups over ``N``
-    configurations, its compact table and a :class:`~sdm.baselines.cmaes.MismatchMemo` of ``L >= K`` slots; all
+    The arrays of a :class:`~sdm.baselines.mismatch.ShiftLayout` of ``P`` points in ``G`` rigid groups over ``N``
+    configurations, its compact table and a :class:`~sdm.baselines.mismatch.MismatchMemo` of ``L >= K`` slots; all
     on the CPU, C-contiguous.
 
     Args:

@@ -1,6 +1,6 @@
 """The floor: the theta that minimises the exact pixel mismatch of a run's (noisy) training set.
 
-CMA-ES (:mod:`sdm.baselines.cmaes`) minimises :class:`~sdm.baselines.cmaes.PixelMismatch`, the count
+CMA-ES (:mod:`sdm.baselines.cmaes`) minimises :class:`~sdm.baselines.mismatch.PixelMismatch`, the count
 of mismatched zoom-0 pixels summed over the training configurations, on a budget (240 counts in
 Table 3). Where its minimiser lies is a property of the data, not of any method: the best that any
 method minimising that count can reach. :func:`floor_search` finds it with a search thorough enough
@@ -63,7 +63,8 @@ from ..errors import SDMInputError
 from ..experiments import paired_runs
 from ..metrics import distance
 from ..sky import SKY_SHIFT
-from .cmaes import CMAESSettings, PixelMismatch, ShiftLayout, cmaes_search
+from .cmaes import CMAESSettings, cmaes_search
+from .mismatch import PixelMismatch, ShiftLayout
 from .common import check_positive, check_positive_int, field_error
 
 
@@ -413,7 +414,7 @@ def floor_runs(train_set: ConfigurationSet, level: int, runs: Sequence[int], see
 
     Run ``r`` is every table's run ``(level, r)`` (:func:`sdm.experiments.paired_runs`: the seed
     :func:`sdm.experiments.run_seed` ``(seed, level, r)`` draws its noisy targets and seeds its CMA-ES
-    runs). The runs share the point grouping (:class:`~sdm.baselines.cmaes.ShiftLayout`) and one
+    runs). The runs share the point grouping (:class:`~sdm.baselines.mismatch.ShiftLayout`) and one
     objective table, rewritten from run to run, as :func:`sdm.baselines.cmaes.fit_runs` does.
 
     Args:

@@ -16,7 +16,7 @@ counts its pixel, with weight ``+1`` off the target and ``-1`` on it::
     mismatch = |target| + sum over the distinct rendered pixels of w
 
 No table of ``C x H x W`` cells is cleared per call (every entry read was written in that call). The
-set-wide grouped count of :mod:`sdm.baselines.cmaes` (and its compiled kernel) serves one shared ``theta``
+set-wide grouped count of :mod:`sdm.baselines.mismatch` (and its compiled kernel) serves one shared ``theta``
 over many configurations; here a configuration has a few hundred points and many candidates, so the
 points are counted directly (``tests/test_rows.py`` holds the count to the straightforward rendering).
 
