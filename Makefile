@@ -12,12 +12,14 @@ TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 install: $(VENV)/.installed
 
 # pip upgrades itself only when older than 22 (an editable install from pyproject.toml needs 21.3).
+# --no-compile: pip writes no bytecode for every installed file (half of the install's CPU); Python compiles
+# the modules a run imports, once, on their first import.
 $(VENV)/.installed: pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -c 'import sys, pip; sys.exit(int(pip.__version__.split(".")[0]) < 22)' \
 		|| $(BIN)/python -m pip install --quiet --upgrade pip
-	$(if $(TORCH_INDEX),$(BIN)/python -m pip install --quiet --no-deps -c constraints.txt --index-url $(TORCH_INDEX) torch)
-	$(BIN)/python -m pip install --quiet -c constraints.txt -e '.[experiments,workflow,test,baselines]'
+	$(if $(TORCH_INDEX),$(BIN)/python -m pip install --quiet --no-compile --no-deps -c constraints.txt --index-url $(TORCH_INDEX) torch)
+	$(BIN)/python -m pip install --quiet --no-compile -c constraints.txt -e '.[experiments,workflow,test,baselines]'
 	touch $@
 
 # The install and the workflow, timed together (workflow/scripts/timed.py prints wall and CPU time at the end).
