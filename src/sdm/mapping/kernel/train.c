@@ -1,4 +1,4 @@
-/* R whole training runs (sdm.train.train_runs): every level, epoch, mini-batch, chain, flow, loss and
+/* sdm_train: R whole training runs (sdm.train.train_runs): every level, epoch, mini-batch, chain, flow, loss and
  * SGD step, run after run (runs never interact, so each keeps its own targets hot in the cache).
  *
  * Data, shared by the runs (the packed ConfigurationSet, C-contiguous):
