@@ -253,6 +253,23 @@ def test_an_empty_cc_is_reported(load):
     assert library is None and len(messages) == 1 and "CC is set but empty" in messages[0], messages
 
 
+def test_the_key_covers_every_kernel_file(tmp_path, monkeypatch):
+    """Every file of the kernel's folder is a source (compiled into the library) or a header, and an edit of any
+    one of them gives the cache another key: a cached library is never one built from other bytes."""
+    assert sorted(build.KERNEL.iterdir()) == sorted((*build.SOURCES, *build.HEADERS))
+    assert {path.suffix for path in build.SOURCES} == {".c"} and {path.suffix for path in build.HEADERS} == {".h"}
+    copy = tmp_path / "kernel"
+    shutil.copytree(build.KERNEL, copy)
+    monkeypatch.setenv("SDM_CACHE_DIR", str(tmp_path / "cache"))
+    monkeypatch.setattr(build, "SOURCES", tuple(copy / path.name for path in build.SOURCES))
+    monkeypatch.setattr(build, "HEADERS", tuple(copy / path.name for path in build.HEADERS))
+    keys = [build.cache_files("cc")[0].name]
+    for path in (*build.SOURCES, *build.HEADERS):
+        path.write_bytes(path.read_bytes() + b"\n")
+        keys.append(build.cache_files("cc")[0].name)
+    assert len(set(keys)) == len(keys) == 1 + len(build.SOURCES) + len(build.HEADERS)
+
+
 def test_without_a_compiler_the_layer_gives_the_kernels_numbers(load, tmp_path, monkeypatch):
     kernel, _ = layer_call()
     assert build.enabled()

@@ -1,6 +1,6 @@
 """The shape of ``src/sdm`` (docs/library.md, "The package"): the layer never imports the experiments, the
 arrows between the package's parts point one way, imports sit at the top of their module, and files and functions
-stay readable in size.
+(the compiled kernel's C functions too) stay readable in size.
 
 Sizes are held by a ratchet: the files and functions over the bars today are listed with their size, and may only
 shrink; anything new over a bar fails. Every list names only what is still true, so a split that lands must take
@@ -9,6 +9,7 @@ its entry out.
 from __future__ import annotations
 
 import ast
+import re
 from pathlib import Path
 
 import pytest
@@ -30,6 +31,13 @@ OVERSIZED_FILES = {
 
 #: Functions over MAX_FUNCTION_LINES (``file:qualified name``), with their length today: they may only shrink.
 OVERSIZED_FUNCTIONS: dict[str, int] = {}
+
+#: The compiled kernel's C files, and the bar on a C function's body (from its opening brace to its closing one).
+KERNEL = PACKAGE / "mapping" / "kernel"
+MAX_C_FUNCTION_LINES = 80
+
+#: C functions over MAX_C_FUNCTION_LINES (``file:name``), with their length today: they may only shrink.
+OVERSIZED_C_FUNCTIONS: dict[str, int] = {}
 
 #: Imports inside a function, each ``(file, function, module)``: optional dependencies, imported where they are
 #: needed so that the layer and the tables that do not use them run without them (pyproject.toml's extras).
@@ -188,6 +196,55 @@ def test_no_function_grows_past_its_bar():
     assert not grown, f"listed functions grew (lines now, listed): {grown}"
     stale = sorted(set(OVERSIZED_FUNCTIONS) - set(over))
     assert not stale, f"no longer over the bar: take them out of OVERSIZED_FUNCTIONS: {stale}"
+
+
+def _c_function_lengths(source: str) -> dict[str, int]:
+    """Name -> body lines (opening brace to closing brace) of each function a C file defines: its signature starts
+    in column 0 and ends in ``{`` (or holds the whole one-line function), its body ends at a ``}`` alone in column 0
+    (the kernel's layout)."""
+    lengths: dict[str, int] = {}
+    signature: list[str] = []
+    name, start = "", -1
+    for number, line in enumerate(source.splitlines()):
+        if start >= 0:  # in a body
+            if line == "}":
+                lengths[name], start = number - start + 1, -1
+            continue
+        if not signature and (not re.match(r"[A-Za-z_]", line) or line.startswith("typedef")):
+            continue  # comments, preprocessor lines, types
+        signature.append(line)
+        text = re.sub(r"__attribute__\s*\(\(.*?\)\)", "", " ".join(signature)).strip()
+        found = re.search(r"(\w+)\s*\(", text)
+        if found and text.endswith("{") and "=" not in text.partition("(")[0]:
+            name, start = found.group(1), number
+        elif found and text.endswith("}"):
+            lengths[found.group(1)] = 1
+        if text.endswith(("{", "}", ";")):
+            signature = []
+    return lengths
+
+
+def test_no_c_function_grows_past_its_bar():
+    lengths = {f"{path.name}:{name}": length for path in sorted(KERNEL.glob("*.[ch]"))
+               for name, length in _c_function_lengths(path.read_text()).items()}
+    assert {"train.c:sdm_train", "chain.c:sdm_chain", "train_points.h:project_avx2", "kernel.h:clamp_unit"} <= set(
+        lengths), "the C functions are not found: see _c_function_lengths"
+    over = {name: length for name, length in lengths.items() if length > MAX_C_FUNCTION_LINES}
+    new = {name: length for name, length in over.items() if name not in OVERSIZED_C_FUNCTIONS}
+    assert not new, f"C functions over {MAX_C_FUNCTION_LINES} lines: split them into per-part functions: {new}"
+    grown = {name: (over[name], bar) for name, bar in OVERSIZED_C_FUNCTIONS.items()
+             if name in over and over[name] > bar}
+    assert not grown, f"listed C functions grew (lines now, listed): {grown}"
+    stale = sorted(set(OVERSIZED_C_FUNCTIONS) - set(over))
+    assert not stale, f"no longer over the bar: take them out of OVERSIZED_C_FUNCTIONS: {stale}"
+
+
+def test_the_c_function_count_sees_a_long_function():
+    """The negative control: a planted function of 81 body lines (with an attribute and a prototype before it)."""
+    body = "".join(f"    x += {k};\n" for k in range(79))
+    source = ("int64_t declared(int64_t x);\nstatic inline int one(int x) { return x; }\n"
+              "__attribute__((target(\"avx2\"))) static int64_t\nlong_one(int64_t x) {\n" + body + "}\n")
+    assert _c_function_lengths(source) == {"one": 1, "long_one": MAX_C_FUNCTION_LINES + 1}
 
 
 def _inner_imports() -> set[tuple[str, str, str]]:

@@ -1,4 +1,4 @@
-"""The paired runs' noise in one pass: the binding of ``sdm_noise_fill`` (``_native.c``), beside :mod:`sdm.sky`.
+"""The paired runs' noise in one pass: the binding of ``sdm_noise_fill`` (``kernel/noise.c``), beside :mod:`sdm.sky`.
 
 The library is built and loaded by :mod:`sdm.mapping.build`. The binding takes every array by keyword and checks
 each one's dtype, shape, device and contiguity before the ctypes call (:func:`sdm.mapping.build.check_arrays`).

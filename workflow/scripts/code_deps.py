@@ -13,7 +13,7 @@ What counts as a change:
 * a module or runner script: an edit of its syntax tree without docstrings -- code, not
   comments, docstrings or layout (:func:`_parsed`); no library code reads a docstring (the
   runner prints its own only as its usage);
-* a file a module reads beside itself (:data:`RESOURCES`, the native kernel's C source): any edit.
+* a file a module reads beside itself (:data:`RESOURCES`, the native kernel's C sources and headers): any edit.
 
 Parsing the library takes about a second, paid by every Snakemake start (a dry run, each cluster
 job). So what a parse gives (the imports, the digest) is kept in ``code_deps-<python>.json`` in the
@@ -52,7 +52,9 @@ RUNNER = ("workflow/scripts/stage.py", "workflow/scripts/run_notebook.py", "work
           "src/sdm/io.py")
 #: Files a module reads beside itself (not Python, hashed as they are): the module -> its files.
 #: tests/test_workflow_code.py checks that every non-Python file under src/sdm is listed here.
-RESOURCES = {"src/sdm/mapping/build.py": ("src/sdm/mapping/_native.c",)}
+RESOURCES = {"src/sdm/mapping/build.py": tuple(f"src/sdm/mapping/kernel/{name}" for name in (
+    "chain.c", "crossing.c", "mismatch.c", "noise.c", "targets.c", "train.c", "train_setup.c",
+    "kernel.h", "targets.h", "train.h", "train_points.h"))}
 
 
 class CodeDepsError(Exception):

@@ -1,4 +1,4 @@
-"""The CMA-ES baseline's compiled count: the binding of ``sdm_pixel_mismatch`` (``_native.c``), beside :mod:`.cmaes`.
+"""The CMA-ES baseline's compiled count: ``sdm_pixel_mismatch`` (``kernel/mismatch.c``)'s binding, beside :mod:`.cmaes`.
 
 The library is built and loaded by :mod:`sdm.mapping.build`. The binding takes every array by keyword and checks
 each one's dtype, shape, device and contiguity before the ctypes call (:func:`sdm.mapping.build.check_arrays`):

@@ -22,7 +22,7 @@ evaluation: on the default data an evaluation inside a search costs a fifth to a
 count of a whole N x H x W bitmap per evaluation (2.0-2.8 ms against 12.2 ms, one thread;
 benchmarks/speed/bench_cmaes.py).
 
-Compiled (:func:`sdm.baselines.cmaes_native.pixel_mismatch`, ``sdm_pixel_mismatch`` in ``_native.c``): the
+Compiled (:func:`sdm.baselines.cmaes_native.pixel_mismatch`, ``sdm_pixel_mismatch`` in ``kernel/mismatch.c``): the
 same groups, the same float operations for each group's shift and its trust check, then one loop
 over the points per candidate, configuration by configuration with the whole generation (pycma's
 6 candidates) in one call, so a configuration's pixels stay in cache across its candidates; a
@@ -306,7 +306,7 @@ class ShiftLayout:
 
 
 class MismatchMemo:
-    """The compiled count's memory of its last candidates on one table (``sdm_pixel_mismatch`` in ``_native.c``).
+    """The compiled count's memory of its last candidates on one table (``sdm_pixel_mismatch``, ``kernel/mismatch.c``).
 
     The count of a configuration depends on its groups' whole shifts alone; near CMA-ES's convergence most
     configurations of a candidate shift exactly as in one of the last candidates', and take that sum instead

@@ -1,19 +1,21 @@
-"""The compiled CPU kernel's build cache: ``_native.c`` compiled once per machine, checked and loaded with ctypes.
+"""The compiled CPU kernel's build cache: the C files of ``kernel/`` compiled once per machine into one library, checked
+and loaded with ctypes.
 
 The kernel serves three callers, each through a binding module of its own that imports this one: the layer and
 the trainer (:mod:`sdm.mapping.native`), the paired runs' noise (:mod:`sdm.sky_native`) and the CMA-ES baseline's
 count (:mod:`sdm.baselines.cmaes_native`). :func:`library` is the loaded library, its functions typed by
 :data:`SIGNATURES`; :func:`check_arrays` checks a binding's arrays before a call.
 
-The C file is compiled once per machine with the system C compiler (``$CC``,
-default ``cc``, split into words as a shell would: ``CC="ccache gcc"``) into a
-cache folder (``$SDM_CACHE_DIR``, default ``$XDG_CACHE_HOME/sdm`` or
-``~/.cache/sdm``) and loaded with :mod:`ctypes`; no torch headers are involved,
-so it takes well under a second.
+The kernel's sources (:data:`SOURCES`, one file per concern: ``chain.c`` the layer's chain and flow, ``train.c``
+and its parts the trainer, ``noise.c`` the paired runs' noise, ``mismatch.c`` the CMA-ES count; the headers
+:data:`HEADERS`) are compiled once per machine, in one call of the system C compiler (``$CC``, default ``cc``,
+split into words as a shell would: ``CC="ccache gcc"``), into one library in a cache folder (``$SDM_CACHE_DIR``,
+default ``$XDG_CACHE_HOME/sdm`` or ``~/.cache/sdm``) and loaded with :mod:`ctypes`; no torch headers are involved,
+so it takes a few seconds at most.
 
 The cache (:func:`cache_files`) holds ``sdm_native_<key>.so``, its SHA-256 in
 ``sdm_native_<key>.sha256`` and, after a failed build, ``sdm_native_<key>.failed``;
-the key hashes the source, ``$CC``, the flags and the platform. A cached library
+the key hashes every source and header, ``$CC``, the flags and the platform. A cached library
 is checked against its checksum before it is loaded, never by loading it (a
 truncated one kills the process with SIGBUS inside ``dlopen``); a missing,
 damaged or foreign one is rebuilt. A build is checked before it is cached: the
@@ -53,7 +55,13 @@ import torch
 from ..errors import SDMInputError
 from ..io import cache_dir, write_atomic, write_text
 
-SOURCE = Path(__file__).with_name("_native.c")
+#: The kernel's folder beside this module: its C sources, each compiled into the one library, and the headers they
+#: include. Every file of the folder is one of them (tests/test_native_cache.py holds it), so the cache key
+#: (:func:`cache_files`) covers each byte the compiler reads.
+KERNEL = Path(__file__).with_name("kernel")
+SOURCES = tuple(KERNEL / name for name in ("chain.c", "crossing.c", "mismatch.c", "noise.c", "targets.c", "train.c",
+                                           "train_setup.c"))
+HEADERS = tuple(KERNEL / name for name in ("kernel.h", "targets.h", "train.h", "train_points.h"))
 #: ``-ffp-contract=off``: no fused multiply-add, so every float operation rounds as torch's does. ``-O3``
 #: vectorises loops, float ones only elementwise (without ``-ffast-math`` nothing is reassociated); the
 #: trainer's AVX2 code is chosen at run time inside the library, so no ``-march`` (and no CPU in the key).
@@ -63,8 +71,8 @@ _I64 = ctypes.c_int64
 _PTR = ctypes.c_void_p
 
 #: Seconds the C compiler may run before it and every process it started are killed. The build takes
-#: 0.5-0.6 s wall on a loaded 2-core machine (``cc`` on ``_native.c``, load average 4); 30 s leaves
-#: fifty times that for slow disks, a cold ``ccache`` and many jobs building at once, while a hanging
+#: 2 s of CPU, 4-5 s wall on a loaded 2-core machine (``cc`` on :data:`SOURCES`, load average 3.5); 30 s leaves
+#: six times that for slow disks, a cold ``ccache`` and many jobs building at once, while a hanging
 #: compiler costs the first processes half a minute once instead of two minutes each (the failure
 #: is then remembered, see :func:`cache_files`).
 BUILD_TIMEOUT_S = 30.0
@@ -118,16 +126,23 @@ def cache_files(compiler: str | None = None) -> tuple[Path, Path, Path]:
     ``sdm_native_<key>.so`` is the library, ``sdm_native_<key>.sha256`` its SHA-256 (``sha256sum``'s
     format, written after a successful build and checked before every load) and ``sdm_native_<key>.failed``
     the error of a build that failed, which stops later processes from running the compiler again;
-    ``<key>`` hashes the source, the compiler, the flags and the platform, so a changed ``CC`` or source
-    gets files of its own. Deleting any of them is safe: the kernel is built again.
+    ``<key>`` hashes every source and header (:func:`source_digest`), the compiler, the flags and the platform,
+    so a changed ``CC`` or kernel file gets files of its own. Deleting any of them is safe: the kernel is built
+    again.
     """
     compiler = os.environ.get("CC", "cc") if compiler is None else compiler
-    source = SOURCE.read_bytes()  # OSError where an install left the source out
-    key = hashlib.sha256(b"\0".join([source, compiler.encode(), " ".join(FLAGS).encode(),
+    sources = source_digest()  # OSError where an install left a source out
+    key = hashlib.sha256(b"\0".join([sources, compiler.encode(), " ".join(FLAGS).encode(),
                                      platform.machine().encode(), sys.platform.encode()])).hexdigest()[:16]
     folder = cache_dir().absolute()  # RuntimeError where no home folder can be found
     # Absolute: ctypes.CDLL would search the library path for a bare file name.
     return tuple(folder / f"sdm_native_{key}{suffix}" for suffix in (".so", ".sha256", ".failed"))
+
+
+def source_digest() -> bytes:
+    """Each kernel file's name and SHA-256, one line per file (:data:`SOURCES`, then :data:`HEADERS`)."""
+    return b"".join(f"{path.name} {hashlib.sha256(path.read_bytes()).hexdigest()}\n".encode()
+                    for path in (*SOURCES, *HEADERS))
 
 
 @functools.lru_cache(maxsize=1)
@@ -227,7 +242,7 @@ def _build(command: list[str], library: Path, checksum: Path, failure: Path) -> 
     built = {}
 
     def compile_and_check(partial: Path):
-        _compile(command, [*FLAGS, "-o", str(partial), str(SOURCE)])
+        _compile(command, [*FLAGS, "-o", str(partial), *map(str, SOURCES)])
         data = partial.read_bytes()
         if not data:
             raise _Unavailable(f"CC={shlex.join(command)!r} exited 0 but wrote nothing to its output file.",

@@ -3,7 +3,7 @@
 docs/method/floor.md, "A rule aimed at the floor". Table 4 trains ``closed_centred_r1`` and then refines with this
 rule at zoom 0 (:class:`sdm.train.Refinement`); :data:`sdm.RULES` registers it as ``"group_crossing"``
 (eq. 19 at the levels ``>= CROSSING_FINEST_COARSE``, :func:`group_crossing_flow` below them). The compiled
-trainer runs the same arithmetic (``_native.c``, ``crossing_pull``), held to this module's to the bit by
+trainer runs the same arithmetic (``crossing_pull`` in ``kernel/crossing.c``), held to this module's to the bit by
 ``tests/test_native.py`` and ``tests/test_refine.py``; ``tests/flow_reference.py`` recounts the mismatch from
 scratch for :func:`group_move_changes`.
 

@@ -2,7 +2,7 @@
 
 On the CPU the fast path's cost is not the arithmetic but the passes over memory:
 every level runs some twenty torch operations over all points, each a full pass
-plus dispatch (``benchmarks/speed/bench_sdm.py`` measures it). ``_native.c`` does each
+plus dispatch (``benchmarks/speed/bench_sdm.py`` measures it). ``kernel/chain.c`` does each
 level in one loop over the points and the paper's flow in one more, with the same
 integer arithmetic and the same floating-point operations in the same order as
 :func:`~sdm.mapping.fast.fast_mapping`'s level loop and
@@ -23,7 +23,7 @@ in C, the per-step Python work gone; theta histories equal the torch path's to t
 paper's flow and the centred closed rule share one window function in C. Its
 chain runs in int32 with the per-coordinate arithmetic vectorised, its
 projection two points per AVX2 register where the CPU has it (picked at run
-time), and it zooms the runs' targets out itself (``_native.c`` says why each
+time), and it zooms the runs' targets out itself (``kernel/train.c`` and its parts say why each
 keeps the bits). The kernel's other callers have bindings of their own: :mod:`sdm.sky_native` (the paired runs'
 noise) and :mod:`sdm.baselines.cmaes_native` (the CMA-ES baseline's count).
 """
@@ -169,7 +169,7 @@ def paper_flow(screen: torch.Tensor, config: torch.Tensor, landed: torch.Tensor,
 
 
 #: The largest screen side and pixel count :func:`train_program` takes: its chain runs on int32
-#: (``TRAIN_MAX_SIDE`` and ``TRAIN_MAX_CELLS`` in ``_native.c``); larger screens train on the torch path.
+#: (``TRAIN_MAX_SIDE`` and ``TRAIN_MAX_CELLS`` in ``kernel/train.h``); larger screens train on the torch path.
 TRAIN_MAX_SIDE, TRAIN_MAX_CELLS = 2**24, 2**30
 
 

@@ -149,7 +149,7 @@ def _spread(image: torch.Tensor, radius: int, combine) -> torch.Tensor:
 
 
 class KernelFlow(enum.IntEnum):
-    """A flow the compiled trainer (``sdm_train`` in ``_native.c``) runs at one loss level; the value is its mode."""
+    """A flow the compiled trainer (``sdm_train``, ``kernel/train.c``) runs at one loss level; the value is its mode."""
 
     #: eq. 19's window on the input block (:func:`~sdm.mapping.flow.dynamic_flow`)
     PAPER = 0
