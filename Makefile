@@ -41,19 +41,19 @@ test: install
 test-fast: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest -n $(CORES) -m 'not workflow and not slow and not slurm' -q
 
-# The .test config on a one-node SLURM cluster that the test starts and stops (tests/test_slurm.py):
+# The .test config on a one-node SLURM cluster that the test starts and stops (tests/workflow/test_slurm.py):
 # needs root and the slurm-wlm and munge packages; about 35 minutes on two cores. `make test` leaves it out.
 # One process (no -n): its one cluster and the local run it compares with are built once.
 test-slurm: install
-	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest -m slurm tests/test_slurm.py
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/pytest -m slurm tests/workflow/test_slurm.py
 
 # The compiled kernel built with AddressSanitizer and UndefinedBehaviorSanitizer (in a cache folder of its own),
 # loaded into Python with the ASan runtime preloaded, and the kernel's tests and the property test of its callers
 # run against it: any access outside a tensor or any undefined behaviour aborts the run with the sanitizer's report.
 SANITIZE_CC ?= gcc -fsanitize=address,undefined -fno-omit-frame-pointer -fno-sanitize-recover=undefined
 SANITIZE_CACHE ?= $(or $(TMPDIR),/tmp)/sdm-sanitize-cache
-SANITIZE_TESTS ?= tests/test_native.py tests/test_kernel_bindings.py tests/test_kernel_checks.py \
-	tests/test_kernel_properties.py
+SANITIZE_TESTS ?= tests/mapping/test_native.py tests/mapping/test_kernel_bindings.py \
+	tests/mapping/test_kernel_checks.py tests/mapping/test_kernel_properties.py
 sanitize: install
 	SDM_CACHE_DIR="$(SANITIZE_CACHE)" CC="$(SANITIZE_CC)" LD_PRELOAD="$$(gcc -print-file-name=libasan.so)" \
 	ASAN_OPTIONS=detect_leaks=0:halt_on_error=1:abort_on_error=1 UBSAN_OPTIONS=print_stacktrace=1:halt_on_error=1 \

@@ -1,4 +1,4 @@
-"""Starts Snakemake runs for the tests (``snakemakes`` in tests/test_workflow.py) without paying its import each time.
+"""Starts Snakemake runs for the tests (``snakemakes`` in tests/workflow/test_workflow.py) without paying its import each time.
 
 ``python -m snakemake`` spends about 1.5 s of CPU importing Snakemake, most of a dry run. This process imports
 it once, then forks one child per run: the child is what ``python -m snakemake ARGS`` started in that

@@ -3,7 +3,7 @@
 A reader has the repository, not its tracker: a bar is named by what it is ("half the paper's mean",
 "within 2x of CMA-ES"), never by the issue, stop or session that set it, and nothing points to a document
 outside the repository. :func:`forbidden_in` finds such words; tests/test_wording.py holds the tracked files
-to it, tests/test_workflow.py a ``.test`` run's outputs.
+to it, tests/workflow/test_workflow.py a ``.test`` run's outputs.
 """
 from __future__ import annotations
 

@@ -231,7 +231,7 @@ fig.savefig(out / "examples.png", dpi=120)
 # %% [markdown]
 # ## Verdict
 #
-# The calibration targets and their tolerances (tested in `tests/test_synthetic.py`):
+# The calibration targets and their tolerances (tested in `tests/data/test_synthetic.py`):
 # Avg. Dist. within 5% of the paper at every noise level, cars per image within
 # 10% of 11.4.
 

@@ -8,7 +8,7 @@ pixel for pixel (:class:`sdm.baselines.rows.ConfigurationMismatch` counts 0). Of
 axis and the mean distance of its points from theta*: the error of a method that lands anywhere in the set.
 
 For a car of pixel-centre points at depth ``z`` and theta* on its build shift the set is the rectangle
-``[-dx/2, dx/2) x [-dy/2, dy/2)``, ``(dy, dx) = camera.metres_per_screen_pixel(z)`` (``tests/test_identifiability.py``).
+``[-dx/2, dx/2) x [-dy/2, dy/2)``, ``(dy, dx) = camera.metres_per_screen_pixel(z)`` (``tests/experiments/test_identifiability.py``).
 
 Tensors: ``(U, 2)`` float64 metres ``(a, b)``, on the set's device.
 """

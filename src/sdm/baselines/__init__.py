@@ -238,7 +238,7 @@ def baseline_noise_runs(name: str, train_set: ConfigurationSet, level: int, runs
     :func:`sdm.experiments.run_seed` ``(seed, level, r)``, which draws the same noisy targets as
     Table 2's run and seeds the method: mini-batches, subsampling, CMA-ES), fitted by the method's
     ``fit_runs`` ``group_size`` runs at a time as one program (each run what ``fit`` gives it alone,
-    ``tests/test_baselines_batched.py``), or by one ``fit`` per run for a method without ``fit_runs``.
+    ``tests/baselines/test_baselines_batched.py``), or by one ``fit`` per run for a method without ``fit_runs``.
     ``seconds`` is the fit alone, without drawing the noise: a ``fit_runs`` group's wall time over
     its runs.
 

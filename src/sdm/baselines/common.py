@@ -13,7 +13,7 @@ targets (e.g. the noisy targets of Table 3's runs) share each step's operations:
 ``(R, 2)``, each run has its own Adam (:class:`RowAdam`) and its own generator drawing what its
 single run draws in the same order (:func:`subsample_runs`, :func:`staged_adam_runs`), and the loss
 is the sum of the runs' losses, so each run's gradient is its own. A run's result equals its single
-run's to the bit (``tests/test_baselines_batched.py``).
+run's to the bit (``tests/baselines/test_baselines_batched.py``).
 
 Tensors live on the device of the training set's tensors; nothing is created on a fixed device
 (random draws come from CPU generators, as in a single run, and are moved).

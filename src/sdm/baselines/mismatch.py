@@ -30,7 +30,7 @@ pixel covered twice is told by a stamp per padded pixel of one configuration. It
 candidates (:class:`MismatchMemo`): a configuration whose groups all shift as in one of them takes
 that sum instead of a pass over its points (a configuration's count depends on its groups' whole
 shifts alone, and near convergence most candidates shift most configurations alike). The counts are
-the torch count's integers (tests/test_baselines_cmaes.py holds both paths to the straightforward
+the torch count's integers (tests/baselines/test_baselines_cmaes.py holds both paths to the straightforward
 count and to each other). On the default data a search costs 0.39 CPU ms per evaluation against
 the torch count's 1.04 (pycma and the per-run set-up included; 0.097 against 0.257 s per run, one
 thread, 10 runs at level 2: benchmarks/speed/bench_cmaes.py, 2026-12-03). Where the kernel is not available (no C

@@ -18,7 +18,7 @@ counts its pixel, with weight ``+1`` off the target and ``-1`` on it::
 No table of ``C x H x W`` cells is cleared per call (every entry read was written in that call). The
 set-wide grouped count of :mod:`sdm.baselines.mismatch` (and its compiled kernel) serves one shared ``theta``
 over many configurations; here a configuration has a few hundred points and many candidates, so the
-points are counted directly (``tests/test_rows.py`` holds the count to the straightforward rendering).
+points are counted directly (``tests/baselines/test_rows.py`` holds the count to the straightforward rendering).
 
 Budget (:class:`RowsCMAESSettings`): ``evaluations_per_unknown`` counts per unknown (``2 U``) of the
 configuration, so a configuration with more cars gets proportionally more; pycma stops earlier on its

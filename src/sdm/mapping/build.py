@@ -56,7 +56,7 @@ from ..errors import SDMInputError
 from ..io import cache_dir, write_atomic, write_text
 
 #: The kernel's folder beside this module: its C sources, each compiled into the one library, and the headers they
-#: include. Every file of the folder is one of them (tests/test_native_cache.py holds it), so the cache key
+#: include. Every file of the folder is one of them (tests/mapping/test_native_cache.py holds it), so the cache key
 #: (:func:`cache_files`) covers each byte the compiler reads.
 KERNEL = Path(__file__).with_name("kernel")
 SOURCES = tuple(KERNEL / name for name in ("chain.c", "crossing.c", "mismatch.c", "noise.c", "targets.c", "train.c",

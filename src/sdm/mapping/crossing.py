@@ -4,7 +4,7 @@ docs/method/floor.md, "A rule aimed at the floor". Table 4 trains ``closed_centr
 rule at zoom 0 (:class:`sdm.train.Refinement`); :data:`sdm.RULES` registers it as ``"group_crossing"``
 (eq. 19 at the levels ``>= CROSSING_FINEST_COARSE``, :func:`group_crossing_flow` below them). The compiled
 trainer runs the same arithmetic (``crossing_pull`` in ``kernel/crossing.c``), held to this module's to the bit by
-``tests/test_native.py`` and ``tests/test_refine.py``; ``tests/flow_reference.py`` recounts the mismatch from
+``tests/mapping/test_native.py`` and ``tests/train/test_refine.py``; ``tests/flow_reference.py`` recounts the mismatch from
 scratch for :func:`group_move_changes`.
 
 Shapes and signature: those of :mod:`sdm.mapping.rules`.

@@ -7,7 +7,7 @@ level in one loop over the points and the paper's flow in one more, with the sam
 integer arithmetic and the same floating-point operations in the same order as
 :func:`~sdm.mapping.fast.fast_mapping`'s level loop and
 :func:`~sdm.mapping.flow.dynamic_flow`, so results are equal to the bit
-(``tests/test_native.py``). The library is built, cached and loaded by :mod:`sdm.mapping.build`; whenever it
+(``tests/mapping/test_native.py``). The library is built, cached and loaded by :mod:`sdm.mapping.build`; whenever it
 cannot be used the layer runs its torch path (the same results, slower). It serves CPU tensors (non-contiguous
 ones are copied); CUDA tensors take the torch path. The chain runs in the kernel for
 any gradient rule and point dtype; the flow only for the paper's rule on float64

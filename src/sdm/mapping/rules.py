@@ -4,7 +4,7 @@ A rule is a name, its torch flow, and optionally its compiled form: the flow the
 (:func:`sdm.mapping.native.train_program`) runs at each loss level (:class:`KernelFlow`). Every rule of the
 project is registered in :data:`RULES`; :data:`FLOW_RULES` (the rules a configuration or table uses) and
 :data:`sdm.mapping.research_rules.RESEARCH_RULES` (the experiments of docs/method/rules.md) are live views of
-it, and the workflow schema's rule names are held to it by ``tests/test_research.py``.
+it, and the workflow schema's rule names are held to it by ``tests/experiments/test_research.py``.
 
 Wherever a rule is named (``SpatialDomainMapping(flow=...)``, ``TrainSettings(flow=...)``) it may be a
 registered name, a :class:`Rule`, or a bare function with the signature of
@@ -124,7 +124,7 @@ def closing(size: int):
     grid the erosion sees active blocks, so closing never removes a block at the
     border). Both are separable: rows, then columns, each an OR (AND) of shifted
     bool views, exact and about 10x cheaper than max pools over float images (which
-    ``tests/test_flow_rules.py`` holds it equal to). Closing only adds blocks, so a
+    ``tests/mapping/test_flow_rules.py`` holds it equal to). Closing only adds blocks, so a
     point matched at theta* stays matched: without noise theta* stays an exact fixed
     point.
     """
@@ -169,7 +169,7 @@ class Rule:
             also callable itself, as its flow.
         compiled: ``None`` (no compiled form: training takes the torch path) or the :class:`KernelFlow` the
             compiled trainer runs where the rule is not eq. 19; it must give ``flow``'s theta history to the
-            bit (``tests/test_native.py`` holds the product's rules to that).
+            bit (``tests/mapping/test_native.py`` holds the product's rules to that).
         finest_coarse: ``None``, or the loss level from which on the rule is eq. 19 (:class:`KernelFlow` ``PAPER``
             in the kernel; :meth:`by_zoom` builds ``flow`` from the same number).
         experiment: measured in docs/method/rules.md, used by no table (:data:`RESEARCH_RULES` rather than

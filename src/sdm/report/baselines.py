@@ -108,7 +108,7 @@ def table2_runs(distances: pd.DataFrame, timings: Sequence[Mapping], levels: Seq
 
     Table 2's run ``r`` at level ``n`` trains SDM on the noisy targets of ``run_seed(seed, n, r)``, the
     draw every baseline's run ``(n, r)`` sees too, so these rows pair with the baselines' by
-    construction (``tests/test_baselines.py`` holds ``fit("sdm")`` on a run's targets to
+    construction (``tests/baselines/test_baselines.py`` holds ``fit("sdm")`` on a run's targets to
     :func:`sdm.experiments.noise_runs`); nothing is trained again.
 
     Args:

@@ -96,7 +96,7 @@ def train_runs(
       once, and one C call (``sdm_train``) does every level, epoch, mini-batch, chain,
       flow, loss and SGD step, with the torch path's float operations in its order:
       every run's theta history equals the torch path's to the bit
-      (``tests/test_native.py``); only the loss is summed in another order (equal to
+      (``tests/mapping/test_native.py``); only the loss is summed in another order (equal to
       1e-12 relative).
     * **torch** (everything else: CUDA, other rules, ``fit_depth``, ``"dense"``, no
       kernel): each step packs the ``R`` runs' mini-batches as ``R x batch_size``
@@ -115,7 +115,7 @@ def train_runs(
     its own flow. ``param_index=None`` is the paper's case, ``K = 1`` row shared by every point (the
     shift ``(a, b)``): the same engine, whose histories are unchanged. Both paths take it (the compiled one
     moves each point by its rows' sum in the kernel); flows are exact sums, so both give every row the history
-    of the plain single-run loop of ``tests/train_reference.py`` to the bit (``tests/test_param_index.py``).
+    of the plain single-run loop of ``tests/train_reference.py`` to the bit (``tests/train/test_param_index.py``).
 
     Args:
         train_set: packed configurations; their own targets are not used (pass ``train_set.targets``

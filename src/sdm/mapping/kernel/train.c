@@ -42,7 +42,7 @@
  * The loss is the sum over the pulled points of l1_row * (z / k_row) + l1_col * (z / k_col), the
  * products as sdm.mapping.flow.pull_loss forms them, the sum compensated in point order (torch's
  * .sum() adds in its own order, which is not reproduced: the two agree to the last bits,
- * tests/test_native.py holds them to 1e-12 relative). Theta never depends on the loss.
+ * tests/mapping/test_native.py holds them to 1e-12 relative). Theta never depends on the loss.
  * Returns 0, -1 where no memory could be had, -2 for a screen beyond the int32 chain (TRAIN_MAX_SIDE), or -3
  * for a level outside 0..steps or a mode-2 level above 0.
  *

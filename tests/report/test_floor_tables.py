@@ -18,7 +18,7 @@ from sdm.report.research import (
     CMAES_ROW, FLOOR_ROW, bias_summary, reference_rows, rules_figure, table4_frame, table4_summary,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "workflow" / "scripts"))
 from config_check import ConfigError, check_config, validate_schema  # noqa: E402
 

@@ -15,7 +15,7 @@ import pytest
 #: Every test runs a notebook in a kernel (seconds): out of `make test-fast`.
 pytestmark = pytest.mark.slow
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 RUNNER = ROOT / "workflow" / "scripts" / "run_notebook.py"
 
 HEADER = """# ---

@@ -381,7 +381,7 @@ def test_inconsistent_offsets(tmp_path, configurations):
 
 
 def test_format_constants_are_documented():
-    docs = Path(__file__).resolve().parents[1] / "docs" / "data.md"
+    docs = Path(__file__).resolve().parents[2] / "docs" / "data.md"
     text = docs.read_text()
     assert skyfile_module.MAGIC.decode("latin-1").strip("\x89\n") in text
     for name in skyfile_module._ARRAYS:

@@ -12,7 +12,7 @@ from sdm.data import ImageCars, read_apollo_camera, read_apollo_folder, read_pku
 from sdm.errors import SDMInputError
 from sdm.sky import build_configuration
 
-SAMPLE = Path(__file__).resolve().parents[1] / "data" / "apollocar3d-sample"
+SAMPLE = Path(__file__).resolve().parents[2] / "data" / "apollocar3d-sample"
 
 
 def needs_sample():

@@ -17,7 +17,7 @@ from sdm.experiments import noisy_targets
 from sdm.mapping import KernelFlow, dynamic_flow, native
 from sdm.mapping.rules import by_zoom, closing, window_rule
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture

@@ -10,7 +10,7 @@ from sdm.camera import APOLLO_CAMERA_5, Camera
 from sdm.data import SkyFile, build_sky_dataset, read_annotations, require_cars_on_screen, write_sky_file
 from sdm.sky import SKY_SHIFT
 
-SHIPPED = Path(__file__).resolve().parents[1] / "data" / "apollocar3d-sample"
+SHIPPED = Path(__file__).resolve().parents[2] / "data" / "apollocar3d-sample"
 
 
 def test_the_shipped_sample_has_its_files_licence_and_attribution():

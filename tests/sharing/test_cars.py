@@ -21,7 +21,7 @@ from sdm.errors import SDMInputError
 from sdm.representation import inside
 from sdm.sky import SKY_SHIFT, build_configuration, circle_offsets, paint_circles, render_centres
 
-SHIPPED = Path(__file__).resolve().parents[1] / "data" / "apollocar3d-sample"
+SHIPPED = Path(__file__).resolve().parents[2] / "data" / "apollocar3d-sample"
 SCALING_CARS = (1, 2, 4, 8, 16, 32)
 
 

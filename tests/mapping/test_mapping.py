@@ -22,7 +22,7 @@ from sdm.representation import inside
 from sdm.sky import SKY_SHIFT, pixel_centre_points, shift_vector
 from sdm.zoom import zoom_out
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 CAM = APOLLO_CAMERA_5
 H, W = CAM.screen_shape
@@ -378,7 +378,7 @@ def test_torch_compile_runs_the_layer(kernel):
 def test_importing_and_running_the_layer_leaves_dynamo_unimported():
     """Dynamo costs about 1.2 s to import; the layer wraps its kernel calls for torch.compile only while tracing."""
     probe = ("import sys, torch, sdm\n"
-             "sys.path.insert(0, 'tests')\n"
+             "sys.path[:0] = ['tests', 'tests/mapping']\n"
              "from test_mapping import zoom1_loss_of_theta\n"
              "theta = torch.tensor([0.2, 0.1], dtype=torch.float64, requires_grad=True)\n"
              "zoom1_loss_of_theta()(theta).backward()\n"

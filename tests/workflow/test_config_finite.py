@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "workflow" / "scripts"))
 from config_check import ConfigError, check_config, validate_schema  # noqa: E402
 from test_workflow import apollo_sample_config, default_config, dot_test_config, snakemake, workdir  # noqa: E402

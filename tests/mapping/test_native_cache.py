@@ -120,9 +120,9 @@ def test_a_truncated_cached_kernel_is_rebuilt_not_loaded(load, tmp_path):
         print("ok")
         """
     )
-    tests = Path(__file__).parent
+    tests = Path(__file__).parents[1]
     env = os.environ | {"SDM_CACHE_DIR": str(target.parent), "CC": COMPILER,
-                        "PYTHONPATH": os.pathsep.join([str(tests), os.environ.get("PYTHONPATH", "")])}
+                        "PYTHONPATH": os.pathsep.join([str(tests), str(Path(__file__).parent), os.environ.get("PYTHONPATH", "")])}
     done = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, f"exit status {done.returncode}: {done.stderr[-2000:]}"
     assert done.stdout.strip() == "ok"

@@ -110,7 +110,7 @@ def _table6_verdict_script():
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "workflow" / "scripts" / "table6_verdict.py"
+    path = Path(__file__).resolve().parents[2] / "workflow" / "scripts" / "table6_verdict.py"
     spec = importlib.util.spec_from_file_location("table6_verdict", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)

@@ -237,9 +237,9 @@ def test_without_a_compiler_the_layer_warns_once_and_runs_the_torch_path(tmp_pat
         print("ok")
         """
     )
-    tests = Path(__file__).parent
+    tests = Path(__file__).parents[1]
     env = os.environ | {"CC": str(tmp_path / "no-such-compiler"), "SDM_CACHE_DIR": str(tmp_path / "cache"),
-                        "PYTHONPATH": os.pathsep.join([str(tests), os.environ.get("PYTHONPATH", "")])}
+                        "PYTHONPATH": os.pathsep.join([str(tests), str(Path(__file__).parent), os.environ.get("PYTHONPATH", "")])}
     done = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr
     assert done.stdout.strip() == "ok"

@@ -79,7 +79,7 @@ def test_targets_without_an_active_pixel_are_refused(data):
 
 def test_an_early_overshoot_that_comes_back_is_no_divergence():
     """At the tuning grid's largest rate (1e-3) the first steps overshoot far beyond the bound and come back: the
-    run is a result (tests/test_baselines.py recovers the shift so within 5e-3 m)."""
+    run is a result (tests/baselines/test_baselines.py recovers the shift so within 5e-3 m)."""
     data = configuration_set(64, seed=5)
     history = train(data, TrainSettings(lr=1e-3, n_epoch=2), progress=False)
     assert float(history.theta.abs().max()) > THETA_BOUND

@@ -24,7 +24,7 @@ from sdm.data.stats import (
 from sdm.errors import SDMInputError
 from sdm.sky import build_configuration
 
-SAMPLE = Path(__file__).resolve().parents[1] / "data" / "apollocar3d-sample"
+SAMPLE = Path(__file__).resolve().parents[2] / "data" / "apollocar3d-sample"
 
 #: Tolerances of the calibration: Avg. Dist. within 5% of Table 2, cars per image within 10% of 11.4.
 AVG_DIST_TOLERANCE = 0.05

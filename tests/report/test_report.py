@@ -251,7 +251,7 @@ def test_importing_figures_leaves_the_backend_alone():
 
     code = ("import matplotlib; matplotlib.use('svg'); import sdm.report.figures; "
             "print(matplotlib.get_backend())")
-    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[1] / "src"))
+    env = dict(os.environ, PYTHONPATH=str(Path(__file__).resolve().parents[2] / "src"))
     env.pop("MPLBACKEND", None)
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=120)
     assert result.returncode == 0, result.stderr

@@ -11,7 +11,7 @@ are stopped by PID, after the cluster's jobs are cancelled, also when a test fai
 
 One run with an impossible depth shift fails inside a SLURM job, and the stage's one-line cause must
 reach Snakemake's own output; with the value fixed the run completes. Its tables must equal the local
-run's (``completed_run`` of tests/test_workflow.py) byte for byte but the measured seconds, every
+run's (``completed_run`` of tests/workflow/test_workflow.py) byte for byte but the measured seconds, every
 non-local job must be a SLURM job that completed, and ``snakemake -n`` must find nothing to do.
 
 Behind the marker ``slurm``, off by default (``make test-slurm`` runs it; it needs root, ``slurm-wlm``
@@ -41,7 +41,7 @@ pytestmark = pytest.mark.slurm
 
 SLURM_CONF = Path("/etc/slurm/slurm.conf")
 #: The first line of the configuration this test writes: what it may overwrite or remove, and nothing else.
-OURS = "# written by the sdm test tests/test_slurm.py for its own one-node cluster; removed when it ends"
+OURS = "# written by the sdm test tests/workflow/test_slurm.py for its own one-node cluster; removed when it ends"
 TOOLS = ("munged", "slurmctld", "slurmd", "sbatch", "srun", "squeue", "scancel", "sinfo")
 #: The test's only departure from the profile: status checks every few seconds instead of every 40 s and
 #: more (a real cluster's scheduler would not thank us), and squeue, as there is no accounting database.

@@ -1,7 +1,7 @@
 """The workflow on real annotations: files tracked by content, images without cars, an all-empty folder.
 
 A copy of the shipped 57 real frames (data/apollocar3d-sample) with annotation files without cars mixed in,
-run end to end once (the session fixture ``real_run``) in a temporary directory, as tests/test_workflow.py
+run end to end once (the session fixture ``real_run``) in a temporary directory, as tests/workflow/test_workflow.py
 runs the ``.test`` config; a file of its own so that, under pytest-xdist (``make test``), one worker runs it
 beside that file's run.
 """

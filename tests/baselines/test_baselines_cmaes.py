@@ -261,7 +261,7 @@ def test_cma_is_imported_without_its_plots_and_surrogates_and_searches_the_same(
     import sys
     from pathlib import Path
 
-    tests = Path(__file__).parent
+    tests = Path(__file__).parents[1]
     env = {**__import__("os").environ, "PYTHONPATH": f"{tests}:{tests.parent / 'src'}"}
 
     def probe(mode):

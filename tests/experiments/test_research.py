@@ -33,7 +33,7 @@ from sdm.report.research import (
     write_table4,
 )
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "workflow" / "scripts"))
 from config_check import ConfigError, check_config, validate_schema  # noqa: E402
 
