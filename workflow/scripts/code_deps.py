@@ -51,7 +51,7 @@ PACKAGE = "sdm"
 RUNNER = ("workflow/scripts/stage.py", "workflow/scripts/run_notebook.py", "workflow/scripts/code_deps.py",
           "src/sdm/io.py")
 #: Files a module reads beside itself (not Python, hashed as they are): the module -> its files.
-#: tests/test_workflow_code.py checks that every non-Python file under src/sdm is listed here.
+#: tests/workflow/test_workflow_code.py checks that every non-Python file under src/sdm is listed here.
 RESOURCES = {"src/sdm/mapping/build.py": tuple(f"src/sdm/mapping/kernel/{name}" for name in (
     "chain.c", "crossing.c", "mismatch.c", "noise.c", "targets.c", "train.c", "train_setup.c",
     "kernel.h", "targets.h", "train.h", "train_points.h"))}

@@ -203,7 +203,7 @@ def _dotted(path) -> str:
 
 def _rule_names() -> list[str]:
     """The rule names of the schema (``research.rules.names``' enum, held to the library's registry ``sdm.RULES``
-    by tests/test_research.py)."""
+    by tests/experiments/test_research.py)."""
     names = _validator(str(SCHEMA_PATH.resolve()))[0]["properties"]["research"]["properties"]["rules"][
         "properties"]["names"]
     return names["items"]["anyOf"][0]["enum"]  # the plain rule names a schedule may combine
