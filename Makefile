@@ -74,8 +74,9 @@ bench: install
 	$(BIN)/python benchmarks/speed/bench_sdm.py
 	$(BIN)/python benchmarks/speed/bench_gpu.py
 
-# docs/results/timing.md, rewritten whole: `make run`, `make bench` and `make test` timed one after another on a
-# fresh clone of HEAD (install included), and the run's per-job times (benchmarks/tools/timing.py; about 30 minutes).
+# docs/results/timing.md, rewritten whole: `make run`, `make bench` and `make test` run one after another on a fresh
+# clone of HEAD (install included), each with its CPU time, wall time and the load average while it ran, then the
+# run's CPU and wall time per stage and per job (benchmarks/tools/timing.py; about 30 minutes on 2 cores).
 timing:
 	$(PYTHON) benchmarks/tools/timing.py
 

@@ -151,12 +151,13 @@ def config_digest(files, root: Path = ROOT) -> str:
 
 
 def git_commit(root: Path = ROOT) -> tuple[str | None, str]:
-    """The checked-out commit and whether tracked files differ from it (``"clean"`` or ``"modified"``); ``(None,
-    "unknown")`` outside a git checkout."""
+    """The checked-out commit and whether tracked files outside ``docs/`` and ``README.md`` (what takes write) differ
+    from it (``"clean"`` or ``"modified"``); ``(None, "unknown")`` outside a git checkout."""
     try:
         commit = subprocess.run(["git", "rev-parse", "HEAD"], cwd=root, capture_output=True, text=True,
                                 check=True).stdout.strip()
-        changed = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=root,
+        changed = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no", "--", ".",
+                                  ":(exclude)docs", ":(exclude)README.md"], cwd=root,
                                  capture_output=True, text=True, check=True).stdout.strip()
     except (OSError, subprocess.CalledProcessError):
         return None, "unknown"
