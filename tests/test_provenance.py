@@ -52,7 +52,8 @@ def test_each_overlay_of_the_makefile_is_the_snapshots():
 
 def _code_deps_of(root: Path):
     """workflow/scripts/code_deps.py of the project copy at ``root``: its fingerprints are that copy's code's."""
-    spec = importlib.util.spec_from_file_location(f"code_deps_{root.name}", root / "workflow" / "scripts" / "code_deps.py")
+    path = root / "workflow" / "scripts" / "code_deps.py"
+    spec = importlib.util.spec_from_file_location(f"code_deps_{root.name}", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module

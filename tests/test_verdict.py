@@ -216,6 +216,20 @@ def test_the_longest_verdict_still_reads_in_a_minute():
     assert "doing nothing's error" in text and "but at synthetic levels 1-3 and real levels 1-3" in text
 
 
+def test_the_words_follow_the_data_not_the_other_way():
+    """Where SDM removes more of doing nothing's error per car than its peer, and beats the search everywhere, the
+    answers say so, still within the bars."""
+    snapshots = copy.deepcopy(_committed())
+    for row in snapshots["objects"]["facts"]["rows"]:
+        row["peer_removed"] = 0.1
+    snapshots["default"]["facts"]["search"] |= {"level": "yes", "sdm_closer_at": [0, 1, 2, 3, 4],
+                                                "search_closer_at": []}
+    text = verdict_text.render(verdict_text.verdict(snapshots))
+    assert_readable(text)
+    assert "**Beats black-box search?** Yes" in text and "per car SDM, which removes as much error" in text
+    assert "CMA-ES for one shift" not in text
+
+
 def test_the_readability_check_finds_a_long_or_a_second_sentence():
     """The negative control: a sixth answer, a 41-word answer, two sentences in one answer, a distance in metres."""
     base = verdict_text.render(verdict_text.verdict(_committed()))

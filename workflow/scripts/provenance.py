@@ -30,8 +30,9 @@ SNAPSHOTS = ROOT / "docs" / "results"
 PROVENANCE = "PROVENANCE.json"
 
 #: The tables of the default run and of the real sample's: Tables 1-4, their summaries and Table 3's tuning.
-DEFAULT_TABLES = tuple(f"{table}.{kind}" for table in ("table1", "table2", "table3", "table4") for kind in ("csv", "md", "tex")) + (
-    "table3_summary.md", "table3_tuning.csv", "table3_tuning.md", "table4_bias.csv", "table4_summary.md")
+DEFAULT_TABLES = tuple(
+    f"{table}.{kind}" for table in ("table1", "table2", "table3", "table4") for kind in ("csv", "md", "tex")
+) + ("table3_summary.md", "table3_tuning.csv", "table3_tuning.md", "table4_bias.csv", "table4_summary.md")
 #: The stages of the default run (every one its target asks for), in the Snakefile's order.
 DEFAULT_STAGES = ("synthetic", "data", "sample", "sky", "split", "tune", "best", "noise", "tables", "baseline_tune",
                   "baseline_runs", "floor_runs", "table3", "rule_runs", "rule_bias", "table4", "figures", "report")

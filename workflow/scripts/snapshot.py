@@ -182,7 +182,8 @@ def status(snapshot: Path = SNAPSHOT) -> list[str]:
         stale = provenance.stale_stages(part, recorded)
         listed = provenance.KNOWN_STALE.get(name)
         state = "fresh" if not stale else f"stale ({', '.join(stale)})"
-        lines.append(f"{name} ({part.words}): {folder.relative_to(ROOT) if folder.is_relative_to(ROOT) else folder}/, commit "
+        shown = folder.relative_to(ROOT) if folder.is_relative_to(ROOT) else folder
+        lines.append(f"{name} ({part.words}): {shown}/, commit "
                      f"{provenance.short(recorded)}, {(recorded or {}).get('date', 'no date')}: {state}"
                      + (f" (listed: {listed})" if listed else "") + f"; remade by `{part.refresh}`")
     return lines

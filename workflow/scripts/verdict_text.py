@@ -61,7 +61,7 @@ def _per_unit(objects: dict | None) -> dict | None:
     peered = [row for row in rows if row["peer"] is not None]
     return {"scale": scale, "screen": rows[0]["screen"], "levels": [row["level"] for row in rows],
             "removed": [row["removed"] for row in rows], "closer": [row["closer"] for row in rows],
-            "peer": peered[0]["peer_label"] if peered else None,
+            "peer": peered[0]["peer_label"] if peered else None, "peer_method": peered[0]["peer"] if peered else None,
             "peer_removed": [row["peer_removed"] for row in peered], "cpu_ratio": [row["cpu_ratio"] for row in peered]}
 
 
@@ -154,7 +154,7 @@ def _reproduction(answer: dict) -> str:
         parts.append(f"the noisy means are {_span([noisy['low'], noisy['high']])} the paper's (acceptance band: "
                      f"{band}{'' if noisy['within'] else ', missed'})")
     if not tuning["same"]:
-        parts.append(f"tuning picks {tuning['n_epoch']} epochs at lr {tuning['lr']:.0e} (paper: "
+        parts.append(f"tuning picks {tuning['n_epoch']} epochs at learning rate {tuning['lr']:.0e} (paper: "
                      f"{tuning['paper_n_epoch']} at {tuning['paper_lr']:.0e})")
     joined = parts[0] + (", but " + ", and ".join(parts[1:]) if len(parts) > 1 else "")
     return f"**Reproduces the paper?** {answer['level'].capitalize()}: {joined}."
@@ -166,10 +166,11 @@ def _search(answer: dict) -> str:
     if answer["level"] == "yes":
         return (f"**Beats black-box search?** Yes: SDM ends closer than [CMA-ES]({LINKS['cmaes']}) at every "
                 f"noise level.")
+    where = "every noise level" if not answer["sdm_closer_at"] else _levels(answer["search_closer_at"])
+    sdm = f"; SDM only at {_levels(answer['sdm_closer_at'])}" if answer["sdm_closer_at"] else ""
     return (f"**Beats black-box search?** {head}: [CMA-ES]({LINKS['cmaes']}), a search of the pixel mismatch "
-            f"over theta, ends closer at {'every noise level' if not answer['sdm_closer_at'] else _levels(answer['search_closer_at'])}, "
-            f"by up to {worst['ratio']:.0f}x ({worst['search_mm']:.3f} against {worst['sdm_mm']:.3f} mm at level "
-            f"{worst['level']})" + (f"; SDM only at {_levels(answer['sdm_closer_at'])}." if answer["sdm_closer_at"] else "."))
+            f"over theta, ends closer at {where}, by up to {worst['ratio']:.0f}x ({worst['search_mm']:.3f} against "
+            f"{worst['sdm_mm']:.3f} mm at level {worst['level']}){sdm}.")
 
 
 def _instead(answer: dict) -> str:
@@ -181,11 +182,14 @@ def _instead(answer: dict) -> str:
                      + (f" ({seconds:.2f} s a run)" if seconds is not None else ""))
     if unit and unit["peer"]:
         if min(unit["peer_removed"]) > max(unit["removed"]):
-            parts.append(f"per car it still removes more error ({_span([100 * v for v in unit['peer_removed']], 0, ' %')}"
-                         f" against SDM's {_span([100 * v for v in unit['removed']], 0, ' %')}) but takes "
+            cmaes = str(unit["peer_method"]).startswith("cmaes")
+            who = ("it" if parts else "CMA-ES") if cmaes else unit["peer"]
+            peer, own = (_span([100 * v for v in unit[key]], 0, " %") for key in ("peer_removed", "removed"))
+            parts.append(f"per car {who} still removes more error ({peer} against SDM's {own}) but takes "
                          f"{_span(unit['cpu_ratio'], 0)} SDM's CPU time")
         else:
-            parts.append(f"per car SDM, which removes as much error at 1/{min(unit['cpu_ratio']):.0f} of its CPU time")
+            parts.append(f"per car SDM, which removes as much error at 1/{min(unit['cpu_ratio']):.0f} of "
+                         f"{unit['peer']}'s CPU time")
     return "**Use instead, and when?** " + ("; ".join(parts) if parts else "SDM itself") + "."
 
 

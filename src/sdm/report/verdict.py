@@ -92,7 +92,8 @@ def search_rows(table3: pd.DataFrame | None, table4: pd.DataFrame | None) -> pd.
     sdm = table3[table3["method"] == "sdm"].set_index("level")
     levels = [level for level in search.index if level in sdm.index]
     return pd.DataFrame({"level": [int(level) for level in levels], "search_m": search.loc[levels, "mean_m"].values,
-                         "sdm_m": sdm.loc[levels, "mean_m"].values, "runs": search.loc[levels, "runs"].astype(int).values})
+                         "sdm_m": sdm.loc[levels, "mean_m"].values,
+                         "runs": search.loc[levels, "runs"].astype(int).values})
 
 
 def search_facts(rows: pd.DataFrame | None, table3: pd.DataFrame | None) -> dict | None:
