@@ -198,3 +198,21 @@ def test_the_report_stage_reads_nothing_of_docs_results():
     rules = [ROOT / "Snakefile", *sorted((ROOT / "workflow" / "rules").glob("*.smk"))]
     code = {path.name: re.sub(r"#.*", "", path.read_text()) for path in rules}  # comments may name a snapshot
     assert [name for name, text in code.items() if "docs/results" in text] == []
+
+
+def test_a_readme_verdict_edited_by_hand_fails_the_check(tmp_path):
+    readme = tmp_path / "README.md"
+    text = snapshot.README.read_text()
+    section = snapshot.readme_section(text)
+    readme.write_text(text.replace(section.strip("\n"), section.strip("\n").replace(" mm", " m", 1)))
+    assert "the verdict section is not the one the snapshots give" in snapshot.check(readme)[0]
+
+
+@pytest.mark.parametrize("name", ["default", "sample", "objects", "network"])
+def test_each_snapshots_verdict_facts_are_computed_from_its_own_tables(name):
+    """The committed facts files are the library's facts of the snapshot's CSVs (workflow/scripts/verdict_facts.py,
+    the same functions the stages call): generated, never typed."""
+    import verdict_facts
+
+    part = PARTS[name]
+    assert verdict_facts.facts_of(name, part.path()) == json.loads((part.path() / part.facts).read_text())

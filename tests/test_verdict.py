@@ -190,8 +190,10 @@ def test_the_readmes_verdict_reads_in_a_minute():
     assert_readable(section)
     assert "synthetic annotations" in section.split("|")[0]  # the table's data named in its caption
     for name, source in verdict_text.verdict(_committed())["sources"].items():
-        assert f"[{source['folder']}]({source['folder']}), commit {source['commit']}" in section, name
-    assert section.count("(**stale**)") >= 1  # the committed snapshots are on the list: each answer says so
+        tag = f"[{source['folder']}]({source['folder']}), commit {source['commit']}"
+        assert tag in section, name
+        marked = f"{tag} (**stale**)" in section
+        assert marked == (name in snapshot.provenance.KNOWN_STALE), name  # marked stale exactly when listed
 
 
 def _worst_case() -> dict:
