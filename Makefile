@@ -7,7 +7,8 @@ CORES ?= 2
 # torch comes from PyTorch's CPU-only index (no GPU libraries); `make TORCH_INDEX= install` takes pip's default build
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 
-.PHONY: install run workflow test test-fast test-slurm sanitize bench timing report snapshot clean
+.PHONY: install run workflow test test-fast test-slurm sanitize bench timing report snapshot verdict clean \
+	run-depth run-objects run-network run-sample snapshot-depth snapshot-objects snapshot-network snapshot-sample
 
 install: $(VENV)/.installed
 
@@ -27,7 +28,18 @@ run:
 	@$(PYTHON) workflow/scripts/timed.py "make run" $(MAKE) --no-print-directory workflow
 
 workflow: install
-	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/snakemake --profile profiles/default --cores $(CORES)
+	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/snakemake --profile profiles/default --cores $(CORES) $(SNAKEMAKE_ARGS)
+
+# The runs of the opt-in snapshots: config.yaml with the snapshot's overlay merged over it (Tables 5-7 switched on;
+# the real sample's own config, which writes to results/apollocar3d-sample/). `PARTS` in workflow/scripts/provenance.py
+# names the same files (tests/workflow/test_provenance.py checks it). Each runs what the default run has not run yet.
+OVERLAY_depth := profiles/snapshots/depth.yaml
+OVERLAY_objects := profiles/snapshots/objects.yaml
+OVERLAY_network := profiles/snapshots/network.yaml
+OVERLAY_sample := data/apollocar3d-sample/config.yaml
+run-depth run-objects run-network run-sample:
+	@$(PYTHON) workflow/scripts/timed.py "make $@" $(MAKE) --no-print-directory workflow \
+		SNAKEMAKE_ARGS="--configfile $(OVERLAY_$(@:run-%=%))"
 
 # The tests and the library's `>>>` docstring examples (pyproject.toml: testpaths, --doctest-modules).
 # The workflow tests run Snakemake in temporary directories: whatever results/ holds, they see none of it.
@@ -64,17 +76,25 @@ bench: install
 	$(BIN)/python benchmarks/speed/bench_sdm.py
 	$(BIN)/python benchmarks/speed/bench_gpu.py
 
-# docs/results/timing.md, rewritten whole: `make run`, `make bench` and `make test` timed one after another on a
-# fresh clone of HEAD (install included), and the run's per-job times (benchmarks/tools/timing.py; about 30 minutes).
+# docs/results/timing.md, rewritten whole: `make run`, `make bench` and `make test` run one after another on a fresh
+# clone of HEAD (install included), each with its CPU time, wall time and the load average while it ran, then the
+# run's CPU and wall time per stage and per job (benchmarks/tools/timing.py; about 30 minutes on 2 cores).
 timing:
 	$(PYTHON) benchmarks/tools/timing.py
 
 report: install
 	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/snakemake --profile profiles/default --report report.html
 
-# After `make run`: results/ -> docs/results/ (the committed snapshot) and the README's verdict from it.
+# After `make run`: results/ -> docs/results/ (the committed snapshot, with its PROVENANCE.json), then the README's
+# verdict assembled from every snapshot. After `make run-<name>`: that run's files -> docs/results/<name>/.
 snapshot:
 	$(PYTHON) workflow/scripts/snapshot.py take
+snapshot-depth snapshot-objects snapshot-network snapshot-sample:
+	$(PYTHON) workflow/scripts/snapshot.py take --part $(@:snapshot-%=%)
+
+# The README's verdict assembled again from the snapshots (no run, no copy).
+verdict:
+	$(PYTHON) workflow/scripts/snapshot.py verdict
 
 clean:
 	rm -rf results benchmarks/calibration report.html .snakemake

@@ -68,8 +68,6 @@ LEFT_TO_MOVE = {
     ("network.py", "test_methods", ".objects"),
     ("network.py", "refine_settings", ".train"),
     ("network.py", "save_weights", ".io"),
-    ("report/verdict.py", "verdict", ".objects"),
-    ("report/verdict.py", "verdict", ".network"),
 }
 
 

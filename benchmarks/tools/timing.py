@@ -1,34 +1,38 @@
 """How long the main commands take on a fresh clone: writes docs/results/timing.md (``make timing``).
 
-    python benchmarks/tools/timing.py [--clone DIR] [--keep]
+    python benchmarks/tools/timing.py [--clone DIR] [--keep] [--repo DIR] [--output FILE]
 
-Clones the committed HEAD of this repository into a temporary folder (or ``--clone DIR``, which must not
-exist), then runs there, one after another, each under a wall clock:
+Clones the committed HEAD of this repository (or ``--repo``) into a temporary folder (or ``--clone DIR``, which
+must not exist), then runs there, one after another:
 
-1. ``make run``   (creates the clone's ``.venv`` first: the install is part of its time);
+1. ``make run``   (creates the clone's ``.venv`` first: the install is part of it);
 2. ``make bench`` (the layer's speed, ``benchmarks/speed/bench_sdm.py``);
 3. ``make test``  (the test suite).
 
-It then reads the default run's per-job times from the clone's ``results/benchmarks/<job>.tsv`` (Snakemake's
-``benchmark:`` files: wall seconds ``s`` and ``cpu_time``) and rewrites docs/results/timing.md here, whole:
-the current figures only, each with its command, the commit and the date. A command that fails is written
-as failed, with its exit status. The clone is deleted afterwards unless ``--keep``.
-
-The figures are wall times on whatever else the machine runs; the page records the load average before
-and after. The standard library only.
+Each command is measured three ways: its CPU seconds (user + system of every process it started and waited for,
+``getrusage(RUSAGE_CHILDREN)``), its wall seconds, and the machine's 1-minute load average sampled every few
+seconds while it ran. On a shared machine the wall time grows with the load; the CPU time barely moves, so the
+page leads with it. It then reads the default run's per-job times from the clone's ``results/benchmarks/<job>.tsv``
+(Snakemake's ``benchmark:`` files: ``cpu_time`` and the wall seconds ``s``), each job's stage from its executed
+notebook (``results/notebooks/<job>.ipynb``, which records it), and rewrites docs/results/timing.md whole: the
+current figures only, with the commit and the date. A command that fails is written as failed, with its exit
+status. The clone is deleted afterwards unless ``--keep``. The standard library only.
 """
 from __future__ import annotations
 
 import argparse
 import csv
 import datetime
+import json
 import os
 import platform
 import re
+import resource
 import shutil
 import subprocess
 import sys
 import tempfile
+import threading
 import time
 from pathlib import Path
 
@@ -36,26 +40,82 @@ ROOT = Path(__file__).resolve().parents[2]
 OUTPUT = ROOT / "docs" / "results" / "timing.md"
 #: The commands timed, in the order they run (the first installs the clone's environment).
 COMMANDS = ("make run", "make bench", "make test")
+#: Seconds between two samples of the load average while a command runs.
+SAMPLE_SECONDS = 5.0
+#: The executed notebook's metadata key naming its stage (workflow/scripts/run_notebook.py: STAGE_METADATA).
+STAGE_METADATA = "sdm_stage"
 
 
-def run_timed(command: str, cwd: Path, log: Path) -> dict:
-    """Run ``command`` in ``cwd`` (output to ``log``); its wall seconds, exit status and the log's tail."""
-    start = time.monotonic()
-    with log.open("w") as out:
+class LoadSampler:
+    """The machine's 1-minute load average, sampled every ``every`` seconds in a thread while a command runs."""
+
+    def __init__(self, every: float = SAMPLE_SECONDS):
+        self.every, self.samples = every, [os.getloadavg()[0]]
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.every):
+            self.samples.append(os.getloadavg()[0])
+
+    def __enter__(self) -> "LoadSampler":
+        self._thread.start()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._stop.set()
+        self._thread.join()
+        self.samples.append(os.getloadavg()[0])
+
+
+def cpu_of_children() -> float:
+    used = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return used.ru_utime + used.ru_stime
+
+
+def run_timed(command: str, cwd: Path, log: Path, every: float = SAMPLE_SECONDS) -> dict:
+    """Run ``command`` in ``cwd`` (output to ``log``): its CPU and wall seconds, the load average while it ran
+    (mean and maximum of the samples), its exit status and the log's tail."""
+    cpu_before, start = cpu_of_children(), time.monotonic()
+    with log.open("w") as out, LoadSampler(every) as load:
         status = subprocess.run(command, shell=True, cwd=cwd, stdout=out, stderr=subprocess.STDOUT).returncode
-    seconds = time.monotonic() - start
-    return {"command": command, "seconds": seconds, "status": status, "tail": log.read_text()[-4000:]}
+    return {"command": command, "cpu": cpu_of_children() - cpu_before, "seconds": time.monotonic() - start,
+            "load_mean": sum(load.samples) / len(load.samples), "load_max": max(load.samples),
+            "status": status, "tail": log.read_text()[-4000:]}
 
 
-def job_times(benchmarks: Path) -> list[tuple[str, float, float]]:
-    """``(job, wall s, CPU s)`` per Snakemake benchmark file of ``benchmarks``, longest first."""
+def job_stage(notebooks: Path, job: str) -> str:
+    """The stage of ``job``, as its executed notebook records it ("?" where it records none)."""
+    try:
+        metadata = json.loads((notebooks / f"{job}.ipynb").read_text()).get("metadata", {})
+    except (OSError, ValueError):
+        return "?"
+    return str((metadata.get(STAGE_METADATA) or {}).get("name", "?"))
+
+
+def job_times(benchmarks: Path, notebooks: Path | None = None) -> list[dict]:
+    """Per Snakemake benchmark file of ``benchmarks``: ``job``, ``stage`` (from ``notebooks``), ``cpu`` and ``wall``
+    seconds, the most CPU first."""
     jobs = []
     for path in sorted(benchmarks.glob("*.tsv")):
         with path.open() as handle:
             rows = list(csv.DictReader(handle, delimiter="\t"))
         if rows:
-            jobs.append((path.stem, float(rows[-1]["s"]), float(rows[-1].get("cpu_time") or "nan")))
-    return sorted(jobs, key=lambda job: -job[1])
+            cpu = rows[-1].get("cpu_time") or "nan"
+            jobs.append({"job": path.stem, "stage": job_stage(notebooks, path.stem) if notebooks else "?",
+                         "cpu": float(cpu) if cpu != "-" else float("nan"), "wall": float(rows[-1]["s"])})
+    return sorted(jobs, key=lambda job: (-(job["cpu"] if job["cpu"] == job["cpu"] else 0.0), job["job"]))
+
+
+def stage_times(jobs: list[dict]) -> list[dict]:
+    """Per stage: its jobs, their CPU and wall seconds summed, the most CPU first."""
+    stages: dict[str, dict] = {}
+    for job in jobs:
+        row = stages.setdefault(job["stage"], {"stage": job["stage"], "jobs": 0, "cpu": 0.0, "wall": 0.0})
+        row["jobs"] += 1
+        row["cpu"] += job["cpu"]
+        row["wall"] += job["wall"]
+    return sorted(stages.values(), key=lambda row: (-row["cpu"], row["stage"]))
 
 
 def minutes(seconds: float) -> str:
@@ -74,55 +134,67 @@ def summary(result: dict) -> str:
     return ""
 
 
-def load() -> str:
-    return " / ".join(f"{value:.1f}" for value in os.getloadavg())
-
-
-def page(results: list[dict], jobs: list[tuple[str, float, float]], commit: str, date: str,
-         loads: tuple[str, str]) -> str:
-    """docs/results/timing.md's text."""
-    lines = [
-        "# How long the commands take",
-        "",
-        "Written by `make timing` (`benchmarks/tools/timing.py`); do not edit by hand. History lives in git.",
-        "",
-        f"- Commit: `{commit}`, cloned fresh (`git clone`), each command run there in turn.",
-        f"- Date: {date} (UTC).",
-        f"- Machine: {platform.system()} {platform.machine()}, {os.cpu_count()} cores, Python "
-        f"{platform.python_version()}.",
-        f"- Load average (1 / 5 / 15 min): {loads[0]} before, {loads[1]} after. The machine may be shared,",
-        "  so these are wall times under that load, not a quiet machine's.",
-        "",
-        "## The commands",
-        "",
-        "| command | wall time | result |",
-        "|---|---|---|",
-    ]
+def _command_rows(results: list[dict]) -> list[str]:
+    rows = ["| command | CPU time | wall time | load average while it ran (mean / max) | result |",
+            "|---|---:|---:|---:|---|"]
     for result in results:
         outcome = "done" if result["status"] == 0 else f"failed (exit status {result['status']})"
         said = summary(result)
-        lines.append(f"| `{result['command']}` | {minutes(result['seconds'])} | {outcome}"
-                     + (f": {said}" if said else "") + " |")
-    lines += [
+        rows.append(f"| `{result['command']}` | {minutes(result['cpu'])} | {minutes(result['seconds'])} | "
+                    f"{result['load_mean']:.1f} / {result['load_max']:.1f} | {outcome}"
+                    + (f": {said}" if said else "") + " |")
+    return rows
+
+
+def _job_rows(jobs: list[dict]) -> list[str]:
+    if not jobs:
+        return ["No job ran: `make run` wrote no benchmark file."]
+    stages = stage_times(jobs)
+    rows = [
+        "From `results/benchmarks/<job>.tsv` of that `make run` (Snakemake's `benchmark:` files), each job's stage",
+        "from its executed notebook. CPU time is each job's processes' user + system time; wall time is its span.",
+        f"All jobs together: {minutes(sum(job['cpu'] for job in jobs))} of CPU time, "
+        f"{minutes(sum(job['wall'] for job in jobs))} of wall time ({len(jobs)} jobs).",
+        "",
+        "| stage | jobs | CPU time | wall time |",
+        "|---|---:|---:|---:|",
+        *(f"| `{row['stage']}` | {row['jobs']} | {row['cpu']:.1f} s | {row['wall']:.1f} s |" for row in stages),
+        "",
+        "## The default run, job by job",
+        "",
+        "| job | CPU time | wall time |",
+        "|---|---:|---:|",
+        *(f"| `{job['job']}` | {job['cpu']:.1f} s | {job['wall']:.1f} s |" for job in jobs),
+    ]
+    return rows
+
+
+def page(results: list[dict], jobs: list[dict], commit: str, date: str, machine: str | None = None) -> str:
+    """docs/results/timing.md's text."""
+    machine = machine or (f"{platform.system()} {platform.machine()}, {os.cpu_count()} cores, Python "
+                          f"{platform.python_version()}")
+    lines = [
+        "# How long the commands take",
+        "",
+        "Written by `make timing` (`benchmarks/tools/timing.py`); do not edit by hand.",
+        "",
+        f"- Commit: `{commit}`, cloned fresh (`git clone`), each command run there in turn.",
+        f"- Date: {date} (UTC).",
+        f"- Machine: {machine}.",
+        "- CPU time: user + system seconds of every process a command started. It is the figure to compare:",
+        "  on a shared machine the wall time grows with the load average beside it, the CPU time hardly.",
+        "",
+        "## The commands",
+        "",
+        *_command_rows(results),
         "",
         "`make run` includes creating `.venv` and installing into it (a fresh clone has none).",
         "`make bench` prints the layer's speed ratios, measured in one run; see its own output.",
         "",
-        "## The default run, job by job",
+        "## The default run, stage by stage",
         "",
+        *_job_rows(jobs),
     ]
-    if jobs:
-        lines += [
-            "From `results/benchmarks/<job>.tsv` of that `make run` (Snakemake's `benchmark:` files), longest first.",
-            f"All jobs together: {minutes(sum(job[1] for job in jobs))} of wall time, "
-            f"{minutes(sum(job[2] for job in jobs))} of CPU time.",
-            "",
-            "| job | wall time | CPU time |",
-            "|---|---:|---:|",
-        ]
-        lines += [f"| `{name}` | {wall:.1f} s | {cpu:.1f} s |" for name, wall, cpu in jobs]
-    else:
-        lines.append("No job ran: `make run` wrote no benchmark file.")
     return "\n".join(lines) + "\n"
 
 
@@ -130,27 +202,30 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--clone", type=Path, help="where to clone (must not exist; default: a temporary folder)")
     parser.add_argument("--keep", action="store_true", help="keep the clone afterwards")
+    parser.add_argument("--repo", type=Path, default=ROOT, help="the repository to clone (default: this one)")
+    parser.add_argument("--output", type=Path, default=OUTPUT, help="the page to write (default: %(default)s)")
+    parser.add_argument("--every", type=float, default=SAMPLE_SECONDS, help="seconds between load samples")
     args = parser.parse_args(argv)
-    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=ROOT, capture_output=True, text=True,
+    commit = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=args.repo, capture_output=True, text=True,
                             check=True).stdout.strip()
     clone = args.clone or Path(tempfile.mkdtemp(prefix="sdm-timing-")) / "sdm"
     if clone.exists():
         sys.exit(f"--clone {clone}: already exists")
-    subprocess.run(["git", "clone", "--quiet", str(ROOT), str(clone)], check=True)
+    subprocess.run(["git", "clone", "--quiet", str(args.repo), str(clone)], check=True)
     date = datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M")
-    before = load()
     results = []
     try:
         for command in COMMANDS:
             print(f"timing `{command}` in {clone} ...", flush=True)
-            results.append(run_timed(command, clone, clone.parent / f"{command.replace(' ', '_')}.log"))
-            print(f"  {minutes(results[-1]['seconds'])}, exit status {results[-1]['status']}", flush=True)
-        jobs = job_times(clone / "results" / "benchmarks")
+            results.append(run_timed(command, clone, clone.parent / f"{command.replace(' ', '_')}.log", args.every))
+            print(f"  {minutes(results[-1]['cpu'])} CPU, {minutes(results[-1]['seconds'])} wall, exit status "
+                  f"{results[-1]['status']}", flush=True)
+        jobs = job_times(clone / "results" / "benchmarks", clone / "results" / "notebooks")
     finally:
         if not args.keep and not args.clone:
             shutil.rmtree(clone.parent, ignore_errors=True)
-    OUTPUT.write_text(page(results, jobs, commit, date, (before, load())))
-    print(f"wrote {OUTPUT.relative_to(ROOT)}")
+    args.output.write_text(page(results, jobs, commit, date))
+    print(f"wrote {args.output}")
     return 0 if all(result["status"] == 0 for result in results) else 1
 
 

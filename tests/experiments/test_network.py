@@ -167,7 +167,7 @@ def test_table7_words_follow_the_numbers():
     """The summary's bars read the table: met where the numbers meet them, missed where they do not."""
     import pandas as pd
 
-    from sdm.report.network import table7, table7_summary, verdict_sentence
+    from sdm.report.network import table7, table7_summary, verdict_facts
 
     nets = {"net:sdm_paper": 0.05, "net:silhouette": 0.08, "net:chamfer": 0.09, "net:supervised": 0.03,
             "net+k:sdm_paper": 0.02, "cmaes": 0.015, "sdm_zero": 0.04}
@@ -183,13 +183,18 @@ def test_table7_words_follow_the_numbers():
     assert "closer than both at every level: met" in words
     assert "level 0: 1.33x CMA-ES's mean at 1/500 of its CPU time" in words
     assert "100x less CPU time: met" in words
-    assert "1.67-2.33x supervised regression's test mean" in verdict_sentence(table)
-    assert "the error of doing nothing" not in verdict_sentence(table)  # no reference, no words about it
+    found = verdict_facts(table)
+    assert found["loss"] == "sdm_paper" and found["rule"] == "paper"
+    assert [row["to_supervised"] for row in found["levels"]] == pytest.approx([0.05 / 0.03, 0.07 / 0.03])
+    assert [row["to_nothing"] for row in found["levels"]] == [None, None]  # no reference, no ratio to it
+    assert [row["beats_image_losses"] for row in found["levels"]] == [True, True]
+    assert found["levels"][0]["refined_to_search"] == pytest.approx(0.02 / 0.015)
+    assert found["levels"][0]["search_cpu_ratio"] == pytest.approx(500)
     nothing = dict(prior=0.2, start=0.1)
     table = table7([_frame(dict(nets, **nothing), 0, cpu), _frame(dict(worse, **nothing), 2, cpu)], curves)
     assert list(table["method"][:3]) == ["start", "prior", "net:sdm_paper"]
     assert "level 0: 200.0e-3 m, the networks at 0.15-0.45x of it" in table7_summary(table, 4, 16, 3000)
-    assert "0.25-0.35x the error of doing nothing" in verdict_sentence(table)
+    assert [row["to_nothing"] for row in verdict_facts(table)["levels"]] == pytest.approx([0.25, 0.35])
 
 
 def test_a_shift_set_subset_keeps_each_configuration_with_its_shift_and_level():

@@ -12,7 +12,7 @@ from sdm.baselines.silhouette import SilhouetteSettings
 from sdm.errors import SDMInputError
 from sdm.objects import EXACT_SET, METHODS, REFERENCES, ObjectsSettings, objects_runs, scaling_runs
 from sdm.report.objects import (read_units_archive, scaling_table, table6, table6_summary, units_archive,
-                                verdict_sentence)
+                                verdict_facts)
 from sdm.train import TrainSettings
 
 from sdm.batch import ConfigurationSet
@@ -82,10 +82,17 @@ def test_table6_and_its_words(data):
     assert rows.loc["cmaes", "mean_m"] == pytest.approx(own.mean())
     words = table6_summary(table, None)
     assert "A configuration's shift" in words and "of its start's error" in words
-    assert "the best peer" in verdict_sentence(table)
+    found = verdict_facts(table)
+    assert [(row["sharing"], row["level"]) for row in found["rows"]] == [
+        ("configuration", 0), ("configuration", 1), ("camera+car", 0), ("camera+car", 1)]
+    row = found["rows"][1]
+    by = rows  # the configuration level at noise 1
+    sdm = min(("sdm_paper", "sdm_schedule"), key=lambda m: by.loc[m, "mean_m"] if m in by.index else float("inf"))
+    assert row["rule"] == sdm and row["removed"] == pytest.approx(1 - by.loc[sdm, "of_start"])
+    assert row["peer"] is not None and row["cpu_ratio"] == pytest.approx(
+        by.loc[row["peer"], "cpu_ms"] / by.loc[sdm, "cpu_ms"])
     old = table.drop(columns=["scale", "start_m", "of_start", "closer", "extent_a_m", "extent_b_m"])  # an old snapshot
-    old = old[old["method"].isin(METHODS) | (old["sharing"] == "shared")]
-    assert "CMA-ES's mean distance" in verdict_sentence(old)
+    assert verdict_facts(old)["rows"] == []  # no reference columns: nothing against doing nothing
 
 
 def test_scaling_gives_one_point_per_budget(data):
@@ -145,7 +152,7 @@ def test_two_screens_give_two_blocks_each_naming_its_scale(data):
     words = table6_summary(table, None)
     assert "scale 4 (512 x 1024)" in words and "scale 1 (128 x 256, the paper's)" in words
     assert words.index("scale 4") < words.index("scale 1 (")
-    assert verdict_sentence(table).count("with a car's shift unknown") == 2
+    assert [row["scale"] for row in verdict_facts(table)["rows"]] == [4, 1]  # the first screen first
 
 
 def test_the_units_archive_holds_every_record(data, tmp_path):

@@ -307,6 +307,26 @@ def test_dry_run_with_the_depth_table_switched_on_by_an_overlay(tmp_path):
         _research_jobs(config))
 
 
+@pytest.mark.parametrize("name", ["default", "depth", "objects", "network", "sample"])
+def test_each_snapshots_stages_are_those_that_make_its_files(tmp_path, name):
+    """A snapshot's provenance records the code of every stage its files come from (PARTS in
+    workflow/scripts/provenance.py): from scratch, a dry run of its files with the config `make run-<name>` uses
+    plans exactly those stages."""
+    from provenance import PARTS
+
+    part = PARTS[name]
+    if name == "sample":
+        directory, overlay = workdir(tmp_path, apollo_sample_config()), []
+    else:
+        directory = workdir(tmp_path, default_config())
+        overlay = [argument for path in part.config[1:] for argument in ("--configfile", str(ROOT / path))]
+    results = yaml.safe_load((ROOT / part.config[-1]).read_text()).get("results_dir", "results")
+    targets = sorted({f"{results}/{source}" for source in part.files.values()})
+    jobs = planned(snakemake("-n", "--quiet", "rules", *overlay, "--", *targets, cwd=directory))
+    assert set(jobs) == set(part.stages)
+    assert part.results == results
+
+
 @pytest.mark.parametrize("flag", ["--workflow-profile", "--profile"])
 def test_dry_run_slurm_profile(tmp_path, flag):
     result = snakemake("-n", flag, str(ROOT / "profiles" / "slurm"), cwd=workdir(tmp_path, default_config()))
@@ -466,13 +486,28 @@ def completed_run(tmp_path_factory) -> Path:
 def test_completed_run_has_every_output_and_nothing_left_to_do(completed_run):
     for path in ["results/tables/table1.csv", "results/tables/table1.md", "results/tables/table1.tex",
                  "results/tables/table2.csv", "results/tables/table2.md", "results/tables/table2.tex",
-                 "results/noise/distances.csv", "results/report/reproduction.md", "results/report/verdict.md",
+                 "results/noise/distances.csv", "results/report/reproduction.md", "results/report/verdict.json",
                  "results/notebooks/report.html",
                  *(f"results/figures/{name}.png" for name in ["fig1_configuration", "fig2_forward", "fig3_backward",
                                                               "fig4_noise", "theta_path", "distances"])]:
         assert (completed_run / path).stat().st_size > 0, path
     result = snakemake("-n", cwd=completed_run)
     assert "Nothing to be done" in result.stdout + result.stderr, result.stdout + result.stderr
+
+
+def test_each_executed_notebook_records_its_stage_and_code(completed_run):
+    """The runner keeps each stage's name and code fingerprint in its executed notebook: what a snapshot's provenance
+    records (workflow/scripts/snapshot.py); the verdict's facts of the run read as the README's verdict."""
+    from code_deps import fingerprint
+    from snapshot import run_stages
+    from verdict_text import render, verdict
+
+    ran = run_stages(completed_run / "results")
+    assert {"tables", "noise", "table4", "report"} <= set(ran)
+    assert {stage: codes for stage, codes in ran.items() if codes != {fingerprint(stage)}} == {}
+    facts = json.loads((completed_run / "results" / "report" / "verdict.json").read_text())
+    text = render(verdict({"default": {"facts": facts, "folder": "docs/results/", "commit": "0000000", "stale": False}}))
+    assert "in mm" in text and len(facts["levels"]) == len(dot_test_config()["noise"]["levels"])
 
 
 def test_completed_run_outputs_speak_of_the_method_alone(completed_run):
@@ -678,7 +713,7 @@ def _nested_cases(section: str, cases: dict[str, tuple]) -> dict[str, tuple[dict
 def _network_cases() -> dict[str, tuple[dict, str | None]]:
     """The Table 7 keys' cases: (config change, first stage expected to rerun); the .test config runs Table 7."""
     cases = {
-        "enabled": (False, "report"),  # the report no longer reads this run's Table 7
+        "enabled": (False, None),  # Table 7's stages go; no other stage reads them
         "sizes": ([40, 16, 16], "network_train"),
         "seed": (1, "network_train"),
         "levels": ([0, 1], "network_train"),
@@ -702,7 +737,7 @@ def _network_cases() -> dict[str, tuple[dict, str | None]]:
 def _objects_cases() -> dict[str, tuple[dict, str | None]]:
     """The Table 6 keys' cases: (config change, first stage expected to rerun); the .test config runs Table 6."""
     cases = {
-        "enabled": (False, "report"),  # the report no longer reads this run's Table 6
+        "enabled": (False, None),  # Table 6's stages go; no other stage reads them
         "sharings": (["camera+car"], "objects_runs"),
         "levels": ([0, 1], "objects_runs"),
         "runs": (2, "objects_runs"),

@@ -241,33 +241,3 @@ def config_values(*keys):
         if last in source:
             target[last] = source[last]
     return picked
-
-
-# -- Table 4 measured on other data: the committed snapshots the verdict reads -------------------------
-
-# `make snapshot` copies results/ into docs/results/; the real sample's run (results_dir
-# results/apollocar3d-sample) is copied by hand into docs/results/apollocar3d-sample/ (its README.md).
-# The verdict names the recommended rule's worst ratio to CMA-ES over this run's Table 4 and each
-# snapshot of other data that the project holds (a snapshot folder is docs/<results_dir>).
-TABLE4_SNAPSHOTS = {
-    "docs/results": "the synthetic default (docs/results/)",
-    "docs/results/apollocar3d-sample": "the 57 real frames of data/apollocar3d-sample (docs/results/apollocar3d-sample/)",
-}
-
-
-def table4_elsewhere():
-    """The Table 4 snapshots (CSV) of other data than this run's, that exist, with the words naming their data."""
-    found = {
-        f"{folder}/tables/table4.csv": words
-        for folder, words in TABLE4_SNAPSHOTS.items()
-        if folder != f"docs/{RESULTS}" and Path(f"{folder}/tables/table4.csv").exists()
-    }
-    return found if JOBS["table4"] else {}
-
-
-def data_words():
-    """This run's data, in words (the verdict's recommended-rule line)."""
-    source = config["data"]["source"]
-    if source == "apollo":
-        return f"this run's ApolloCar3D frames ({config['data']['apollo_folder']})"
-    return f"this run's {'synthetic annotations' if source == 'synthetic' else 'PKU frames'}"

@@ -1,6 +1,7 @@
 # Table 7: SDM inside a network (config section research.network; docs/method/network.md). One job per
 # training loss (the network and its learning curve), one per noise level for the test-time comparison, and
-# the gathering stage. Opt-in (research.network.enabled): its snapshot is docs/results/network/.
+# the gathering stage. Opt-in (research.network.enabled): its snapshot is
+# docs/results/network/ (`make run-network snapshot-network`).
 
 NETWORK = RESEARCH.get("network", {"enabled": False})
 NETWORK_ON = bool(NETWORK.get("enabled", False))
@@ -64,15 +65,8 @@ notebook_stage(
     output=dict(
         **table_files("table7"),
         table7_summary=result("tables/table7_summary.md"),
+        table7_verdict=result("tables/table7_verdict.json"),
         figure=figure("network_curves", "network_curves"),
     ),
     params=dict(refine=NETWORK.get("refine"), train=NETWORK.get("train"), sizes=NETWORK.get("sizes")),
 )
-
-
-def table7_read_by_report():
-    """Table 7 for the verdict: this run's when the stage runs, else the committed snapshot where it exists."""
-    if NETWORK_ON:
-        return dict(table7_csv=result("tables/table7.csv"))
-    snapshot = Path("docs/results/network/table7.csv")
-    return dict(table7_csv=str(snapshot)) if snapshot.exists() else {}

@@ -1,6 +1,7 @@
 # Table 6: parameters attached to points (config section research.objects; docs/method/objects.md). One job
 # per (sharing, noise level) for the paired runs of every method, one per K for the scaling with the number
-# of cars, and the gathering stage. Opt-in (research.objects.enabled): its snapshot is docs/results/objects/.
+# of cars, and the gathering stage. Opt-in (research.objects.enabled): its snapshot is
+# docs/results/objects/ (`make run-objects snapshot-objects`).
 
 OBJECTS = RESEARCH.get("objects", {"enabled": False})
 OBJECTS_ON = bool(OBJECTS.get("enabled", False))
@@ -123,16 +124,9 @@ notebook_stage(
         **table_files("table6"),
         table6_summary=result("tables/table6_summary.md"),
         table6_units=result("tables/table6_units.csv.gz"),
+        table6_verdict=result("tables/table6_verdict.json"),
         figure=figure("objects", "objects"),
         scaling_figure=figure("objects_scaling", "objects_scaling"),
     ),
     params=dict(runs=OBJECTS.get("runs")),
 )
-
-
-def table6_read_by_report():
-    """Table 6 for the verdict: this run's when the stage runs, else the committed snapshot where it exists."""
-    if OBJECTS_ON:
-        return dict(table6_csv=result("tables/table6.csv"))
-    snapshot = Path("docs/results/objects/table6.csv")
-    return dict(table6_csv=str(snapshot)) if snapshot.exists() else {}

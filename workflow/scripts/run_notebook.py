@@ -175,7 +175,13 @@ def remove_stale_temporaries(executed: str | Path) -> list[Path]:
     return stale
 
 
-def main(source: str, executed: str, html: str, parameters: str | dict, stderr_log: str | None = None) -> int:
+#: The executed notebook's metadata key that holds the stage's name and the fingerprint of the code it ran
+#: (``workflow/scripts/snapshot.py`` reads it into a snapshot's provenance).
+STAGE_METADATA = "sdm_stage"
+
+
+def main(source: str, executed: str, html: str, parameters: str | dict, stderr_log: str | None = None,
+         stage: dict | None = None) -> int:
     """Run ``source`` with ``parameters`` (a dict, or its JSON); 0 on success, 1 on failure.
 
     With ``stderr_log`` (the rule's text log), the tools' and the kernel's messages go to that file
@@ -197,6 +203,8 @@ def main(source: str, executed: str, html: str, parameters: str | dict, stderr_l
             Path(executed).unlink(missing_ok=True)  # what is under that name is this run's notebook or nothing
             notebook = jupytext.read(source)
             notebook.metadata["kernelspec"] = {"name": "python3", "display_name": "Python 3", "language": "python"}
+            if stage:
+                notebook.metadata[STAGE_METADATA] = stage
             result = execute_into(executed, lambda temporary: execute_with_kernel_restarts(
                 papermill.execute_notebook,
                 notebook,

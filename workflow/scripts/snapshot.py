@@ -1,51 +1,58 @@
-"""The default run's results, committed: ``docs/results/``, and the README's verdict taken from it.
+"""The committed snapshots of the workflow's runs (``docs/results/``), their provenance, and the README's verdict.
 
-    python workflow/scripts/snapshot.py take      # results/ -> docs/results/, then the README's verdict section
-    python workflow/scripts/snapshot.py check     # exit 1 (naming each) on a README or docs number not in it
+    python workflow/scripts/snapshot.py take [--part NAME]  # a run's files -> its snapshot folder, then the verdict
+    python workflow/scripts/snapshot.py verdict             # the README's verdict, assembled from the snapshots
+    python workflow/scripts/snapshot.py status              # each snapshot: its commit, fresh or stale, its command
+    python workflow/scripts/snapshot.py check               # exit 1 (naming each) on a README or docs number not held
 
-``take`` (``make snapshot``, after ``make run``) replaces ``docs/results/{tables,figures,report}/`` with
-the default run's files (:data:`DEFAULT_RUN`) of ``results/tables/`` (CSV, Markdown and LaTeX tables, the
-``*_summary.md`` texts), ``results/figures/`` (PNG) and ``results/report/`` (the reproduction report and the
-verdict), and writes ``docs/results/report/verdict.md`` into README.md between the verdict markers (figure
-paths made relative to the README). It is atomic and exact: it first checks that every file of the default run
-is in ``results/`` (and that each CSV matches its checksum file), and exits naming the missing or damaged ones
-before anything is touched; it builds the new parts beside the old ones and swaps them in, then the README.
-The opt-in stages' files (Tables 5-7 and their figures) are never taken: their snapshots have folders of their
-own. Nothing else in ``docs/results/`` is touched (``timing.md`` is written by ``make timing``).
+The snapshots are :data:`provenance.PARTS`: ``default`` (``make snapshot``: the default run's
+``results/{tables,figures,report}/`` into ``docs/results/``), ``depth``, ``objects``, ``network`` (``make
+snapshot-depth`` and so on: Tables 5-7 from a run with the overlay ``profiles/snapshots/<name>.yaml``, into
+``docs/results/<name>/``) and ``sample`` (``make snapshot-sample``: the real sample's run,
+``results/apollocar3d-sample/``, into ``docs/results/apollocar3d-sample/``). ``make run-<name>`` makes each run.
 
-``check`` holds the README and docs to the snapshot: the verdict section must be the snapshot's verdict,
-and every results number they quote -- a distance in 1e-3 m (``5.76e-3 m``) or a ratio (``1.6x``,
-``1.6-1.9x``), in README.md, docs/workflow.md, or a paragraph of the other docs/*.md and docs/method/*.md that
-says it speaks of the run (``the default run``, ``docs/results``, ``results/tables``, ...) -- must be a value the snapshot holds at the
-quoted precision (``5.76`` matches a table's ``5.758``). A paragraph that
-names the command its numbers come from (``benchmarks/...``, ``make bench``) quotes that command's
-measurement, not the run's, and is not checked. The standard library only: no torch, no pandas.
+``take`` is atomic and exact. Before anything is touched it checks that every file of the snapshot is in the
+run's folder, that each CSV matches its checksum file, and that every stage of the snapshot ran, with one version
+of its code, the working tree's: each executed notebook (``<results>/notebooks/<job>.ipynb``) records its stage's
+code fingerprint (``workflow/scripts/run_notebook.py``). Otherwise it exits naming each problem. It then builds
+the new files beside the old ones and swaps them in (a folder the run owns whole, such as ``tables/``, at once; a
+file beside a README or a measurement log, file by file), writes the folder's ``PROVENANCE.json``
+(:mod:`provenance`) and, last, the README's verdict.
+
+``verdict`` writes the README's verdict section from the snapshots' facts (:mod:`verdict_text`), each answer
+naming its snapshot, that snapshot's commit and whether it is stale (:data:`provenance.KNOWN_STALE`).
+
+``check`` holds the README and docs to the snapshots: the verdict section must be what ``verdict`` writes, and
+every results number they quote -- a distance in 1e-3 m (``5.76e-3 m``) or a ratio (``1.6x``, ``1.6-1.9x``), in
+README.md, docs/workflow.md, or a paragraph of the other docs/*.md and docs/method/*.md that says it speaks of the
+run (``the default run``, ``docs/results``, ``results/tables``, ...) -- must be a value the snapshots' Markdown
+holds at the quoted precision (``5.76`` matches a table's ``5.758``). A paragraph that names the command its
+numbers come from (``benchmarks/...``, ``make bench``) quotes that command's measurement, not the run's, and is not
+checked. The standard library only: no torch, no pandas.
 """
 from __future__ import annotations
 
+import argparse
+import json
 import re
 import secrets
 import shutil
 import sys
 from pathlib import Path
 
-from code_deps import library_io  # sdm/io.py (the CSVs' checksums), loaded without importing sdm (torch)
+import provenance
+import verdict_text
+from code_deps import fingerprint, library_io  # sdm/io.py (the CSVs' checksums), loaded without importing sdm
+from provenance import PARTS
+from run_notebook import STAGE_METADATA
 
 ROOT = Path(__file__).resolve().parents[2]
-RESULTS = ROOT / "results"
 SNAPSHOT = ROOT / "docs" / "results"
 README = ROOT / "README.md"
-#: The parts of results/ the snapshot holds, and the default run's files of each: all of them must be there.
-#: (Not the tables' and the report's HTML pages: the same text again, made for `make report`; not the opt-in
-#: stages' Tables 5-7 and figures.)
-DEFAULT_RUN = {
-    "tables": [f"{table}.{kind}" for table in ("table1", "table2", "table3", "table4") for kind in ("csv", "md", "tex")]
-    + ["table3_summary.md", "table3_tuning.csv", "table3_tuning.md", "table4_bias.csv", "table4_summary.md"],
-    "figures": [f"{name}.png" for name in ("baselines", "distances", "fig1_configuration", "fig2_forward",
-                                           "fig3_backward", "fig4_noise", "research_rules", "theta_path")],
-    "report": ["reproduction.md", "verdict.md"],
-}
-BEGIN = "<!-- verdict: written by `make snapshot` from docs/results/report/verdict.md; do not edit by hand -->"
+#: The default run's files per part of results/ (tables/, figures/, report/): the default snapshot.
+DEFAULT_RUN = {part: sorted(name.partition("/")[2] for name in PARTS["default"].files if name.startswith(part + "/"))
+               for part in PARTS["default"].whole}
+BEGIN = "<!-- verdict: assembled by `make snapshot` from the snapshots under docs/results/; do not edit by hand -->"
 END = "<!-- end of verdict -->"
 #: A results number: a distance in 1e-3 m or a ratio, alone or as a range (``1.6-1.9x``, ``30 to 68e-3 m``).
 QUOTED = re.compile(r"(?<![\w.])(\d+(?:\.\d+)?)(?:\s*(?:-|to)\s*(\d+(?:\.\d+)?))?(e-3 m\b|e-3\b|x\b)")
@@ -56,56 +63,130 @@ OWN_SOURCE = re.compile(r"benchmarks/|make bench")
 SPEAKS_OF_THE_RUN = re.compile(r"default run|the run's|docs/results|results/tables|make run")
 
 
-def take(results: Path = RESULTS, snapshot: Path = SNAPSHOT, readme: Path = README) -> None:
-    """Copy the default run's results into the snapshot, then write the README's verdict section from it.
+def run_stages(results: Path) -> dict[str, set[str]]:
+    """Stage -> the code fingerprints its executed notebooks in ``results/notebooks/`` record (one per version of
+    the code its jobs ran)."""
+    found: dict[str, set[str]] = {}
+    for path in sorted((results / "notebooks").glob("*.ipynb")):
+        try:
+            stage = json.loads(path.read_text(encoding="utf-8")).get("metadata", {}).get(STAGE_METADATA)
+        except (OSError, ValueError):
+            continue
+        if isinstance(stage, dict) and "name" in stage and "code" in stage:
+            found.setdefault(stage["name"], set()).add(stage["code"])
+    return found
 
-    Exits (``SystemExit``, naming each file) before touching anything where a file of :data:`DEFAULT_RUN` is
-    missing from ``results`` or a CSV does not match its checksum file; then builds the new parts beside the old
-    ones and swaps them in, part by part (a rename each), and writes the README atomically last.
+
+def problems_of(part: provenance.Part, results: Path, code=fingerprint) -> list[str]:
+    """Why the run in ``results`` cannot be taken as ``part``'s snapshot, one line each (none: it can)."""
+    io, problems = library_io(), []
+    for source in sorted(set(part.files.values())):
+        path = results / source
+        if not path.is_file():
+            problems.append(f"{path}: missing")
+        elif path.suffix == ".csv" and (damage := io.csv_damage(path)) is not None:
+            problems.append(f"{path}: {damage}")
+    ran = run_stages(results)
+    for stage in part.stages:
+        codes = ran.get(stage, set())
+        if not codes:
+            problems.append(f"stage {stage}: no executed notebook in {results / 'notebooks'} records it")
+        elif len(codes) > 1:
+            problems.append(f"stage {stage}: its jobs ran {len(codes)} versions of its code")
+        elif codes != {code(stage)}:
+            problems.append(f"stage {stage}: it ran other code than the working tree's (edited since the run?)")
+    return problems
+
+
+def _swap_in(part: provenance.Part, staging: Path, folder: Path) -> None:
+    """Move the staged files and provenance into the snapshot's folder: each folder of ``part.whole`` at once (the old
+    one aside), each other file by a rename of its own."""
+    for name in part.whole:
+        target = folder / name
+        if target.exists():
+            target.rename(staging / f"{name}.old")
+        (staging / name).rename(target)
+    for name in [*part.files, provenance.PROVENANCE]:
+        if name.partition("/")[0] not in part.whole:
+            (folder / name).parent.mkdir(parents=True, exist_ok=True)
+            (staging / name).replace(folder / name)
+
+
+def take(name: str = "default", results: Path | None = None, snapshot: Path = SNAPSHOT, readme: Path = README,
+         code=fingerprint) -> None:
+    """Copy the run's files of snapshot ``name`` into its folder with its provenance, then write the README's verdict.
+
+    Exits (``SystemExit``, naming each problem, :func:`problems_of`) before touching anything where the run is not
+    complete and current; then builds the new files, their provenance and the verdict beside the old ones, swaps
+    the files in and writes the README atomically last.
     """
-    io = library_io()
-    problems = []
-    for part, names in DEFAULT_RUN.items():
-        for name in names:
-            path = results / part / name
-            if not path.is_file():
-                problems.append(f"{path}: missing")
-            elif path.suffix == ".csv" and (damage := io.csv_damage(path)) is not None:
-                problems.append(f"{path}: {damage}")
+    part = PARTS[name]
+    results = results if results is not None else ROOT / part.results
+    problems = problems_of(part, results, code)
     if problems:
-        raise SystemExit("the default run is not complete in results/ (run `make run` first); docs/results/ is "
-                         "unchanged:\n" + "\n".join(problems))
+        raise SystemExit(f"the run of snapshot {name!r} is not complete and current in {results} (run "
+                         f"`{part.run}` first); {part.path(snapshot)} is unchanged:\n" + "\n".join(problems))
     text = with_verdict(readme.read_text(), "")  # the README has its one verdict section, before anything moves
-    staging = snapshot / f".take-{secrets.token_hex(6)}"
+    folder = part.path(snapshot)
+    folder.mkdir(parents=True, exist_ok=True)
+    staging = folder / f".take-{secrets.token_hex(6)}"
     try:
-        for part, names in DEFAULT_RUN.items():
-            (staging / part).mkdir(parents=True)
-            for name in names:
-                shutil.copy2(results / part / name, staging / part / name)
-        verdict = readme_verdict(staging, readme, snapshot)
-        for part in DEFAULT_RUN:  # the swap, a rename each (same folder): old part aside, new part in
-            target = snapshot / part
-            if target.exists():
-                target.rename(staging / f"{part}.old")
-            (staging / part).rename(target)
-        io.write_text(readme, with_verdict(text, verdict))
+        for target, source in part.files.items():
+            (staging / target).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(results / source, staging / target)
+        ran = run_stages(results)
+        provenance.write(staging, provenance.record(part, staging, {stage: min(ran[stage]) for stage in part.stages}))
+        verdict = assemble(snapshot, staged={name: staging})
+        _swap_in(part, staging, folder)
+        library_io().write_text(readme, with_verdict(text, verdict))
     finally:
         shutil.rmtree(staging, ignore_errors=True)
 
 
-def readme_verdict(snapshot: Path = SNAPSHOT, readme: Path = README, linked: Path | None = None) -> str:
-    """The snapshot's verdict as the README shows it: its relative links made relative to the README (to the
-    snapshot at ``linked``, where ``snapshot`` is a copy being built)."""
-    verdict = (snapshot / "report" / "verdict.md").read_text()
-    base = ((linked or snapshot) / "report").relative_to(readme.parent)
+def snapshots_read(snapshot: Path = SNAPSHOT, known: dict | None = None,
+                   staged: dict[str, Path] | None = None) -> dict[str, dict]:
+    """Each snapshot with verdict facts: ``{"facts", "folder", "commit", "stale"}`` by name (the default's needed);
+    a snapshot of ``staged`` is read from the folder given there (one being taken)."""
+    known = provenance.KNOWN_STALE if known is None else known
+    found = {}
+    for name, part in PARTS.items():
+        folder = (staged or {}).get(name) or part.path(snapshot)
+        if part.facts is None or not (folder / part.facts).is_file():
+            continue
+        found[name] = {"facts": json.loads((folder / part.facts).read_text()),
+                       "folder": (Path("docs/results") / part.folder).as_posix() + "/",
+                       "commit": provenance.short(provenance.read(folder)), "stale": name in known}
+    if "default" not in found:
+        raise SystemExit(f"{PARTS['default'].path(snapshot) / PARTS['default'].facts}: missing (run `make run` and "
+                         f"`make snapshot`)")
+    return found
 
-    def rebased(match: re.Match) -> str:
-        target = (base / match.group(2)).as_posix()
-        while "/../" in f"/{target}":  # docs/results/report/../figures -> docs/results/figures
-            target = re.sub(r"(^|/)[^/.][^/]*/\.\./", r"\1", target, count=1)
-        return f"{match.group(1)}({target})"
 
-    return re.sub(r"(!?\[[^\]]*\])\((?!https?:)([^)]+)\)", rebased, verdict)
+def assemble(snapshot: Path = SNAPSHOT, known: dict | None = None, staged: dict[str, Path] | None = None) -> str:
+    """The README's verdict from the snapshots (:func:`verdict_text.render` of :func:`verdict_text.verdict`)."""
+    return verdict_text.render(verdict_text.verdict(snapshots_read(snapshot, known, staged)))
+
+
+def write_verdict(readme: Path = README, snapshot: Path = SNAPSHOT) -> None:
+    """The README's verdict section, assembled again from the snapshots (after :data:`provenance.KNOWN_STALE` or the
+    wording changed)."""
+    library_io().write_text(readme, with_verdict(readme.read_text(), assemble(snapshot)))
+
+
+def status(snapshot: Path = SNAPSHOT) -> list[str]:
+    """One line per snapshot: its folder, commit and date, fresh or stale (and why), the command that remakes it."""
+    lines = []
+    for name, part in PARTS.items():
+        folder = part.path(snapshot)
+        recorded = provenance.read(folder)
+        stale = provenance.stale_stages(part, recorded)
+        listed = provenance.KNOWN_STALE.get(name)
+        state = "fresh" if not stale else f"stale ({', '.join(stale)})"
+        shown = folder.relative_to(ROOT) if folder.is_relative_to(ROOT) else folder
+        lines.append(f"{name} ({part.words}): {shown}/, commit "
+                     f"{provenance.short(recorded)}, {(recorded or {}).get('date', 'no date')}: {state}"
+                     + (f" (listed: {listed})" if listed else "") + f"; remade by `{part.refresh}`")
+    return lines
 
 
 def readme_section(text: str) -> str:
@@ -187,9 +268,9 @@ def unheld_numbers(files: list[Path], values: list[float], everywhere: set[Path]
 def check(readme: Path = README, snapshot: Path = SNAPSHOT) -> list[str]:
     """Every disagreement of the README and docs with the snapshot, one line each (none: they agree)."""
     problems = []
-    if readme_section(readme.read_text()) != readme_verdict(snapshot, readme).strip("\n") + "\n":
-        problems.append(f"{readme.name}: the verdict section is not {snapshot / 'report' / 'verdict.md'} "
-                        f"(run `make snapshot`)")
+    if readme_section(readme.read_text()) != assemble(snapshot).strip("\n") + "\n":
+        problems.append(f"{readme.name}: the verdict section is not the one the snapshots give (run "
+                        f"`python3 workflow/scripts/snapshot.py verdict`)")
     docs = sorted([*(ROOT / "docs").glob("*.md"), *(ROOT / "docs" / "method").glob("*.md")])
     values = snapshot_values(snapshot)
     problems += [f"{line} is not in {snapshot}/" for line in
@@ -197,12 +278,23 @@ def check(readme: Path = README, snapshot: Path = SNAPSHOT) -> list[str]:
     return problems
 
 
-if __name__ == "__main__":
-    if sys.argv[1:] == ["take"]:
-        take()
-    elif sys.argv[1:] == ["check"]:
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("command", choices=("take", "verdict", "status", "check"))
+    parser.add_argument("--part", default="default", choices=sorted(PARTS), help="the snapshot to take")
+    args = parser.parse_args(argv)
+    if args.command == "take":
+        take(args.part)
+    elif args.command == "verdict":
+        write_verdict()
+    elif args.command == "status":
+        print("\n".join(status()))
+    else:
         found = check()
         print("\n".join(found) or "README and docs agree with docs/results/")
-        sys.exit(1 if found else 0)
-    else:
-        sys.exit(__doc__)
+        return 1 if found else 0
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -38,4 +38,6 @@ os.environ.update(OMP_NUM_THREADS=threads, MKL_NUM_THREADS=threads,
                   PYTHONPATH=os.pathsep.join(filter(None, [src, os.environ.get("PYTHONPATH")])))
 os.environ.pop("MPLBACKEND", None)  # the kernel's inline backend puts every plot in the rendered notebook
 
-sys.exit(main(source, smk.log.notebook, smk.output.html, parameters, stderr_log=smk.log.stderr))
+# The stage's name and the fingerprint of the code it runs, kept in the executed notebook (a snapshot's provenance).
+stage = {"name": smk.rule, "code": smk.params.stage["code"]}
+sys.exit(main(source, smk.log.notebook, smk.output.html, parameters, stderr_log=smk.log.stderr, stage=stage))

@@ -4,7 +4,7 @@
 - :mod:`sdm.report.tables`: Table 1/2 frames and CSV / Markdown / LaTeX writers;
 - :mod:`sdm.report.figures`: Figures 1-4, theta's path, distance distributions;
 - :mod:`sdm.report.reproduction`: the text of ``results/report/reproduction.md``;
-- :mod:`sdm.report.verdict`: ``results/report/verdict.md``, the README's first screen;
+- :mod:`sdm.report.verdict`: ``results/report/verdict.json``, the facts of the README's verdict;
 - :mod:`sdm.report.io`: atomic file writes (:mod:`sdm.io` re-exported: a killed job never leaves a file
   that looks complete; files get the mode a plain open() gives them).
 """

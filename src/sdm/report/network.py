@@ -225,33 +225,28 @@ def plot_curves(curves: Sequence[pd.DataFrame], path: str | Path) -> Path:
     return save_figure(fig, path)
 
 
-def verdict_sentence(table: pd.DataFrame) -> str:
-    """Table 7 in one sentence for the verdict: the best SDM-trained network against supervised regression and
-    the image losses over the noise levels, and the network + k SDM steps against CMA-ES."""
-    levels = sorted(set(table["level"]))
+def verdict_facts(table: pd.DataFrame) -> dict:
+    """Table 7 for the verdict, as data (``results/tables/table7_verdict.json``): the SDM-trained network with the lower
+    mean (its loss and SDM rule), and per noise level its mean over supervised regression's and over doing nothing's
+    (theta*'s mean, where the table has it), whether it is closer than every image-loss network, and the network + k
+    SDM steps against CMA-ES (the ratio of means, and CMA-ES's CPU time over its own). ``loss`` None where no
+    network was trained through SDM."""
+    levels = sorted(int(level) for level in set(table["level"]))
     sdm = [loss for loss in SDM_LOSSES if _at(table, levels[0], f"net:{loss}") is not None]
     if not sdm:
-        return "no network was trained through SDM."
+        return {"loss": None, "levels": []}
     loss = min(sdm, key=lambda name: table.loc[table["method"] == f"net:{name}", "mean_m"].mean())
-    parts = [f"the network trained through SDM ({LOSS_LABELS[loss]}, no labels)"]
-    supervised = [_ratio(table, level, f"net:{loss}", "net:supervised") for level in levels]
-    supervised = [found[0] for found in supervised if found is not None]
-    if supervised:
-        parts.append(f"ends at {min(supervised):.2f}-{max(supervised):.2f}x supervised regression's test mean")
-    closer = [all(_at(table, level, f"net:{loss}")["mean_m"] < _at(table, level, f"net:{name}")["mean_m"]
-                  for name in IMAGE_LOSSES if _at(table, level, f"net:{name}") is not None) for level in levels]
-    parts.append(f"is closer than the silhouette- and Chamfer-trained networks at {sum(closer)} of {len(levels)} "
-                 "noise levels")
-    refined = [_ratio(table, level, f"net+k:{loss}", "cmaes") for level in levels]
-    refined = [(ratio, float(cma["cpu_ms"] / mine["cpu_ms"])) for ratio, mine, cma in (r for r in refined if r)]
-    if refined:
-        ratios, speeds = [r for r, _ in refined], [s for _, s in refined]
-        parts.append(f"and with k SDM steps after it ends at {min(ratios):.2f}-{max(ratios):.2f}x CMA-ES's mean at "
-                     f"1/{min(speeds):.0f} to 1/{max(speeds):.0f} of its CPU time per configuration")
-    nothing = [_ratio(table, level, f"net:{loss}", "prior") for level in levels]
-    nothing = [found[0] for found in nothing if found is not None]
-    if nothing:
-        parts.insert(1, f"ends at {min(nothing):.2f}-{max(nothing):.2f}x the error of doing nothing (theta*'s mean)")
-    levels_words = f"noise levels {levels[0]}-{levels[-1]}" if len(levels) > 1 else f"noise level {levels[0]}"
-    subject, said = parts[0], parts[1:]
-    return f"{subject} {', '.join(said[:-1])} {said[-1]} ({levels_words}; docs/results/network/)."
+    rows = []
+    for level in levels:
+        mine = _at(table, level, f"net:{loss}")
+        images = [_at(table, level, f"net:{name}") for name in IMAGE_LOSSES]
+        refined = _ratio(table, level, f"net+k:{loss}", "cmaes")
+        rows.append({
+            "level": level, "mm": 1e3 * float(mine["mean_m"]),
+            "to_supervised": (found[0] if (found := _ratio(table, level, f"net:{loss}", "net:supervised")) else None),
+            "to_nothing": (found[0] if (found := _ratio(table, level, f"net:{loss}", "prior")) else None),
+            "beats_image_losses": all(mine["mean_m"] < other["mean_m"] for other in images if other is not None),
+            "refined_to_search": refined[0] if refined else None,
+            "search_cpu_ratio": float(refined[2]["cpu_ms"] / refined[1]["cpu_ms"]) if refined else None,
+        })
+    return {"loss": loss, "rule": SDM_RULE_NAMES[loss], "label": LOSS_LABELS[loss], "levels": rows}

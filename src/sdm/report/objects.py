@@ -157,22 +157,6 @@ def _of_scale(table: pd.DataFrame, scale: int, sharing: str) -> pd.DataFrame:
     return rows[rows["scale"] == scale] if "scale" in table.columns else rows
 
 
-def against_cmaes(table: pd.DataFrame, sharing: str, scale: int = 1) -> list[tuple[int, str, float, float]]:
-    """Per noise level of ``sharing`` on the screen of ``scale``: ``(level, rule, ratio, speed)``, SDM's closer rule
-    (the lower mean of the two), its mean over CMA-ES's and CMA-ES's CPU time over its own; levels without CMA-ES or
-    SDM are left out."""
-    out = []
-    for level, group in _of_scale(table, scale, sharing).groupby("level", sort=True):
-        by = group.set_index("method")
-        rules = [m for m in ("sdm_paper", "sdm_schedule") if m in by.index]
-        if "cmaes" not in by.index or not rules:
-            continue
-        best = min(rules, key=lambda m: by.loc[m, "mean_m"])
-        out.append((int(level), best, by.loc[best, "mean_m"] / by.loc["cmaes", "mean_m"],
-                    by.loc["cmaes", "cpu_ms"] / by.loc[best, "cpu_ms"]))
-    return out
-
-
 def against_start(table: pd.DataFrame, sharing: str, scale: int = 1) -> list[dict]:
     """Per noise level of ``sharing`` on the screen of ``scale``, in terms of doing nothing: SDM's closer rule and the
     best peer (:data:`PEERS`, the lower mean), each with the share of its start's error it removes (``1 - x start``,
@@ -216,33 +200,23 @@ def _screen_words(scale: int) -> str:
     return f"on the screen of scale {scale} ({128 * scale} x {256 * scale}{', the paper' + chr(39) + 's' if scale == 1 else ''})"
 
 
-def verdict_sentence(table: pd.DataFrame) -> str:
-    """Table 6 in one sentence for the verdict: per screen scale and sharing level, the share of the start's error
-    SDM and the best peer remove and the CPU ratio where the table has its references; else SDM's best rule's mean
-    against CMA-ES's over the noise levels (the range of the ratio) and how much less CPU time it takes per
-    configuration."""
+def verdict_facts(table: pd.DataFrame) -> dict:
+    """Table 6 for the verdict, as data (``results/tables/table6_verdict.json``): per screen scale, sharing level and
+    noise level, SDM's closer rule and the best peer against doing nothing (:func:`against_start`: the share of the
+    start's error each removes, the share of units SDM ends closer, the peer's CPU time over SDM's). The screens in
+    the table's order (the chosen one first); no rows for a table without the reference columns."""
+    rows = []
     if "of_start" in table.columns:
-        parts = []
         for scale in _scales(table):
             for sharing in SHARING_ORDER[1:]:
-                rows = against_start(table, sharing, scale)
-                if rows:
-                    parts.append(f"{_screen_words(scale)}, with {UNIT[sharing]} unknown, "
-                                 + "; ".join(_removed_words(row) for row in rows))
-        return ("; ".join(parts) + " (docs/results/objects/).") if parts else "no sharing level was run."
-    parts = []
-    for sharing in SHARING_ORDER[1:]:
-        compared = against_cmaes(table, sharing)
-        ratios, speeds = [ratio for *_, ratio, _ in compared], [speed for *_, speed in compared]
-        if ratios:
-            levels = sorted(set(table.loc[table["sharing"] == sharing, "level"]))
-            span = f"{min(ratios):.2f}-{max(ratios):.2f}x" if len(ratios) > 1 else f"{ratios[0]:.2f}x"
-            parts.append(f"with {UNIT[sharing]} unknown, SDM's closer rule ends at {span} CMA-ES's mean distance "
-                         f"(noise levels {levels[0]}-{levels[-1]}) at 1/{min(speeds):.0f} to 1/{max(speeds):.0f} of "
-                         f"its CPU time per configuration")
-    if not parts:
-        return "no sharing level was run."
-    return "; ".join(parts) + " (docs/results/objects/)."
+                for row in against_start(table, sharing, scale):
+                    peer = row["peer"]
+                    rows.append({"scale": int(scale), "screen": [128 * int(scale), 256 * int(scale)],
+                                 "sharing": sharing, "level": row["level"], "rule": row["rule"],
+                                 "removed": row["removed"], "closer": row["closer"], "peer": peer,
+                                 "peer_label": LABELS[peer] if peer else None,
+                                 "peer_removed": row.get("peer_removed"), "cpu_ratio": row.get("speed")})
+    return {"scales": _scales(table), "rows": rows}
 
 
 def write_table6(frame: pd.DataFrame, stem: str | Path) -> list[Path]:
