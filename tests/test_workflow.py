@@ -280,8 +280,9 @@ def _research_jobs(config: dict) -> dict[str, int]:
                  "objects_scaling": len(objects["scaling"]["cars"]), "table6": 1}
     network = config["research"].get("network", {})
     if network.get("enabled"):
-        jobs |= {"network_train": len(network["losses"]), "network_test": len(network["levels"]), "table7": 1,
-                 "network_bias": int(any(loss.startswith("sdm_") for loss in network["losses"]))}
+        jobs |= {"network_train": len(network["losses"]) * network["runs"], "network_test": len(network["levels"]),
+                 "table7": 1, "network_bias": int(any(loss in ("sdm_paper", "sdm_recommended", "silhouette")  # BIAS_LOSSES
+                                                      for loss in network["losses"]))}
     return jobs
 
 
@@ -681,10 +682,12 @@ def _network_cases() -> dict[str, tuple[dict, str | None]]:
         "enabled": (False, "report"),  # the report no longer reads this run's Table 7
         "sizes": ([40, 16, 16], "network_train"),
         "seed": (1, "network_train"),
+        "runs": (3, "network_train"),  # run 2's networks are new; runs 0 and 1 stay
         "levels": ([0, 1], "network_train"),
         "camera_sd": (0.1, "network_train"),
         "losses": (["supervised"], "network_test"),  # the trained networks stay; every test job reads fewer
         "train.epochs": (1, "network_train"),
+        "train.per_epoch": (16, "network_train"),
         "train.batch_size": (4, "network_train"),
         "train.lr": (1.0e-3, "network_train"),
         "train.s": (1, "network_train"),

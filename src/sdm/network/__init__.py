@@ -32,15 +32,16 @@ The package: :mod:`.data` (the split, the shifts, the images), :mod:`.model` (th
 """
 from __future__ import annotations
 
-from .data import (DEPTH_SCALE, PARTS, ShiftSet, mixed_levels, network_images, read_sets, shift_set,
-                   split_three)
-from .evaluation import SEARCHES, flow_bias, refine, refine_settings, refine_steps, test_methods
+from .data import (DEPTH_SCALE, PARTS, ShiftSet, mixed_levels, network_images, read_sets, shift_set, split_three,
+                   training_seed)
+from .evaluation import (BIAS_LOSSES, NO_RUN, NOTHING, SEARCHES, loss_bias, refine, refine_settings, refine_steps,
+                         test_methods)
 from .losses import LOSSES, SDM_RULES, BatchLoss, NetworkSettings, epoch_levels
 from .model import ShiftNet, load_weights, parameter_count, save_weights, weights_digest
 from .training import TrainedNetwork, deterministic, distances, network_settings, predict, train_network
 
-__all__ = ["BatchLoss", "DEPTH_SCALE", "LOSSES", "NetworkSettings", "PARTS", "SDM_RULES", "SEARCHES", "ShiftNet",
-           "ShiftSet", "TrainedNetwork", "deterministic", "distances", "epoch_levels", "flow_bias", "load_weights",
-           "mixed_levels", "network_images", "network_settings", "parameter_count", "predict", "read_sets", "refine",
-           "refine_settings", "refine_steps", "save_weights", "shift_set", "split_three", "test_methods",
-           "train_network", "weights_digest"]
+__all__ = ["BIAS_LOSSES", "BatchLoss", "DEPTH_SCALE", "LOSSES", "NO_RUN", "NOTHING", "NetworkSettings", "PARTS",
+           "SDM_RULES", "SEARCHES", "ShiftNet", "ShiftSet", "TrainedNetwork", "deterministic", "distances",
+           "epoch_levels", "load_weights", "loss_bias", "mixed_levels", "network_images", "network_settings",
+           "parameter_count", "predict", "read_sets", "refine", "refine_settings", "refine_steps", "save_weights",
+           "shift_set", "split_three", "test_methods", "train_network", "training_seed", "weights_digest"]

@@ -62,15 +62,16 @@ class ShiftSet:
 
 
 def shift_set(data: ConfigurationSet, seed: int, levels: Sequence[int] | torch.Tensor,
-              truth: S.TruthDistribution = S.TruthDistribution()) -> ShiftSet:
+              truth: S.TruthDistribution = S.TruthDistribution(), noise_seed: int | None = None) -> ShiftSet:
     """Draw a shift per configuration (``seed``), render the targets, and add each configuration's noise level.
 
     Args:
         data: configurations, each with points (an empty one has no shift to learn: refused).
-        seed: draws theta* (:func:`sdm.sharing.draw_truth`) and the noise (level ``n``'s configurations get one
-            draw of :func:`sdm.experiments.noisy_targets` seeded ``seed + 1 + n``).
+        seed: draws theta* (:func:`sdm.sharing.draw_truth`) and, without ``noise_seed``, the noise.
         levels: ``(N,)`` the noise level of each configuration (e.g. :func:`mixed_levels`).
         truth: the distribution of theta*.
+        noise_seed: draws the noise (level ``n``'s configurations get one draw of
+            :func:`sdm.experiments.noisy_targets` seeded ``noise_seed + 1 + n``); ``None``: ``seed``.
     """
     if bool((data.counts == 0).any()):
         raise SDMInputError(f"data: configuration {int((data.counts == 0).nonzero()[0])} is empty (no points): "
@@ -82,10 +83,11 @@ def shift_set(data: ConfigurationSet, seed: int, levels: Sequence[int] | torch.T
     sharing = S.per_configuration(data)
     theta = S.draw_truth(sharing, seed, truth)
     targets = S.render_targets(data, theta, sharing.param_index)
+    noise_seed = seed if noise_seed is None else int(noise_seed)
     for level in sorted(set(levels.tolist())):
         if level:
             chosen = (levels == level).nonzero().squeeze(1).to(targets.device)
-            targets[chosen] = noisy_targets(targets.index_select(0, chosen), level, seed + 1 + level)
+            targets[chosen] = noisy_targets(targets.index_select(0, chosen), level, noise_seed + 1 + level)
     return ShiftSet(data.with_targets(targets), theta, levels)
 
 
@@ -99,13 +101,24 @@ def mixed_levels(n_configs: int, levels: Sequence[int], seed: int) -> torch.Tens
 PARTS = ("train", "dev", "test")
 
 
+def training_seed(seed: int, run: int) -> int:
+    """The seed of training run ``run`` (0, 1, ...) of the split seeded ``seed``: a network's initial weights,
+    its shuffles, Chamfer's subsamples and the training set's noise draws (:func:`read_sets`' ``train_noise``).
+    The split, theta*, the noise levels and the dev and test sets keep ``seed``'s draws: every run of every loss
+    sees the same configurations, so runs of the same number pair across losses."""
+    return run_seed(seed, len(PARTS), run)
+
+
 def read_sets(sky: str | Path, sizes: Sequence[int], seed: int, levels: Sequence[int], camera_sd: float,
-              parts: Sequence[str] = ("train", "dev"), test_level: int | None = None) -> dict[str, ShiftSet]:
+              parts: Sequence[str] = ("train", "dev"), test_level: int | None = None,
+              train_noise: int | None = None) -> dict[str, ShiftSet]:
     """The configurations of a Sky file split into train, dev and test (:func:`split_three`), each with its shifts.
 
     Part ``p`` draws theta* from ``run_seed(seed, PARTS.index(p), 0)``; train and dev mix ``levels``
     (:func:`mixed_levels`, seeded ``run_seed(seed, PARTS.index(p), 1)``); the test set takes every target at
     ``test_level``, so that its configurations keep their theta* at every level and only the noise differs.
+    Each part's noise is drawn from its theta* seed, the training part's from ``train_noise`` where given (a
+    training run's own draws, :func:`training_seed`).
 
     Raises:
         SDMInputError: naming ``test_level`` when the test part is asked for without it.
@@ -126,7 +139,8 @@ def read_sets(sky: str | Path, sizes: Sequence[int], seed: int, levels: Sequence
             part_levels = torch.full((len(data),), int(test_level), dtype=torch.int64)
         else:
             part_levels = mixed_levels(len(data), levels, run_seed(seed, index, 1))
-        sets[part] = shift_set(data, run_seed(seed, index, 0), part_levels, truth)
+        noise = train_noise if part == "train" else None
+        sets[part] = shift_set(data, run_seed(seed, index, 0), part_levels, truth, noise)
     return sets
 
 

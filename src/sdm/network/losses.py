@@ -27,17 +27,19 @@ class NetworkSettings:
     """How every network is trained.
 
     Attributes:
-        epochs: passes over the training set.
+        epochs: passes over the training set (each over ``per_epoch`` of its configurations).
         batch_size: configurations per step.
+        per_epoch: configurations each epoch visits, a fresh shuffle's first ones; 0 = the whole training set.
         lr: Adam's learning rate (cosine decay to 0 over the steps), per loss name; missing names use ``"default"``.
         s: the coarsest zoom level of the SDM and silhouette losses (:func:`epoch_levels`).
         sigma: the silhouette's Gaussian width, in blocks of the level.
         max_points: Chamfer's points (and target pixels) per configuration and step; 0 = all.
-        seed: initialises the weights and draws the shuffles.
+        seed: initialises the weights and draws the shuffles (and Chamfer's subsamples).
     """
 
     epochs: int = 10
     batch_size: int = 16
+    per_epoch: int = 0
     lr: tuple[tuple[str, float], ...] = (("default", 1e-3),)
     s: int = 2
     sigma: float = 0.5
@@ -49,8 +51,13 @@ class NetworkSettings:
             value = getattr(self, name)
             if isinstance(value, bool) or int(value) != value or value < 1:
                 raise SDMInputError(f"NetworkSettings.{name} must be a positive integer, got {value!r}")
-        if isinstance(self.s, bool) or int(self.s) != self.s or self.s < 0:
-            raise SDMInputError(f"NetworkSettings.s must be a non-negative integer, got {self.s!r}")
+        for name in ("per_epoch", "s"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or int(value) != value or value < 0:
+                raise SDMInputError(f"NetworkSettings.{name} must be a non-negative integer, got {value!r}")
+        if 0 < self.per_epoch < self.batch_size:
+            raise SDMInputError(f"NetworkSettings.per_epoch must be 0 (every configuration) or at least one batch "
+                                f"({self.batch_size}), got {self.per_epoch!r}")
         rates = dict(self.lr)
         if "default" not in rates or any(not (math.isfinite(v) and v > 0) for v in rates.values()):
             raise SDMInputError(f"NetworkSettings.lr must give a positive 'default' rate, got {self.lr!r}")

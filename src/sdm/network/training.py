@@ -70,13 +70,14 @@ def train_network(kind: str, train: ShiftSet, dev: ShiftSet, settings: NetworkSe
                   progress: bool = False) -> TrainedNetwork:
     """Train a fresh :class:`ShiftNet` (weights from ``settings.seed``) with loss ``kind``, deterministically.
 
-    Each epoch visits the training set in a shuffled order (one generator seeded ``settings.seed``) in batches
-    of ``batch_size`` (the last incomplete one dropped); after each, the dev set's distances are recorded.
+    Each epoch visits the training set in a shuffled order (one generator seeded ``settings.seed``), its first
+    ``per_epoch`` configurations where that is set, in batches of ``batch_size`` (the last incomplete one dropped);
+    after each, the dev set's distances are recorded.
     """
     if len(train) < settings.batch_size:
         raise SDMInputError(f"train: {len(train)} configurations, fewer than one batch of {settings.batch_size}")
     levels = epoch_levels(settings.epochs, settings.s)
-    steps_per_epoch = len(train) // settings.batch_size
+    steps_per_epoch = min(len(train), settings.per_epoch or len(train)) // settings.batch_size
     with deterministic():
         torch.manual_seed(settings.seed)
         net = ShiftNet(train.data.camera.screen_shape).to(train.data.device)
@@ -115,7 +116,9 @@ def _progress(total: int, description: str, show: bool):
 
 
 def network_settings(train: dict, seed: int) -> NetworkSettings:
-    """:class:`NetworkSettings` from the config's ``research.network.train`` values and its seed."""
+    """:class:`NetworkSettings` from the config's ``research.network.train`` values (``per_epoch`` optional: 0) and a
+    training run's seed (:func:`sdm.network.data.training_seed`)."""
     return NetworkSettings(epochs=int(train["epochs"]), batch_size=int(train["batch_size"]),
+                           per_epoch=int(train.get("per_epoch", 0)),
                            lr=(("default", float(train["lr"])),), s=int(train["s"]), sigma=float(train["sigma"]),
                            max_points=int(train["max_points"]), seed=int(seed))
