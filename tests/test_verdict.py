@@ -106,25 +106,25 @@ def test_the_recommended_rule_line_names_the_data_and_the_worst_ratio_to_cmaes_o
     assert "Measured on" not in verdict(_table1(), _table2([0.5] * 5), table4=_table4(means), rules=list(means))
 
 
-def _table6_verdict_script():
+def _verdict_line_script():
     import importlib.util
     from pathlib import Path
 
-    path = Path(__file__).resolve().parents[1] / "workflow" / "scripts" / "table6_verdict.py"
-    spec = importlib.util.spec_from_file_location("table6_verdict", path)
+    path = Path(__file__).resolve().parents[1] / "workflow" / "scripts" / "verdict_line.py"
+    spec = importlib.util.spec_from_file_location("verdict_line", path)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
     return module
 
 
 def test_the_table6_verdict_line_is_written_from_the_snapshot(tmp_path, monkeypatch):
-    """workflow/scripts/table6_verdict.py replaces exactly the Table 6 line of the verdict and the README, with the
+    """workflow/scripts/verdict_line.py table6 replaces exactly the Table 6 line of the verdict and the README, with the
     sentence of the snapshot's table, and refuses a file without that line."""
     import pandas as pd
 
     from sdm.report.objects import verdict_sentence
 
-    script = _table6_verdict_script()
+    script = _verdict_line_script()
     (tmp_path / "docs" / "results" / "objects").mkdir(parents=True)
     (tmp_path / "docs" / "results" / "report").mkdir(parents=True)
     table = pd.DataFrame([{"scale": 12, "sharing": "car", "level": 0, "method": m, "units": 10, "hidden": 0,
@@ -136,7 +136,7 @@ def test_the_table6_verdict_line_is_written_from_the_snapshot(tmp_path, monkeypa
     for name in ("docs/results/report/verdict.md", "README.md"):
         (tmp_path / name).write_text(f"before\n{old}\n- **SDM inside a network (Table 7):** kept\n")
     monkeypatch.setattr(script, "ROOT", tmp_path)
-    assert script.main() == 0
+    assert script.main("table6") == 0
     for name in ("docs/results/report/verdict.md", "README.md"):
         lines = (tmp_path / name).read_text().split("\n")
         assert lines[0] == "before" and lines[2] == "- **SDM inside a network (Table 7):** kept"
@@ -144,4 +144,30 @@ def test_the_table6_verdict_line_is_written_from_the_snapshot(tmp_path, monkeypa
     assert "scale 12" in lines[1] and "50 %" in lines[1]
     (tmp_path / "README.md").write_text("no verdict here\n")
     with pytest.raises(SystemExit, match="README.md: 0 lines begin"):
-        script.main()
+        script.main("table6")
+    with pytest.raises(SystemExit, match="table must be one of"):
+        script.main("table8")
+
+
+def test_the_table7_verdict_line_is_written_from_the_snapshot(tmp_path, monkeypatch):
+    """verdict_line.py table7: the Table 7 line from the snapshot's table7.csv, the Table 6 line kept."""
+    from sdm.report.network import table7, verdict_sentence
+
+    from test_network import _curves, _frame
+
+    script = _verdict_line_script()
+    (tmp_path / "docs" / "results" / "network").mkdir(parents=True)
+    (tmp_path / "docs" / "results" / "report").mkdir(parents=True)
+    means = {"net:sdm_recommended": [0.05, 0.06], "net:silhouette": [0.06, 0.07], "train_mean": 0.2}
+    table = table7([_frame(means, 0, {})], _curves(("sdm_recommended", "silhouette"), 2))
+    table.to_csv(tmp_path / "docs" / "results" / "network" / "table7.csv", index=False)
+    kept = "- **Parameters attached to points (Table 6):** kept"
+    for name in ("docs/results/report/verdict.md", "README.md"):
+        (tmp_path / name).write_text(f"{kept}\n- **SDM inside a network (Table 7):** old words\n")
+    monkeypatch.setattr(script, "ROOT", tmp_path)
+    assert script.main("table7") == 0
+    for name in ("docs/results/report/verdict.md", "README.md"):
+        lines = (tmp_path / name).read_text().split("\n")
+        assert lines[0] == kept
+        assert lines[1] == "- **SDM inside a network (Table 7):** " + verdict_sentence(table)
+    assert "it is closer at level 0" in lines[1]

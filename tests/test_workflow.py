@@ -854,6 +854,33 @@ def test_a_damaged_sky_file_is_refused_and_a_rebuilt_one_gives_the_same_tables(c
             (completed_run / "results" / "tables" / table).read_bytes(), table
 
 
+def test_table7_run_twice_on_one_machine_gives_the_same_table(completed_run, tmp_path):
+    """Every Table 7 stage run again on the same config (every network trained anew, every test job and the
+    gradients' bias measured again): the same weights, the same bias file, and Table 7 the same to the bit but
+    for the CPU seconds it measures (and the count of configurations computed from them)."""
+    import pandas as pd
+    import torch
+
+    directory = tmp_path / "run"
+    shutil.copytree(completed_run, directory, symlinks=True, ignore=shutil.ignore_patterns("locks", "incomplete"))
+    result = snakemake("-c2", "--forcerun", "network_train", "network_bias", "--", "results/tables/table7.csv",
+                       cwd=directory)
+    output = result.stdout + result.stderr
+    assert result.returncode == 0, output[-3000:]
+    network = Path("results") / "research" / "network"
+    weights = sorted(path.relative_to(completed_run) for path in (completed_run / network).glob("*.pt"))
+    assert len(weights) == 10  # five losses, two runs
+    for path in weights:
+        assert (directory / path).stat().st_mtime > (completed_run / path).stat().st_mtime, path  # trained anew
+        stored = [torch.load(run / path, weights_only=True) for run in (completed_run, directory)]
+        assert all(torch.equal(stored[0]["state"][name], stored[1]["state"][name]) for name in stored[0]["state"])
+    assert (directory / network / "bias.csv").read_bytes() == (completed_run / network / "bias.csv").read_bytes()
+    first, again = (pd.read_csv(run / "results" / "tables" / "table7.csv") for run in (completed_run, directory))
+    measured = ["cpu_ms", "train_s", "pays_off"]
+    assert first["runs"].max() == 2 and first["diff_m"].notna().any()
+    pd.testing.assert_frame_equal(first.drop(columns=measured), again.drop(columns=measured), check_exact=True)
+
+
 def test_conda_environment_pins_the_tested_versions():
     """workflow/envs/sdm.yaml (used with --software-deployment-method conda) pins what constraints.txt pins."""
     tested = {}
