@@ -30,7 +30,7 @@ levels = [0, 1, 2, 3, 4]  # noise levels mixed over train and dev
 camera_sd = 0.15  # theta*'s spread per axis around the paper's shift, metres
 loss = "sdm_paper"  # the training loss (sdm.network.LOSSES)
 run = 0  # the training run: its weights, shuffles and training noise (sdm.network.training_seed)
-train = {"epochs": 16, "per_epoch": 1024, "batch_size": 16, "lr": 1.0e-3, "s": 2, "sigma": 0.5, "max_points": 256}
+train = {"epochs": 16, "per_epoch": 1280, "batch_size": 16, "lr": 3.0e-3, "s": 2, "sigma": 0.5, "max_points": 256}
 threads = 1
 
 # %%

@@ -30,7 +30,7 @@ table7_html = "results/tables/table7.html"  # output
 table7_summary = "results/tables/table7_summary.md"  # output
 figure = "results/figures/network_curves.png"  # output
 refine = {"s": 3, "n_epoch": 1, "lr": 5.0e-3, "flow": "closed_centred_r1", "batch_size": 4}
-train = {"epochs": 16, "per_epoch": 1024}
+train = {"epochs": 16, "per_epoch": 1280}
 sizes = [3000, 500, 748]
 threads = 1
 

@@ -218,7 +218,7 @@ def test_table7_words_rank_only_beyond_the_runs_spread(silhouette, word, moonsho
     assert f"The SDM-trained network is {word}." in words
     assert f"beyond the runs' spread at every noise level**: {moonshot}" in words
     assert "16 epochs of 1024 configurations (drawn anew each epoch from 3000" in words
-    assert f"paired by run with the soft silhouette-trained network it is {word}" in verdict_sentence(table)
+    assert f"paired by run with the network trained with the soft silhouette it is {word}" in verdict_sentence(table)
 
 
 def test_table7_words_follow_the_numbers():

@@ -255,9 +255,9 @@ def _paired_lines(table: pd.DataFrame, reference: str, trained: Sequence[str], l
             f"{1e3 * row['diff_min_m']:+.1f} to {1e3 * row['diff_max_m']:+.1f})"
             for level in levels if (row := _at(table, level, f"net:{other}")) is not None)
         words, _ = paired_words(table, other, levels)
-        lines.append(f"- **{LOSS_LABELS[reference]} paired with {LOSS_LABELS[other]}** ({LOSS_LABELS[other]}'s mean "
-                     f"distance minus the SDM-trained network's, per run: positive, the SDM-trained one is closer): "
-                     f"{numbers}. The SDM-trained network is {words}.")
+        lines.append(f"- **{LOSS_LABELS[reference]} paired with {LOSS_LABELS[other]}** (the {LOSS_LABELS[other]} "
+                     f"network's mean distance minus the SDM-trained network's, per run: positive, the SDM-trained one "
+                     f"is closer): {numbers}. The SDM-trained network is {words}.")
     if "silhouette" in trained:
         _, found = paired_words(table, "silhouette", levels)
         met = all(word == "closer" for word in found.values())
@@ -337,7 +337,7 @@ def plot_curves(curves: Sequence[pd.DataFrame], path: str | Path) -> Path:
     frame = pd.concat(curves, ignore_index=True)
     fig, ax = plt.subplots(figsize=(6.2, 4.0))
     for loss in (loss for loss in LOSSES if (frame["loss"] == loss).any()):
-        by_epoch = (1e3 * frame[frame["loss"] == loss].groupby("epoch")["dev_mean_m"]).agg(["mean", "min", "max"])
+        by_epoch = 1e3 * frame[frame["loss"] == loss].groupby("epoch")["dev_mean_m"].agg(["mean", "min", "max"])
         line, = ax.plot(by_epoch.index, by_epoch["mean"], marker="o", markersize=3, label=LOSS_LABELS[loss])
         ax.fill_between(by_epoch.index, by_epoch["min"], by_epoch["max"], color=line.get_color(), alpha=0.15)
     ax.set_xlabel("epoch")
@@ -371,7 +371,7 @@ def verdict_sentence(table: pd.DataFrame) -> str:
                      "shift)")
     for other in (name for name in IMAGE_LOSSES if _at(table, levels[0], f"net:{name}") is not None):
         words, _ = paired_words(table, other, levels)
-        parts.append(f"paired by run with the {LOSS_LABELS[other]}-trained network it is {words}")
+        parts.append(f"paired by run with the network trained with the {LOSS_LABELS[other]} it is {words}")
     refined = [(row, _at(table, level, "cmaes")) for level in levels
                if (row := _at(table, level, f"net+k:{loss}")) is not None]
     refined = [(float(mine["mean_m"] / cma["mean_m"]), mine["pays_off"]) for mine, cma in refined if cma is not None]
