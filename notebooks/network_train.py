@@ -11,24 +11,26 @@
 # ---
 
 # %% [markdown]
-# # Table 7: a network trained with one loss
+# # Table 7: a network trained with one loss, in one training run
 #
 # A small CNN (`sdm.network.ShiftNet`) reads a configuration's target and its points at zero shift and outputs
-# the configuration's own shift. Every loss trains the same architecture from the same initial weights on the
-# same shuffles: the SDM layer's loss (its backward is the dynamic gradient flow, no labels), the soft
-# silhouette, the 2D Chamfer distance, or the distance to theta* (supervised). After each epoch the dev set's
-# distances are recorded (docs/method/network.md).
+# the configuration's own shift. Every loss trains the same architecture on the same configurations; run `run` of
+# every loss starts from the same weights and draws the same shuffles and training noise (`training_seed`), so
+# the runs pair across losses. The loss is the SDM layer's (its backward is the dynamic gradient flow, no labels),
+# the soft silhouette, the 2D Chamfer distance, or the distance to theta* (supervised). After each epoch the dev
+# set's distances are recorded (docs/method/network.md).
 
 # %% tags=["parameters"]
 sky = "results/sky/sky.bin"  # input
-weights = "results/research/network/sdm_paper.pt"  # output: the trained weights (torch state_dict)
-curve = "results/research/network/sdm_paper_curve.csv"  # output: one row per epoch
+weights = "results/research/network/sdm_paper_run0.pt"  # output: the trained weights (torch state_dict)
+curve = "results/research/network/sdm_paper_run0_curve.csv"  # output: one row per epoch
 sizes = [3000, 500, 748]  # train, dev, test configurations
-seed = 0  # the split, theta*, the noise, the weights and the shuffles
+seed = 0  # the split, theta*, the noise levels, the dev and test noise; the training runs' seeds
 levels = [0, 1, 2, 3, 4]  # noise levels mixed over train and dev
 camera_sd = 0.15  # theta*'s spread per axis around the paper's shift, metres
 loss = "sdm_paper"  # the training loss (sdm.network.LOSSES)
-train = {"epochs": 16, "batch_size": 16, "lr": 1.0e-3, "s": 2, "sigma": 0.5, "max_points": 256}
+run = 0  # the training run: its weights, shuffles and training noise (sdm.network.training_seed)
+train = {"epochs": 16, "per_epoch": 1280, "batch_size": 16, "lr": 3.0e-3, "s": 2, "sigma": 0.5, "max_points": 256}
 threads = 1
 
 # %%
@@ -36,16 +38,17 @@ from IPython.display import display
 
 from sdm.experiments import single_thread
 from sdm.io import write_csv
-from sdm.network import network_settings, parameter_count, read_sets, save_weights, train_network
+from sdm.network import network_settings, parameter_count, read_sets, save_weights, train_network, training_seed
 
 single_thread(threads)
-sets = read_sets(sky, sizes, seed, levels, camera_sd)
-settings = network_settings(train, seed)
-print(f"{len(sets['train'])} training and {len(sets['dev'])} dev configurations")
+run_seed = training_seed(seed, run)
+sets = read_sets(sky, sizes, seed, levels, camera_sd, train_noise=run_seed)
+settings = network_settings(train, run_seed)
+print(f"{len(sets['train'])} training and {len(sets['dev'])} dev configurations; run {run}, seed {run_seed}")
 
 # %%
 trained = train_network(loss, sets["train"], sets["dev"], settings, progress=True)
 print(f"{parameter_count(trained.net)} parameters, {trained.seconds:.0f} CPU s of training")
 save_weights(trained.net, weights)
-write_csv(curve, trained.curve)
+write_csv(curve, trained.curve.assign(run=run))
 display(trained.curve.round(4))

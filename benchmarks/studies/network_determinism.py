@@ -12,6 +12,13 @@ first setting's (the reference), and whether a second run of the reference gave 
 processor lacks is reported as such by torch (it falls back) and shown.
 
     python benchmarks/studies/network_determinism.py [--configs 256] [--epochs 3] [--losses sdm_recommended silhouette]
+
+``--table7 SKY`` measures what those bits become in Table 7: the networks of config.yaml's ``research.network``
+(its sizes, seed and training; training run 0) trained from the Sky file ``SKY`` under each setting, and each
+network's mean distance on the test set per noise level, beside the reference's: how far a network's Table 7 row
+moves from one processor to another, to set beside the spread of its training runs (Table 7's sd).
+
+    python benchmarks/studies/network_determinism.py --table7 results/sky/sky.bin [--losses sdm_recommended silhouette]
 """
 from __future__ import annotations
 
@@ -50,8 +57,30 @@ torch.save(saved, out)
 """
 
 
+#: One Table 7 training in its own process: argv = out.pt sky threads losses...; config.yaml's research.network.
+TABLE7 = """
+import sys, torch, yaml
+from sdm.network import distances, network_settings, predict, read_sets, train_network, training_seed
+
+out, sky, threads, *losses = sys.argv[1:]
+torch.set_num_threads(int(threads))
+network = yaml.safe_load(open("config.yaml"))["research"]["network"]
+data = [network[key] for key in ("sizes", "seed", "levels", "camera_sd")]
+seed = training_seed(network["seed"], 0)
+sets = read_sets(sky, *data, train_noise=seed)
+tests = {level: read_sets(sky, *data, parts=["test"], test_level=level)["test"] for level in network["levels"]}
+saved = {"capability": torch.backends.cpu.get_cpu_capability()}
+for loss in losses:
+    trained = train_network(loss, sets["train"], sets["dev"], network_settings(network["train"], seed))
+    saved[loss] = {level: float(distances(predict(trained.net, test.data), test.truth).mean())
+                   for level, test in tests.items()}
+    saved[loss]["cpu_s"] = trained.seconds
+torch.save(saved, out)
+"""
+
+
 def run(out: Path, configs: int, epochs: int, threads: int, losses: list[str], capability: str | None,
-        onednn: str | None, mkldnn: bool) -> dict:
+        onednn: str | None, mkldnn: bool, table7: str | None = None) -> dict:
     import torch
 
     env = os.environ | {"PYTHONPATH": os.pathsep.join(filter(None, [str(ROOT / "src"), os.environ.get("PYTHONPATH")])),
@@ -60,9 +89,10 @@ def run(out: Path, configs: int, epochs: int, threads: int, losses: list[str], c
         env.pop(name, None)
         if value:
             env[name] = value
-    done = subprocess.run([sys.executable, "-c", TRAIN, str(out), str(configs), str(epochs), str(threads),
-                           "on" if mkldnn else "off", *losses],
-                          env=env, capture_output=True, text=True)
+    command = ([sys.executable, "-c", TABLE7, str(out), table7, str(threads), *losses] if table7 else
+               [sys.executable, "-c", TRAIN, str(out), str(configs), str(epochs), str(threads),
+                "on" if mkldnn else "off", *losses])
+    done = subprocess.run(command, env=env, capture_output=True, text=True, cwd=ROOT)
     if done.returncode:
         raise SystemExit(done.stderr[-3000:])
     return torch.load(out)
@@ -89,6 +119,27 @@ def step_time(repeats: int = 40) -> None:
               f"{1000 * (time.process_time() - began) / repeats:.1f} ms CPU (the mean of {repeats} steps)")
 
 
+def table7_moves(sky: str, losses: list[str]) -> None:
+    """Table 7's networks (training run 0) under this machine's kernels, AVX2's, no vector kernels and two threads:
+    each network's test-set mean distance per level, and its difference from this machine's, in 1e-3 m."""
+    settings = [("this machine's kernels, 1 thread", None, None, 1), ("AVX2 kernels, 1 thread", "avx2", "AVX2", 1),
+                ("no vector kernels, 1 thread", "default", "SSE41", 1),
+                ("this machine's kernels, 2 threads", None, None, 2)]
+    with tempfile.TemporaryDirectory() as folder:
+        results = [run(Path(folder) / f"{i}.pt", 0, 0, threads, losses, capability, isa, True, table7=sky)
+                   for i, (_, capability, isa, threads) in enumerate(settings)]
+    reference = results[0]
+    levels = [key for key in reference[losses[0]] if key != "cpu_s"]
+    print(f"Table 7's networks (config.yaml, training run 0): test-set mean distance per noise level {levels}, "
+          f"1e-3 m; in brackets the difference from the first setting's")
+    for loss in losses:
+        for (label, *_), result in zip(settings, results):
+            cells = ", ".join(f"{1e3 * result[loss][level]:.1f} "
+                              f"({1e3 * (result[loss][level] - reference[loss][level]):+.1f})" for level in levels)
+            print(f"  {loss:>16}  {label:<36} (runs {result['capability']:>7}, {result[loss]['cpu_s']:.0f} CPU s): "
+                  f"{cells}")
+
+
 def main() -> None:
     import torch
 
@@ -101,9 +152,14 @@ def main() -> None:
                         help="only time a ShiftNet step (batch of 16, forward and backward, one thread) with oneDNN "
                              "on and off")
     parser.add_argument("--json", help="also write the figures to this JSON file")
+    parser.add_argument("--table7", metavar="SKY", help="Table 7's networks (config.yaml) under each setting, from SKY")
     args = parser.parse_args()
     if args.step_time:
         step_time()
+        return
+    if args.table7:
+        table7_moves(args.table7, args.losses if args.losses != parser.get_default("losses")
+                     else ["sdm_recommended", "silhouette"])
         return
     # (label, ATEN_CPU_CAPABILITY, ONEDNN_MAX_CPU_ISA, threads, oneDNN on): the processors a machine may have are
     # stood in for by capping torch's kernels and oneDNN's instruction set

@@ -1,6 +1,7 @@
 """SDM inside a network (sdm.network): the gradient that reaches the weights, training, determinism, bad input."""
 from __future__ import annotations
 
+import numpy as np
 import pytest
 import torch
 
@@ -155,46 +156,106 @@ def test_epoch_levels_go_coarse_to_fine():
     assert N.epoch_levels(5, 0) == [0] * 5
 
 
-def _frame(means: dict[str, float], level: int, cpu: dict[str, float]) -> "pd.DataFrame":
+def _frame(means: dict, level: int, cpu: dict[str, float]) -> "pd.DataFrame":
+    """test_methods' rows at one level: ``means`` maps a method to its mean distance, one per run (a list) for a
+    network, one value for the others; each configuration's error lies along a."""
     import pandas as pd
 
-    return pd.concat([pd.DataFrame({"level": level, "method": method, "config": range(4),
-                                    "distance": [mean] * 4, "cpu_s": cpu.get(method, 1e-4)})
-                      for method, mean in means.items()], ignore_index=True)
+    frames = []
+    for method, values in means.items():
+        runs = list(enumerate(values)) if isinstance(values, list) else [(N.NO_RUN, values)]
+        for run, mean in runs:
+            frames.append(pd.DataFrame({"level": level, "method": method, "run": run, "config": range(4),
+                                        "distance": [mean] * 4, "error_a": [mean] * 4, "error_b": 0.0,
+                                        "cpu_s": cpu.get(method, 1e-4)}))
+    return pd.concat(frames, ignore_index=True)
+
+
+def _curves(losses, runs: int, seconds: float = 10.0) -> list:
+    import pandas as pd
+
+    return [pd.DataFrame({"loss": [loss], "run": [run], "epoch": [1], "dev_mean_m": [0.1], "train_cpu_s": [seconds]})
+            for loss in losses for run in range(runs)]
+
+
+def test_table7_gives_each_network_its_runs_mean_spread_and_paired_difference():
+    """Per (level, method): the runs' mean and sample sd, and each run's difference to the SDM-trained network of
+    the same run: a run that is bad for every loss (run 2) moves the means and not the paired differences."""
+    from sdm.report.network import table7
+
+    means = {"net:sdm_recommended": [0.050, 0.060, 0.090], "net:silhouette": [0.052, 0.063, 0.094],
+             "net+k:sdm_recommended": [0.02, 0.02, 0.02], "net+k:silhouette": [0.03, 0.01, 0.02],
+             "cmaes": 0.015, "train_mean": 0.2}
+    cpu = {"cmaes": 0.05, "net+k:sdm_recommended": 1e-3}
+    table = table7([_frame(means, 0, cpu)], _curves(("sdm_recommended", "silhouette"), 3, seconds=98.0))
+    assert list(table["method"]) == ["train_mean", "net:sdm_recommended", "net:silhouette", "net+k:sdm_recommended",
+                                     "net+k:silhouette", "cmaes"]
+    row = table.set_index("method").loc["net:silhouette"]
+    assert row["runs"] == 3 and row["mean_m"] == pytest.approx(0.209 / 3)
+    assert row["sd_m"] == pytest.approx(float(np.std([0.052, 0.063, 0.094], ddof=1)))
+    assert row["diff_m"] == pytest.approx(0.003) and row["diff_min_m"] == pytest.approx(0.002)
+    assert row["diff_max_m"] == pytest.approx(0.004) and row["diff_sd_m"] == pytest.approx(0.001)
+    assert row["offset_m"] == pytest.approx(row["mean_m"])  # every error along a
+    mine = table.set_index("method").loc["net+k:sdm_recommended"]
+    assert np.isnan(mine["diff_m"]) and mine["train_s"] == 98.0
+    # 98 s of training saves 49 ms per configuration: 2000 configurations cost the same, 2001 less
+    assert mine["pays_off"] == 2001
+    assert np.isnan(table.set_index("method").loc["cmaes", "pays_off"])
+    assert table.set_index("method").loc["cmaes", "runs"] == 1
+
+
+@pytest.mark.parametrize("silhouette, word, moonshot", [
+    ([0.052, 0.063, 0.094], "closer at level 0", "met"),  # every run's silhouette network farther
+    ([0.052, 0.058, 0.094], "level at level 0", "missed"),  # run 1 the other way: level
+    ([0.048, 0.058, 0.080], "farther at level 0", "missed"),
+])
+def test_table7_words_rank_only_beyond_the_runs_spread(silhouette, word, moonshot):
+    from sdm.report.network import table7, table7_summary, verdict_facts
+
+    means = {"net:sdm_recommended": [0.050, 0.060, 0.090], "net:silhouette": silhouette, "train_mean": 0.2}
+    table = table7([_frame(means, 0, {})], _curves(("sdm_recommended", "silhouette"), 3))
+    words = table7_summary(table, 4, {"epochs": 16, "per_epoch": 1024}, 3000)
+    assert f"The SDM-trained network is {word}." in words
+    assert f"beyond the runs' spread at every noise level**: {moonshot}" in words
+    assert "16 epochs of 1024 configurations (drawn anew each epoch from 3000" in words
+    facts = verdict_facts(table)["levels"][0]
+    assert facts["paired"] == {"silhouette": word.split()[0]}
+    assert facts["beats_image_losses"] == (moonshot == "met")
 
 
 def test_table7_words_follow_the_numbers():
     """The summary's bars read the table: met where the numbers meet them, missed where they do not."""
-    import pandas as pd
-
     from sdm.report.network import table7, table7_summary, verdict_facts
 
-    nets = {"net:sdm_paper": 0.05, "net:silhouette": 0.08, "net:chamfer": 0.09, "net:supervised": 0.03,
-            "net+k:sdm_paper": 0.02, "cmaes": 0.015, "sdm_zero": 0.04}
-    worse = dict(nets, **{"net:sdm_paper": 0.07})  # level 2: 2.33x supervised, still closer than the image losses
-    cpu = {"cmaes": 0.05, "net+k:sdm_paper": 1e-4}
-    curves = [pd.DataFrame({"loss": [loss], "epoch": [1], "train_cpu_s": [10.0]})
-              for loss in ("sdm_paper", "silhouette", "chamfer", "supervised")]
+    nets = {"net:sdm_recommended": [0.05, 0.05], "net:silhouette": [0.08, 0.08], "net:chamfer": [0.09, 0.09],
+            "net:supervised": [0.03, 0.03], "net+k:sdm_recommended": [0.02, 0.02], "cmaes": 0.015, "sdm_zero": 0.04}
+    worse = dict(nets, **{"net:sdm_recommended": [0.07, 0.07]})  # level 2: 2.33x supervised
+    cpu = {"cmaes": 0.05, "net+k:sdm_recommended": 1e-4}
+    curves = _curves(("sdm_recommended", "silhouette", "chamfer", "supervised"), 2)
     table = table7([_frame(nets, 0, cpu), _frame(worse, 2, cpu)], curves)
-    assert list(table["method"][:4]) == ["net:sdm_paper", "net:silhouette", "net:chamfer", "net:supervised"]
-    words = table7_summary(table, 4, 16, 3000)
+    assert list(table["method"][:4]) == ["net:sdm_recommended", "net:silhouette", "net:chamfer", "net:supervised"]
+    words = table7_summary(table, 4, {"epochs": 16, "per_epoch": 0}, 3000)
     assert "level 0: 1.67x supervised's mean; level 2: 2.33x supervised's mean" in words
     assert "within 2x of supervised regression at levels 0 and 2: missed" in words
-    assert "closer than both at every level: met" in words
-    assert "level 0: 1.33x CMA-ES's mean at 1/500 of its CPU time" in words
+    assert "level 0: 1.33x CMA-ES's mean at 1/500 of its CPU time per configuration, cheaper than CMA-ES from " \
+           "201 configurations on" in words
     assert "100x less CPU time: met" in words
+    assert "16 epochs of 3000 configurations" in words
     found = verdict_facts(table)
-    assert found["loss"] == "sdm_paper" and found["rule"] == "paper"
+    assert found["loss"] == "sdm_recommended" and found["rule"] == "closed_centred_r1" and found["runs"] == 2
     assert [row["to_supervised"] for row in found["levels"]] == pytest.approx([0.05 / 0.03, 0.07 / 0.03])
     assert [row["to_nothing"] for row in found["levels"]] == [None, None]  # no reference, no ratio to it
-    assert [row["beats_image_losses"] for row in found["levels"]] == [True, True]
+    assert [row["paired"] for row in found["levels"]] == [{"silhouette": "closer", "chamfer": "closer"}] * 2
+    assert [row["beats_image_losses"] for row in found["levels"]] == [True, True]  # both runs agree
     assert found["levels"][0]["refined_to_search"] == pytest.approx(0.02 / 0.015)
     assert found["levels"][0]["search_cpu_ratio"] == pytest.approx(500)
-    nothing = dict(prior=0.2, start=0.1)
+    assert found["levels"][0]["pays_off_configs"] == pytest.approx(201, abs=1)
+    nothing = dict(prior=0.2, train_mean=0.1, start=0.3)
     table = table7([_frame(dict(nets, **nothing), 0, cpu), _frame(dict(worse, **nothing), 2, cpu)], curves)
-    assert list(table["method"][:3]) == ["start", "prior", "net:sdm_paper"]
-    assert "level 0: 200.0e-3 m, the networks at 0.15-0.45x of it" in table7_summary(table, 4, 16, 3000)
-    assert [row["to_nothing"] for row in verdict_facts(table)["levels"]] == pytest.approx([0.25, 0.35])
+    assert list(table["method"][:4]) == ["prior", "train_mean", "start", "net:sdm_recommended"]
+    assert ("level 0: 100.0e-3 m (do nothing: the training set's mean theta*), the networks at 0.30-0.90x of it"
+            in table7_summary(table, 4, {"epochs": 16}, 3000))
+    assert [row["to_nothing"] for row in verdict_facts(table)["levels"]] == pytest.approx([0.5, 0.7])
 
 
 def test_a_shift_set_subset_keeps_each_configuration_with_its_shift_and_level():
@@ -206,3 +267,65 @@ def test_a_shift_set_subset_keeps_each_configuration_with_its_shift_and_level():
     assert torch.equal(part.data.targets, whole.data.targets[chosen])
     with pytest.raises(SDMInputError, match="indices"):
         whole.subset([20])
+
+
+def test_per_epoch_visits_a_fresh_shuffles_first_configurations(sets):
+    """per_epoch = the whole set trains the network of per_epoch 0; fewer make fewer steps and another network."""
+    train, dev = sets
+    whole = N.train_network("supervised", train, dev, TINY)
+    same = N.train_network("supervised", train, dev, N.NetworkSettings(**{**TINY.__dict__, "per_epoch": len(train)}))
+    fewer = N.train_network("supervised", train, dev, N.NetworkSettings(**{**TINY.__dict__, "per_epoch": 16}))
+    assert whole.curve.drop(columns="train_cpu_s").equals(same.curve.drop(columns="train_cpu_s"))
+    assert not torch.equal(N.predict(whole.net, dev.data), N.predict(fewer.net, dev.data))
+    with pytest.raises(SDMInputError, match="per_epoch"):
+        N.NetworkSettings(batch_size=8, per_epoch=4)
+
+
+def test_training_runs_share_the_split_and_the_shifts_and_draw_their_own_training_noise():
+    """A training run's seed draws the training set's noise; theta*, the levels and the dev set stay the run's
+    split's, so that runs pair across losses."""
+    data = ConfigurationSet.from_configurations(configurations(24, seed=7, mean_cars=3))
+    levels = N.mixed_levels(24, [2, 3], 1)
+    seeds = [N.training_seed(0, run) for run in range(3)]
+    assert len(set(seeds)) == 3 and seeds == [N.training_seed(0, run) for run in range(3)]
+    sets = [N.shift_set(data, 5, levels, noise_seed=seed) for seed in seeds]
+    assert all(torch.equal(one.truth, sets[0].truth) and torch.equal(one.levels, sets[0].levels) for one in sets)
+    assert not torch.equal(sets[0].data.targets, sets[1].data.targets)
+    assert torch.equal(N.shift_set(data, 5, levels).data.targets, N.shift_set(data, 5, levels, noise_seed=5).data.targets)
+
+
+@pytest.mark.parametrize("kind", N.BIAS_LOSSES)
+def test_loss_bias_weighs_every_configuration_alike_whatever_the_batch(sets, kind):
+    """The mean gradient over the configurations does not depend on how they are batched: a batch of one gives
+    each configuration's own gradient, and SDM's flow per point and the silhouette's mean over a batch are
+    both brought back to it."""
+    _, dev = sets
+    settings = N.NetworkSettings(s=2, sigma=0.5)
+    alone = N.loss_bias(dev, 0, kind, settings, batch_size=1)
+    batched = N.loss_bias(dev, 0, kind, settings, batch_size=6)
+    assert alone["loss"] == kind and alone["bias_a"] != 0
+    for key in ("bias_a", "bias_b", "stiffness_a", "stiffness_b", "offset_m"):
+        assert batched[key] == pytest.approx(alone[key], rel=1e-5, abs=1e-9), key
+    with pytest.raises(SDMInputError, match="loss must be one of"):
+        N.loss_bias(dev, 0, "chamfer", settings)
+
+
+def test_every_method_is_scored_per_run_with_its_error_and_the_training_sets_mean(sets):
+    """test_methods: a network's rows carry their run; the error per axis is theta - theta* and its norm the
+    distance; the training set's mean theta* is scored for every configuration; the searches have no run."""
+    from sdm.objects import search_settings
+
+    train, dev = sets
+    searches = search_settings({"lr": 1e-4, "n_epoch": 2}, {"lr": 5e-3, "n_epoch": 1, "s": 2},
+                               "closed_centred_r1+group_crossing:1", {"evaluations_per_unknown": 6}, 2, 8, 0.5)
+    refine = N.refine_settings({"s": 1, "n_epoch": 1, "lr": 5e-3, "flow": "closed_centred_r1", "batch_size": 4}, 0)
+    nets = {("supervised", 0): _fresh(train), ("supervised", 3): N.ShiftNet(train.data.camera.screen_shape)}
+    frame = N.test_methods(dev, 1, nets, refine, searches, 0, train_mean=train.truth.mean(0))
+    runs = frame.groupby("method")["run"].unique().map(sorted)
+    assert runs["net:supervised"] == runs["net+k:supervised"] == [0, 3]
+    assert all(runs[method] == [N.NO_RUN] for method in ("prior", "train_mean", "start", "cmaes", "sdm_zero"))
+    assert np.allclose(np.hypot(frame["error_a"], frame["error_b"]), frame["distance"], rtol=1e-12, atol=0)
+    mean = frame[frame["method"] == "train_mean"]
+    expected = (train.truth.mean(0) - dev.truth).numpy()
+    assert np.array_equal(mean["error_a"].to_numpy(), expected[:, 0]) and len(mean) == len(dev)
+    assert len(frame) == len(dev) * (2 * 2 + 5)

@@ -51,6 +51,13 @@ def _set(config: dict, path: str, value) -> dict:
                                                   r"\[3000, 1000, 748\] ask for 4748 configurations; the Sky set has"),
     ("research.network.train.batch_size", 5000, r"config key 'research\.network\.train\.batch_size': at most the "
                                                 r"train configurations"),
+    ("research.network.train.per_epoch", 4000, r"config key 'research\.network\.train\.per_epoch': at most the "
+                                               r"train configurations, research\.network\.sizes\[0\] \(3000\)"),
+    ("research.network.train.per_epoch", 8, r"config key 'research\.network\.train\.per_epoch': 0 \(every "
+                                            r"training configuration\) or at least one batch"),
+    ("research.network.train.per_epoch", -1, r"config key 'research\.network\.train\.per_epoch': -1 is less than "
+                                             r"the minimum of 0"),
+    ("research.network.runs", 0, r"config key 'research\.network\.runs': 0 is less than the minimum of 1"),
     ("research.network.refine.batch_size", 1000, r"config key 'research\.network\.refine\.batch_size': at most the "
                                                  r"test configurations"),
     ("research.objects.silhouette.batch_size", 500, r"config key 'research\.objects\.silhouette\.batch_size': at "
@@ -71,7 +78,8 @@ def _set(config: dict, path: str, value) -> dict:
     ("research.objects.methods", [], r"config key 'research\.objects\.methods': \[\] should be non-empty"),
     ("research.objects.identifiability.step", 0, r"config key 'research\.objects\.identifiability\.step': 0 is less "
                                                  r"than or equal to the minimum of 0"),
-], ids=["unknown-key", "unknown-rule", "schedule-for-a-rule", "sizes", "train-batch", "refine-batch",
+], ids=["unknown-key", "unknown-rule", "schedule-for-a-rule", "sizes", "train-batch", "per-epoch-over-train",
+        "per-epoch-under-batch", "per-epoch-negative", "no-runs", "refine-batch",
         "silhouette-batch", "screen-twice", "scaling-off-screen", "screen-without-scale", "screen-scale-0",
         "screen-method", "screen-key", "no-methods", "scan-step"])
 def test_a_bad_research_key_is_refused_naming_its_path(path, value, message):

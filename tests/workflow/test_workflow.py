@@ -280,8 +280,9 @@ def _research_jobs(config: dict) -> dict[str, int]:
                  "objects_scaling": len(objects["scaling"]["cars"]), "table6": 1}
     network = config["research"].get("network", {})
     if network.get("enabled"):
-        jobs |= {"network_train": len(network["losses"]), "network_test": len(network["levels"]), "table7": 1,
-                 "network_bias": int(any(loss.startswith("sdm_") for loss in network["losses"]))}
+        jobs |= {"network_train": len(network["losses"]) * network["runs"], "network_test": len(network["levels"]),
+                 "table7": 1, "network_bias": int(any(loss in ("sdm_paper", "sdm_recommended", "silhouette")  # BIAS_LOSSES
+                                                      for loss in network["losses"]))}
     return jobs
 
 
@@ -716,10 +717,12 @@ def _network_cases() -> dict[str, tuple[dict, str | None]]:
         "enabled": (False, None),  # Table 7's stages go; no other stage reads them
         "sizes": ([40, 16, 16], "network_train"),
         "seed": (1, "network_train"),
+        "runs": (3, "network_train"),  # run 2's networks are new; runs 0 and 1 stay
         "levels": ([0, 1], "network_train"),
         "camera_sd": (0.1, "network_train"),
         "losses": (["supervised"], "network_test"),  # the trained networks stay; every test job reads fewer
         "train.epochs": (1, "network_train"),
+        "train.per_epoch": (16, "network_train"),
         "train.batch_size": (4, "network_train"),
         "train.lr": (1.0e-3, "network_train"),
         "train.s": (1, "network_train"),
@@ -884,6 +887,33 @@ def test_a_damaged_sky_file_is_refused_and_a_rebuilt_one_gives_the_same_tables(c
     for table in ["table1.csv", "table2.csv", "table2.md", "table1.tex"]:
         assert (directory / "results" / "tables" / table).read_bytes() == \
             (completed_run / "results" / "tables" / table).read_bytes(), table
+
+
+def test_table7_run_twice_on_one_machine_gives_the_same_table(completed_run, tmp_path):
+    """Every Table 7 stage run again on the same config (every network trained anew, every test job and the
+    gradients' bias measured again): the same weights, the same bias file, and Table 7 the same to the bit but
+    for the CPU seconds it measures (and the count of configurations computed from them)."""
+    import pandas as pd
+    import torch
+
+    directory = tmp_path / "run"
+    shutil.copytree(completed_run, directory, symlinks=True, ignore=shutil.ignore_patterns("locks", "incomplete"))
+    result = snakemake("-c2", "--forcerun", "network_train", "network_bias", "--", "results/tables/table7.csv",
+                       cwd=directory)
+    output = result.stdout + result.stderr
+    assert result.returncode == 0, output[-3000:]
+    network = Path("results") / "research" / "network"
+    weights = sorted(path.relative_to(completed_run) for path in (completed_run / network).glob("*.pt"))
+    assert len(weights) == 10  # five losses, two runs
+    for path in weights:
+        assert (directory / path).stat().st_mtime > (completed_run / path).stat().st_mtime, path  # trained anew
+        stored = [torch.load(run / path, weights_only=True) for run in (completed_run, directory)]
+        assert all(torch.equal(stored[0]["state"][name], stored[1]["state"][name]) for name in stored[0]["state"])
+    assert (directory / network / "bias.csv").read_bytes() == (completed_run / network / "bias.csv").read_bytes()
+    first, again = (pd.read_csv(run / "results" / "tables" / "table7.csv") for run in (completed_run, directory))
+    measured = ["cpu_ms", "train_s", "pays_off"]
+    assert first["runs"].max() == 2 and first["diff_m"].notna().any()
+    pd.testing.assert_frame_equal(first.drop(columns=measured), again.drop(columns=measured), check_exact=True)
 
 
 def test_conda_environment_pins_the_tested_versions():

@@ -1,12 +1,15 @@
 # Table 7: SDM inside a network (config section research.network; docs/method/network.md). One job per
-# training loss (the network and its learning curve), one per noise level for the test-time comparison, and
-# the gathering stage. Opt-in (research.network.enabled): its snapshot is
-# docs/results/network/ (`make run-network snapshot-network`).
+# training loss and training run (the network and its learning curve; run r of every loss has the same seed),
+# one per noise level for the test-time comparison, and the gathering stage. Opt-in (research.network.enabled):
+# its snapshot is docs/results/network/ (`make run-network snapshot-network`).
 
 NETWORK = RESEARCH.get("network", {"enabled": False})
 NETWORK_ON = bool(NETWORK.get("enabled", False))
 NETWORK_LOSSES = list(NETWORK.get("losses", [])) if NETWORK_ON else []
 NETWORK_LEVELS = [int(level) for level in NETWORK.get("levels", [])] if NETWORK_ON else []
+NETWORK_RUNS = list(range(int(NETWORK.get("runs", 1)))) if NETWORK_ON else []
+# every trained network, in network_train's job order (each("network_train", ...) lists its files so)
+NETWORK_JOBS = [{"loss": loss, "run": str(run)} for loss in NETWORK_LOSSES for run in NETWORK_RUNS]
 
 
 def network_data():
@@ -16,12 +19,15 @@ def network_data():
 
 notebook_stage(
     "network_train",
-    "Table 7: a ShiftNet trained with one loss (SDM, silhouette, Chamfer or supervised); its dev learning curve.",
-    jobs=[{"loss": loss} for loss in NETWORK_LOSSES],
-    job="network_train_{loss}",
+    "Table 7: a ShiftNet trained with one loss (SDM, silhouette, Chamfer or supervised), one training run's seed; its dev learning curve.",
+    jobs=NETWORK_JOBS,
+    job="network_train_{loss}_run{run}",
     input=dict(sky=SKY_FILE),
-    output=dict(weights=result("research/network/{loss}.pt"), curve=result("research/network/{loss}_curve.csv")),
-    params=dict(**network_data(), loss=wildcard("loss"), train=NETWORK.get("train")),
+    output=dict(
+        weights=result("research/network/{loss}_run{run}.pt"),
+        curve=result("research/network/{loss}_run{run}_curve.csv"),
+    ),
+    params=dict(**network_data(), loss=wildcard("loss"), run=wildcard("run", int), train=NETWORK.get("train")),
     runtime=60,
 )
 
@@ -36,7 +42,7 @@ notebook_stage(
         **network_data(),
         **{key: OBJECTS.get(key) for key in ("warm", "rows", "schedule", "cmaes", "batch_size")},
         level=wildcard("level", int),
-        losses=NETWORK_LOSSES,
+        networks=[[job["loss"], int(job["run"])] for job in NETWORK_JOBS],
         refine=NETWORK.get("refine"),
         s=config["train"]["s"],
         lr_decay=config["train"]["lr_decay"],
@@ -46,11 +52,15 @@ notebook_stage(
 
 notebook_stage(
     "network_bias",
-    "Table 7: where each SDM rule's flow vanishes on the test set, per noise level (the bias a trained network inherits).",
-    jobs=[{}] if NETWORK_ON and any(loss.startswith("sdm_") for loss in NETWORK_LOSSES) else [],
+    "Table 7: where each label-free loss's mean gradient (SDM's flow, the silhouette's) vanishes on the test set, per noise level.",
+    jobs=(
+        [{}]
+        if NETWORK_ON and any(loss in ("sdm_paper", "sdm_recommended", "silhouette") for loss in NETWORK_LOSSES)
+        else []
+    ),
     input=dict(sky=SKY_FILE),
     output=dict(bias_file=result("research/network/bias.csv")),
-    params=dict(**network_data(), s=NETWORK.get("train", {}).get("s")),
+    params=dict(**network_data(), losses=NETWORK_LOSSES, train=NETWORK.get("train")),
 )
 
 notebook_stage(
@@ -66,6 +76,7 @@ notebook_stage(
         **table_files("table7"),
         table7_summary=result("tables/table7_summary.md"),
         table7_verdict=result("tables/table7_verdict.json"),
+        table7_curves=result("tables/table7_curves.csv"),
         figure=figure("network_curves", "network_curves"),
     ),
     params=dict(refine=NETWORK.get("refine"), train=NETWORK.get("train"), sizes=NETWORK.get("sizes")),

@@ -298,8 +298,8 @@ def _check_screens(objects: Mapping[str, Any]) -> None:
 
 
 def _check_network(network: Mapping[str, Any], n_sky: int) -> None:
-    """Table 7's sizes against the Sky set, its batches against the sizes, its refinement's rule against the
-    schema's rule names."""
+    """Table 7's sizes against the Sky set, its batches and configurations per epoch against the sizes, its
+    refinement's rule against the schema's rule names."""
     sizes = network.get("sizes") or []
     if len(sizes) == 3 and all(isinstance(v, int) and not isinstance(v, bool) for v in sizes):
         if sum(sizes) > n_sky:
@@ -308,8 +308,15 @@ def _check_network(network: Mapping[str, Any], n_sky: int) -> None:
         train, _, test = sizes
         _at_most((network.get("train") or {}).get("batch_size"), train, "research.network.train.batch_size",
                  "the train configurations, research.network.sizes[0]")
+        _at_most((network.get("train") or {}).get("per_epoch"), train, "research.network.train.per_epoch",
+                 "the train configurations, research.network.sizes[0]")
         _at_most((network.get("refine") or {}).get("batch_size"), test, "research.network.refine.batch_size",
                  "the test configurations, research.network.sizes[2]")
+    train_settings = network.get("train") or {}
+    per_epoch, batch = train_settings.get("per_epoch"), train_settings.get("batch_size")
+    if isinstance(per_epoch, int) and isinstance(batch, int) and 0 < per_epoch < batch:
+        raise ConfigError(f"config key 'research.network.train.per_epoch': 0 (every training configuration) or at "
+                          f"least one batch, research.network.train.batch_size ({batch}), got {per_epoch}")
     refine = network.get("refine") or {}
     if "flow" in refine:
         _check_rule(refine["flow"], "research.network.refine.flow")

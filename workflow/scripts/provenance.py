@@ -112,11 +112,10 @@ PARTS = {
     "network": Part(
         "network", "network", "results", ("config.yaml", "profiles/snapshots/network.yaml"),
         files={**{name: f"tables/{name}" for name in (
-            "table7.csv", "table7.md", "table7.tex", "table7_summary.md", "table7_verdict.json")},
+            "table7.csv", "table7.md", "table7.tex", "table7_summary.md", "table7_verdict.json",
+            "table7_curves.csv")},
                "network_curves.png": "figures/network_curves.png",
-               "table7_bias.csv": "research/network/bias.csv",
-               **{f"curve_{loss}.csv": f"research/network/{loss}_curve.csv" for loss in (
-                   "sdm_paper", "sdm_recommended", "silhouette", "chamfer", "supervised")}},
+               "table7_bias.csv": "research/network/bias.csv"},
         stages=("synthetic", "data", "sample", "sky", "network_train", "network_test", "network_bias", "table7"),
         facts="table7_verdict.json", words="Table 7: SDM inside a network"),
     "sample": Part(
