@@ -21,8 +21,10 @@ run 13, the two SLURM runs 18 (47 jobs submitted).
 from __future__ import annotations
 
 import csv
+import gzip
 import importlib.util
 import io
+import json
 import os
 import re
 import shutil
@@ -317,11 +319,15 @@ def test_nothing_is_left_to_do_after_the_slurm_run(slurm_run):
     assert "Nothing to be done" in _output(result), _output(result)
 
 
-#: The measured seconds in the tables: columns with these headers (CSV, Markdown and LaTeX), Table 3's
-#: summary line of times per run, Table 7's line of training times, and the CPU-time ratios Tables 6 and 7's
-#: summaries quote ("at 1/27 of its CPU time", "at 180x SDM's CPU time"). Everything else is computed from the
-#: seeds and must match to the byte.
-TIMED_COLUMNS = {"seconds", "seconds_per_run", "s / run", "cpu_ms", "CPU ms / config", "train_s", "training CPU s"}
+#: The measured seconds in the tables: columns with these headers (CSV, gzip-compressed CSV, Markdown and
+#: LaTeX), Table 3's summary line of times per run, Table 7's line of training times, and the CPU-time ratios
+#: Tables 6 and 7's summaries quote ("at 1/27 of its CPU time", "at 180x SDM's CPU time"). Everything else is
+#: computed from the seeds and must match to the byte.
+TIMED_COLUMNS = {"seconds", "cpu_s", "train_cpu_s", "seconds_per_run", "s / run", "cpu_ms", "CPU ms / config",
+                 "train_s", "training CPU s"}
+#: The measured seconds in the verdict's facts (``table*_verdict.json``): keys of CPU-time ratios and of counts
+#: computed from them.
+TIMED_KEYS = {"cpu_ratio", "search_cpu_ratio", "pays_off_configs"}
 TIMED_LINE = ("- time per run ", "- **Training CPU time**")  # Table 3's and Table 4's lines, Table 7's
 TIMED_PHRASES = re.compile(r"at [0-9.]+ ms|[0-9]+x less time|(?:at )?(?:1/)?[0-9][0-9.]*x? (?:of )?(?:its |[\w-]+'s )?CPU time")
 
@@ -330,10 +336,12 @@ HTML_CELL = re.compile(r"<t[hd][^>]*>(.*?)</t[hd]>", re.DOTALL)
 
 
 def _cells(path: Path) -> list[list[str]]:
-    """A table's cells as written (CSV, Markdown ``|`` or LaTeX ``&`` rows, HTML ``<tr>`` rows: the text
-    around the cells first), each row a list of strings."""
-    text = TIMED_PHRASES.sub("(time)", path.read_text())
-    if path.suffix == ".csv":
+    """A table's cells as written (CSV, gzip-compressed CSV, Markdown ``|`` or LaTeX ``&`` rows, HTML ``<tr>``
+    rows: the text around the cells first), each row a list of strings."""
+    compressed = path.name.endswith(".csv.gz")
+    text = gzip.decompress(path.read_bytes()).decode() if compressed else path.read_text()
+    text = TIMED_PHRASES.sub("(time)", text)
+    if path.suffix == ".csv" or compressed:
         return list(csv.reader(io.StringIO(text)))
     if path.suffix == ".html":
         return [[HTML_CELL.sub("", row), *HTML_CELL.findall(row)] for row in text.split("<tr")]
@@ -346,8 +354,20 @@ def _header(cell: str) -> str:
     return cell.strip().removesuffix("\\\\").strip()
 
 
-def without_measured_seconds(path: Path) -> list[list[str]]:
-    """A table's cells without its measured seconds (the TIMED_COLUMNS, header and values, and TIMED_LINE)."""
+def _without_timed_keys(value):
+    """A JSON value without the TIMED_KEYS, at any depth."""
+    if isinstance(value, dict):
+        return {key: _without_timed_keys(item) for key, item in value.items() if key not in TIMED_KEYS}
+    if isinstance(value, list):
+        return [_without_timed_keys(item) for item in value]
+    return value
+
+
+def without_measured_seconds(path: Path) -> list[list[str]] | dict:
+    """A table's cells without its measured seconds (the TIMED_COLUMNS, header and values, and TIMED_LINE); a
+    JSON file's data without its TIMED_KEYS."""
+    if path.suffix == ".json":
+        return _without_timed_keys(json.loads(path.read_text()))
     rows = [row for row in _cells(path) if not row[0].startswith(TIMED_LINE)]
     header = next((row for row in rows if any(_header(cell) in TIMED_COLUMNS for cell in row)), None)
     if header is None:
