@@ -39,6 +39,7 @@ from IPython.display import display
 from sdm.experiments import single_thread
 from sdm.io import write_csv
 from sdm.network import network_settings, parameter_count, read_sets, save_weights, train_network, training_seed
+from sdm.sharing import TruthDistribution
 
 single_thread(threads)
 run_seed = training_seed(seed, run)
@@ -47,7 +48,8 @@ settings = network_settings(train, run_seed)
 print(f"{len(sets['train'])} training and {len(sets['dev'])} dev configurations; run {run}, seed {run_seed}")
 
 # %%
-trained = train_network(loss, sets["train"], sets["dev"], settings, progress=True)
+prior = TruthDistribution(camera_sd=camera_sd)  # theta*'s distribution: the network's output units, no label
+trained = train_network(loss, sets["train"], sets["dev"], settings, progress=True, prior=prior)
 print(f"{parameter_count(trained.net)} parameters, {trained.seconds:.0f} CPU s of training")
 save_weights(trained.net, weights)
 write_csv(curve, trained.curve.assign(run=run))

@@ -61,6 +61,7 @@ torch.save(saved, out)
 TABLE7 = """
 import sys, torch, yaml
 from sdm.network import distances, network_settings, predict, read_sets, train_network, training_seed
+from sdm.sharing import TruthDistribution
 
 out, sky, threads, *losses = sys.argv[1:]
 torch.set_num_threads(int(threads))
@@ -71,7 +72,8 @@ sets = read_sets(sky, *data, train_noise=seed)
 tests = {level: read_sets(sky, *data, parts=["test"], test_level=level)["test"] for level in network["levels"]}
 saved = {"capability": torch.backends.cpu.get_cpu_capability()}
 for loss in losses:
-    trained = train_network(loss, sets["train"], sets["dev"], network_settings(network["train"], seed))
+    trained = train_network(loss, sets["train"], sets["dev"], network_settings(network["train"], seed),
+                            prior=TruthDistribution(camera_sd=network["camera_sd"]))
     saved[loss] = {level: float(distances(predict(trained.net, test.data), test.truth).mean())
                    for level, test in tests.items()}
     saved[loss]["cpu_s"] = trained.seconds

@@ -9,6 +9,7 @@ from sdm import network as N
 from sdm.batch import ConfigurationSet
 from sdm.errors import SDMInputError
 from sdm.mapping.layer import SpatialDomainMapping
+from sdm.sharing import TruthDistribution
 from sdm.sky import shift_vector
 
 from scenes import configurations
@@ -53,17 +54,32 @@ def test_the_weights_gradient_is_the_networks_vjp_of_the_layers_flow(sets, kind)
         torch.testing.assert_close(mine, reference, rtol=1e-12, atol=1e-15)
 
 
+#: A prior centred at zero shift, about 0.6 m from every theta* of the sets: a network in its units starts far.
+FAR = TruthDistribution(centre=(0.0, 0.0))
+
+
 def test_training_through_sdm_moves_the_dev_distance_down(sets):
     train, dev = sets
-    start = N.distances(N.predict(_fresh(train), dev.data), dev.truth).mean()
-    trained = N.train_network("sdm_paper", train, dev, TINY)
+    start = N.distances(N.predict(_fresh(train, FAR), dev.data), dev.truth).mean()
+    assert float(start) > 0.4
+    trained = N.train_network("sdm_paper", train, dev, TINY, prior=FAR)
     assert float(trained.curve["dev_mean_m"].iloc[-1]) < 0.5 * float(start)
     assert list(trained.curve["level"]) == N.epoch_levels(TINY.epochs, TINY.s) == [2, 1, 0]
 
 
-def _fresh(train) -> N.ShiftNet:
+def test_a_fresh_network_starts_at_the_priors_mean(sets):
+    """Outputs in the prior's units: a fresh network's shifts lie within a few spreads of the prior's centre, and
+    another centre moves them by exactly the difference."""
+    train, dev = sets
+    near, far = N.predict(_fresh(train), dev.data), N.predict(_fresh(train, FAR), dev.data)
+    centre = torch.tensor(TruthDistribution().centre, dtype=torch.float64)
+    assert float((near - centre).norm(dim=1).max()) < 3 * TruthDistribution().camera_sd
+    torch.testing.assert_close(near - far, centre.expand_as(near), rtol=0, atol=1e-12)
+
+
+def _fresh(train, prior: TruthDistribution = TruthDistribution()) -> N.ShiftNet:
     torch.manual_seed(TINY.seed)
-    return N.ShiftNet(train.data.camera.screen_shape)
+    return N.ShiftNet(train.data.camera.screen_shape, centre=prior.centre, scale=prior.camera_sd)
 
 
 @pytest.mark.parametrize("kind", ["sdm_recommended", "chamfer"])

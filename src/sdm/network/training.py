@@ -13,6 +13,7 @@ from tqdm.std import tqdm  # plain text: renders in notebooks without ipywidgets
 
 from ..batch import ConfigurationSet
 from ..errors import SDMInputError
+from ..sharing import TruthDistribution
 from .data import ShiftSet, network_images
 from .losses import BatchLoss, NetworkSettings, epoch_levels
 from .model import ShiftNet
@@ -67,8 +68,9 @@ class TrainedNetwork:
 
 
 def train_network(kind: str, train: ShiftSet, dev: ShiftSet, settings: NetworkSettings,
-                  progress: bool = False) -> TrainedNetwork:
-    """Train a fresh :class:`ShiftNet` (weights from ``settings.seed``) with loss ``kind``, deterministically.
+                  progress: bool = False, prior: TruthDistribution = TruthDistribution()) -> TrainedNetwork:
+    """Train a fresh :class:`ShiftNet` (weights from ``settings.seed``; outputs in the units of ``prior``, theta*'s
+    distribution: its centre and ``camera_sd``) with loss ``kind``, deterministically.
 
     Each epoch visits the training set in a shuffled order (one generator seeded ``settings.seed``), its first
     ``per_epoch`` configurations where that is set, in batches of ``batch_size`` (the last incomplete one dropped);
@@ -80,7 +82,8 @@ def train_network(kind: str, train: ShiftSet, dev: ShiftSet, settings: NetworkSe
     steps_per_epoch = min(len(train), settings.per_epoch or len(train)) // settings.batch_size
     with deterministic():
         torch.manual_seed(settings.seed)
-        net = ShiftNet(train.data.camera.screen_shape).to(train.data.device)
+        net = ShiftNet(train.data.camera.screen_shape, centre=prior.centre, scale=prior.camera_sd)
+        net = net.to(train.data.device)
         generator = torch.Generator().manual_seed(settings.seed)
         loss_of = BatchLoss(kind, train, settings, generator)
         optimiser = torch.optim.Adam(net.parameters(), lr=settings.rate(kind))
