@@ -25,8 +25,8 @@ class ShiftNet(nn.Module):
     128 x 256 screen, most in the first linear layer; the narrow convolutions keep a step cheap on a CPU. Plain
     ``torch.nn``.
 
-    Without the normalisation and the prior's units, training runs stayed at the constant prediction for all
-    16 epochs for some seeds (``docs/method/network.md``, "The network").
+    Without the normalisation and the prior's units, some seeds' training runs kept the constant prediction for
+    all their epochs (``docs/method/network.md``, "The network").
 
     Args:
         screen: ``(H, W)``, both divisible by 32.
