@@ -132,10 +132,8 @@ PARTS = {
 #: and every other one fresh, and names the command that refreshes a snapshot: :attr:`Part.refresh`; take one off
 #: the list once it is taken again, then write the README's verdict again: ``make verdict``).
 KNOWN_STALE = {
-    "default": "taken at a1c741b, before a take recorded the stages' code fingerprints",
     "depth": "copied by hand from a run at 691e36e; the schedule's refinement has changed since",
     "objects": "copied by hand from runs at f6a5ffb (its table6 stage at 5f599be); no fingerprint recorded",
-    "network": "copied by hand from a run at 8fcd036; no fingerprint recorded",
     "sample": "copied by hand from a run at 540f30f; no fingerprint recorded",
 }
 

@@ -70,8 +70,10 @@ def _network(network: dict | None) -> dict | None:
         return None
     rows = network["levels"]
     pick = lambda key: [row[key] for row in rows if row.get(key) is not None]  # noqa: E731
+    paired = [row["paired"]["silhouette"] for row in rows if (row.get("paired") or {}).get("silhouette")]
     return {"rule": network["rule"], "levels": [row["level"] for row in rows], "to_nothing": pick("to_nothing"),
-            "to_supervised": pick("to_supervised")}
+            "to_supervised": pick("to_supervised"), "ahead_of_silhouette": paired.count("closer"),
+            "behind_silhouette": paired.count("farther"), "paired_levels": len(paired)}
 
 
 def _schedule(default: dict, sample: dict | None) -> dict | None:
@@ -197,16 +199,19 @@ def _good_for(answer: dict) -> str:
     unit, network = answer["per_unit"], answer["network"]
     parts = []
     if unit:
-        parts.append(f"per car on a {unit['screen'][0]} x {unit['screen'][1]} screen, SDM removes "
+        parts.append(f"per car ({unit['screen'][0]} x {unit['screen'][1]} screen) SDM removes "
                      f"{_span([100 * v for v in unit['removed']], 0, ' %')} of [doing nothing]({LINKS['objects']})'s "
                      f"error")
     if network:
-        if network["to_nothing"]:
-            parts.append(f"a [network trained through SDM]({LINKS['network']}) without labels ends at "
-                         f"{_span(network['to_nothing'])} doing nothing's error")
-        elif network["to_supervised"]:
-            parts.append(f"a [network trained through SDM]({LINKS['network']}) without labels ends at "
-                         f"{_span(network['to_supervised'])} a labelled network's error")
+        against = (f"{_span(network['to_nothing'])} doing nothing's error" if network["to_nothing"] else
+                   f"{_span(network['to_supervised'])} a labelled network's error")
+        words = f"a label-free [SDM-trained network]({LINKS['network']}), {against}"
+        if network.get("paired_levels"):  # paired by training seed: ahead or behind beyond the seeds' spread
+            words += (f", beats silhouette training at {network['ahead_of_silhouette']} of "
+                      f"{network['paired_levels']} levels")
+            if network["behind_silhouette"]:
+                words += f", loses at {network['behind_silhouette']}"
+        parts.append(words)
     return "**Good for?** Many unknowns at once: " + "; ".join(parts) + "."
 
 
