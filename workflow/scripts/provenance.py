@@ -133,7 +133,6 @@ PARTS = {
 #: the list once it is taken again, then write the README's verdict again: ``make verdict``).
 KNOWN_STALE = {
     "depth": "copied by hand from a run at 691e36e; the schedule's refinement has changed since",
-    "objects": "copied by hand from runs at f6a5ffb (its table6 stage at 5f599be); no fingerprint recorded",
     "sample": "copied by hand from a run at 540f30f; no fingerprint recorded",
 }
 
