@@ -22,7 +22,7 @@ from .tables import TableFormat, write_table
 #: How the table and the figure name each training loss.
 LOSS_LABELS = {
     "sdm_paper": "SDM, the paper's rule",
-    "sdm_recommended": "SDM, the recommended rule",
+    "sdm_recommended": "SDM, closed_centred_r1",
     "silhouette": "soft silhouette",
     "chamfer": "2D Chamfer",
     "supervised": "supervised, theta* labels",
@@ -52,7 +52,7 @@ TABLE7_FORMAT = TableFormat(
         "shuffles and training noise, so only the training loss differs within a run.",
         "mean, sd: over the runs, of each run's mean distance on the test set; median: the runs' medians, averaged; "
         "bias: the norm of the mean error theta~ - theta* over the test set, averaged over the runs.",
-        "minus SDM: each run's mean distance minus the SDM-trained network's (the recommended rule) of the same "
+        "minus SDM: each run's mean distance minus the SDM-trained network's (closed_centred_r1) of the same "
         "run, alone or with k steps as the row; mean, sd, min and max over the runs. Positive: the SDM-trained "
         "network is closer.",
         "network: one forward pass; network + k: then k SDM steps per configuration from its output; CMA-ES and SDM "
