@@ -26,7 +26,7 @@ sizes = [3000, 500, 748]
 seed = 0
 levels = [0, 1, 2, 3, 4]
 camera_sd = 0.15
-losses = ["sdm_paper", "sdm_recommended", "silhouette"]  # research.network.losses: those of BIAS_LOSSES are measured
+losses = ["sdm_paper", "sdm_closed_centred_r1", "silhouette"]  # research.network.losses: those of BIAS_LOSSES are measured
 train = {"epochs": 16, "per_epoch": 1280, "batch_size": 16, "lr": 3.0e-3, "s": 2, "sigma": 0.5, "max_points": 256}
 threads = 1
 

@@ -18,7 +18,7 @@
 # paper's; Table 1's pick beside the paper's). The text is built by `sdm.report.reproduction` from the
 # measured tables only. The verdict's facts (`verdict`) are built by `sdm.report.verdict` from the CSVs of
 # Tables 1-4: ours against the paper's Table 2, SDM against CMA-ES (the black-box search) on the same runs, Table
-# 3's closest method per level and Table 4's recommended rule. `make snapshot` puts them into the README's words.
+# 3's closest method per level and Table 4's recommended schedule. `make snapshot` puts them into the README's words.
 
 # %% tags=["parameters"]
 table1 = "results/tables/table1.csv"
@@ -33,7 +33,7 @@ table3_csv = ""  # Table 3 (CSV), when the baselines ran: the verdict's closest 
 table3_summary = ""  # Table 3's answer in plain words, when the baselines ran
 table4 = ""  # Table 4 (markdown), Table 2 per gradient rule, when research.rules is enabled
 table4_summary = ""  # Table 4 in plain words
-table4_csv = ""  # Table 4 (CSV): the verdict's recommended rule
+table4_csv = ""  # Table 4 (CSV): the verdict's recommended schedule
 table5 = ""  # Table 5 (markdown), the shift with depth, when research.depth is enabled
 table5_summary = ""  # Table 5 in plain words
 report = "results/report/reproduction.md"  # output
@@ -94,8 +94,8 @@ display(Markdown(text))
 # ## The verdict's facts
 #
 # What the README's verdict says of this run, as data: per noise level the paper's mean, ours, CMA-ES's and the
-# recommended rule's (millimetres); whether the run reproduces the paper; SDM against CMA-ES on the same runs; the
-# recommended rule against the bars.
+# recommended schedule's (millimetres); whether the run reproduces the paper; SDM against CMA-ES on the same runs; the
+# recommended schedule against the bars.
 
 # %%
 answer = facts(read_csv(table1), read_csv(table2), read_csv(table3_csv) if table3_csv else None, methods,

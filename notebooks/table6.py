@@ -56,7 +56,7 @@ display(Markdown(Path(table6_md).read_text()))
 scaling_frames = [read_csv(path) for path in scaling_files]
 scaling = report.scaling_table(scaling_frames) if scaling_frames else None
 write_bytes(table6_units, report.units_archive(frames, scaling_frames))
-summary = report.table6_summary(table, scaling)
+summary = report.table6_summary(table, scaling, frames)
 write_text(table6_summary, summary)
 write_json(table6_verdict, report.verdict_facts(table))  # what the README's verdict says of Table 6, as data
 display(Markdown(summary))

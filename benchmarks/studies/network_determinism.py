@@ -11,14 +11,14 @@ Prints, per loss, each setting's largest difference of the predicted shifts (met
 first setting's (the reference), and whether a second run of the reference gave the same bits. A setting the
 processor lacks is reported as such by torch (it falls back) and shown.
 
-    python benchmarks/studies/network_determinism.py [--configs 256] [--epochs 3] [--losses sdm_recommended silhouette]
+    python benchmarks/studies/network_determinism.py [--configs 256] [--epochs 3] [--losses sdm_closed_centred_r1 silhouette]
 
 ``--table7 SKY`` measures what those bits become in Table 7: the networks of config.yaml's ``research.network``
 (its sizes, seed and training; training run 0) trained from the Sky file ``SKY`` under each setting, and each
 network's mean distance on the test set per noise level, beside the reference's: how far a network's Table 7 row
 moves from one processor to another, to set beside the spread of its training runs (Table 7's sd).
 
-    python benchmarks/studies/network_determinism.py --table7 results/sky/sky.bin [--losses sdm_recommended silhouette]
+    python benchmarks/studies/network_determinism.py --table7 results/sky/sky.bin [--losses sdm_closed_centred_r1 silhouette]
 """
 from __future__ import annotations
 
@@ -148,7 +148,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--configs", type=int, default=256)
     parser.add_argument("--epochs", type=int, default=3)
-    parser.add_argument("--losses", nargs="+", default=["sdm_recommended", "silhouette", "chamfer", "supervised"])
+    parser.add_argument("--losses", nargs="+", default=["sdm_closed_centred_r1", "silhouette", "chamfer", "supervised"])
     parser.add_argument("--pinned", action="store_true", help="also each machine with torch's oneDNN kernels off")
     parser.add_argument("--step-time", action="store_true",
                         help="only time a ShiftNet step (batch of 16, forward and backward, one thread) with oneDNN "
@@ -161,7 +161,7 @@ def main() -> None:
         return
     if args.table7:
         table7_moves(args.table7, args.losses if args.losses != parser.get_default("losses")
-                     else ["sdm_recommended", "silhouette"])
+                     else ["sdm_closed_centred_r1", "silhouette"])
         return
     # (label, ATEN_CPU_CAPABILITY, ONEDNN_MAX_CPU_ISA, threads, oneDNN on): the processors a machine may have are
     # stood in for by capping torch's kernels and oneDNN's instruction set

@@ -82,7 +82,7 @@ def _fresh(train, prior: TruthDistribution = TruthDistribution()) -> N.ShiftNet:
     return N.ShiftNet(train.data.camera.screen_shape, centre=prior.centre, scale=prior.camera_sd)
 
 
-@pytest.mark.parametrize("kind", ["sdm_recommended", "chamfer"])
+@pytest.mark.parametrize("kind", ["sdm_closed_centred_r1", "chamfer"])
 def test_the_same_settings_train_the_same_network(sets, kind):
     train, dev = sets
     first = N.train_network(kind, train, dev, TINY)
@@ -199,12 +199,12 @@ def test_table7_gives_each_network_its_runs_mean_spread_and_paired_difference():
     the same run: a run that is bad for every loss (run 2) moves the means and not the paired differences."""
     from sdm.report.network import table7
 
-    means = {"net:sdm_recommended": [0.050, 0.060, 0.090], "net:silhouette": [0.052, 0.063, 0.094],
-             "net+k:sdm_recommended": [0.02, 0.02, 0.02], "net+k:silhouette": [0.03, 0.01, 0.02],
+    means = {"net:sdm_closed_centred_r1": [0.050, 0.060, 0.090], "net:silhouette": [0.052, 0.063, 0.094],
+             "net+k:sdm_closed_centred_r1": [0.02, 0.02, 0.02], "net+k:silhouette": [0.03, 0.01, 0.02],
              "cmaes": 0.015, "train_mean": 0.2}
-    cpu = {"cmaes": 0.05, "net+k:sdm_recommended": 1e-3}
-    table = table7([_frame(means, 0, cpu)], _curves(("sdm_recommended", "silhouette"), 3, seconds=98.0))
-    assert list(table["method"]) == ["train_mean", "net:sdm_recommended", "net:silhouette", "net+k:sdm_recommended",
+    cpu = {"cmaes": 0.05, "net+k:sdm_closed_centred_r1": 1e-3}
+    table = table7([_frame(means, 0, cpu)], _curves(("sdm_closed_centred_r1", "silhouette"), 3, seconds=98.0))
+    assert list(table["method"]) == ["train_mean", "net:sdm_closed_centred_r1", "net:silhouette", "net+k:sdm_closed_centred_r1",
                                      "net+k:silhouette", "cmaes"]
     row = table.set_index("method").loc["net:silhouette"]
     assert row["runs"] == 3 and row["mean_m"] == pytest.approx(0.209 / 3)
@@ -212,7 +212,7 @@ def test_table7_gives_each_network_its_runs_mean_spread_and_paired_difference():
     assert row["diff_m"] == pytest.approx(0.003) and row["diff_min_m"] == pytest.approx(0.002)
     assert row["diff_max_m"] == pytest.approx(0.004) and row["diff_sd_m"] == pytest.approx(0.001)
     assert row["offset_m"] == pytest.approx(row["mean_m"])  # every error along a
-    mine = table.set_index("method").loc["net+k:sdm_recommended"]
+    mine = table.set_index("method").loc["net+k:sdm_closed_centred_r1"]
     assert np.isnan(mine["diff_m"]) and mine["train_s"] == 98.0
     # 98 s of training saves 49 ms per configuration: 2000 configurations cost the same, 2001 less
     assert mine["pays_off"] == 2001
@@ -228,8 +228,8 @@ def test_table7_gives_each_network_its_runs_mean_spread_and_paired_difference():
 def test_table7_words_rank_only_beyond_the_runs_spread(silhouette, word, moonshot):
     from sdm.report.network import table7, table7_summary, verdict_facts
 
-    means = {"net:sdm_recommended": [0.050, 0.060, 0.090], "net:silhouette": silhouette, "train_mean": 0.2}
-    table = table7([_frame(means, 0, {})], _curves(("sdm_recommended", "silhouette"), 3))
+    means = {"net:sdm_closed_centred_r1": [0.050, 0.060, 0.090], "net:silhouette": silhouette, "train_mean": 0.2}
+    table = table7([_frame(means, 0, {})], _curves(("sdm_closed_centred_r1", "silhouette"), 3))
     words = table7_summary(table, 4, {"epochs": 16, "per_epoch": 1024}, 3000)
     assert f"The SDM-trained network is {word}." in words
     assert f"beyond the runs' spread at every noise level**: {moonshot}" in words
@@ -243,13 +243,13 @@ def test_table7_words_follow_the_numbers():
     """The summary's bars read the table: met where the numbers meet them, missed where they do not."""
     from sdm.report.network import table7, table7_summary, verdict_facts
 
-    nets = {"net:sdm_recommended": [0.05, 0.05], "net:silhouette": [0.08, 0.08], "net:chamfer": [0.09, 0.09],
-            "net:supervised": [0.03, 0.03], "net+k:sdm_recommended": [0.02, 0.02], "cmaes": 0.015, "sdm_zero": 0.04}
-    worse = dict(nets, **{"net:sdm_recommended": [0.07, 0.07]})  # level 2: 2.33x supervised
-    cpu = {"cmaes": 0.05, "net+k:sdm_recommended": 1e-4}
-    curves = _curves(("sdm_recommended", "silhouette", "chamfer", "supervised"), 2)
+    nets = {"net:sdm_closed_centred_r1": [0.05, 0.05], "net:silhouette": [0.08, 0.08], "net:chamfer": [0.09, 0.09],
+            "net:supervised": [0.03, 0.03], "net+k:sdm_closed_centred_r1": [0.02, 0.02], "cmaes": 0.015, "sdm_zero": 0.04}
+    worse = dict(nets, **{"net:sdm_closed_centred_r1": [0.07, 0.07]})  # level 2: 2.33x supervised
+    cpu = {"cmaes": 0.05, "net+k:sdm_closed_centred_r1": 1e-4}
+    curves = _curves(("sdm_closed_centred_r1", "silhouette", "chamfer", "supervised"), 2)
     table = table7([_frame(nets, 0, cpu), _frame(worse, 2, cpu)], curves)
-    assert list(table["method"][:4]) == ["net:sdm_recommended", "net:silhouette", "net:chamfer", "net:supervised"]
+    assert list(table["method"][:4]) == ["net:sdm_closed_centred_r1", "net:silhouette", "net:chamfer", "net:supervised"]
     words = table7_summary(table, 4, {"epochs": 16, "per_epoch": 0}, 3000)
     assert "level 0: 1.67x supervised's mean; level 2: 2.33x supervised's mean" in words
     assert "within 2x of supervised regression at levels 0 and 2: missed" in words
@@ -258,7 +258,7 @@ def test_table7_words_follow_the_numbers():
     assert "100x less CPU time: met" in words
     assert "16 epochs of 3000 configurations" in words
     found = verdict_facts(table)
-    assert found["loss"] == "sdm_recommended" and found["rule"] == "closed_centred_r1" and found["runs"] == 2
+    assert found["loss"] == "sdm_closed_centred_r1" and found["rule"] == "closed_centred_r1" and found["runs"] == 2
     assert [row["to_supervised"] for row in found["levels"]] == pytest.approx([0.05 / 0.03, 0.07 / 0.03])
     assert [row["to_nothing"] for row in found["levels"]] == [None, None]  # no reference, no ratio to it
     assert [row["paired"] for row in found["levels"]] == [{"silhouette": "closer", "chamfer": "closer"}] * 2
@@ -268,7 +268,7 @@ def test_table7_words_follow_the_numbers():
     assert found["levels"][0]["pays_off_configs"] == pytest.approx(201, abs=1)
     nothing = dict(prior=0.2, train_mean=0.1, start=0.3)
     table = table7([_frame(dict(nets, **nothing), 0, cpu), _frame(dict(worse, **nothing), 2, cpu)], curves)
-    assert list(table["method"][:4]) == ["prior", "train_mean", "start", "net:sdm_recommended"]
+    assert list(table["method"][:4]) == ["prior", "train_mean", "start", "net:sdm_closed_centred_r1"]
     assert ("level 0: 100.0e-3 m (do nothing: the training set's mean theta*), the networks at 0.30-0.90x of it"
             in table7_summary(table, 4, {"epochs": 16}, 3000))
     assert [row["to_nothing"] for row in verdict_facts(table)["levels"]] == pytest.approx([0.5, 0.7])

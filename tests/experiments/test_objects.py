@@ -11,7 +11,7 @@ from sdm.baselines.rows import RowsCMAESSettings, RowsFloorSettings
 from sdm.baselines.silhouette import SilhouetteSettings
 from sdm.errors import SDMInputError
 from sdm.objects import EXACT_SET, METHODS, REFERENCES, ObjectsSettings, objects_runs, scaling_runs
-from sdm.report.objects import (read_units_archive, scaling_table, table6, table6_summary, units_archive,
+from sdm.report.objects import (read_units_archive, scaling_table, table6, table6_summary, tail_words, units_archive,
                                 verdict_facts)
 from sdm.train import TrainSettings
 
@@ -193,3 +193,20 @@ def test_the_crossover_in_words(rows, expected):
     from sdm.report.objects import _crossover
 
     assert expected in _crossover(rows)
+
+
+def test_tail_words_say_which_cars_make_the_mean():
+    """Two runs of one configuration with three cars: the far runs' share of the summed distance and the worst car's,
+    counted from the records; other methods, sharing levels and screens are left out."""
+    def records(scale, method="sdm_schedule", sharing="car"):
+        return pd.DataFrame({"scale": scale, "sharing": sharing, "level": 0, "run": [0, 0, 0, 1, 1, 1],
+                             "method": method, "config": 0, "car": [0, 1, 2, 0, 1, 2],
+                             "distance": [0.5, 0.01, 0.02, 0.3, 0.01, 0.2]})
+    frames = [records(12), records(1, "cmaes"), records(12, "sdm_paper"), records(12, sharing="configuration"),
+              records(1).assign(distance=9.0)]
+    words = tail_words(frames, 12, worst=1)
+    assert words == ["- Car level, noise 0, where the mean comes from: 2 runs of the same 1 configurations (3 cars, "
+                     "each run with its own theta* and start); 50 % of the cars' runs end farther than 0.1 m from "
+                     "theta* and make 96 % of the summed distance; the 1 cars with the largest mean make 77 % of it, "
+                     "each ending that far in 100-100 % of its runs."]
+    assert tail_words([], 12) == [] and tail_words(frames, 3) == []

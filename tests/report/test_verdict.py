@@ -14,7 +14,7 @@ import pytest
 
 from sdm import paper
 from sdm.report.research import CMAES_ROW
-from sdm.report.verdict import best_methods, facts, recommended_rule, reproduction_facts
+from sdm.report.verdict import best_methods, facts, recommended_schedule, reproduction_facts
 
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "workflow" / "scripts"))
@@ -112,10 +112,10 @@ def test_the_closest_method_is_among_the_configured_ones():
     assert [row["method"] for row in closest] == ["sdm", "cmaes", "cmaes", "cmaes", "cmaes"]
 
 
-def test_the_recommended_rule_meets_the_bar_at_the_most_levels_and_is_held_to_cmaes():
+def test_the_recommended_schedule_meets_the_bar_at_the_most_levels_and_is_held_to_cmaes():
     table4 = _table4({"closed": [0.05, 3, 5, 9, 21], "closed_centred_r1": [0.05, 3, 4, 5, 6],
                       "floor": [0.0, 0.0, 0.0, 0.0, 0.0]}, cmaes=[0.05, 1, 1, 4, 5])
-    assert recommended_rule(table4, ["closed", "closed_centred_r1"]) == "closed_centred_r1"
+    assert recommended_schedule(table4, ["closed", "closed_centred_r1"]) == "closed_centred_r1"
     schedule = facts(_table1(), _table2([0.5] * 5), table4=table4, rules=["closed", "closed_centred_r1"])["schedule"]
     assert schedule["name"] == "closed_centred_r1" and (schedule["meets_bar"], schedule["judged"]) == (5, 5)
     assert schedule["to_search"]["high"] == pytest.approx(4.0) and schedule["to_search"]["worst_level"] == 2

@@ -115,6 +115,31 @@ def test_the_page_is_titled_by_its_job(plotting_run):
 
 
 
+def test_the_page_shows_the_values_the_job_ran_with_in_the_parameters_cell(tmp_path):
+    """The page's parameters cell shows each default replaced by the job's value, its comment kept; a value without a
+    default is added; papermill's injected cell is left out of the page, not out of the executed notebook."""
+    import nbformat
+
+    page = _runner_module().page
+    cells = ["sky = 'results/sky/sky.bin'  # input: the Sky set\nlevel = 0  # the noise level\nruns = 2\n",
+             "print(sky, level, runs, threads)\n"]
+    process, executed, html = run(tmp_path, "noise_level3", cells, {"sky": "data/sky.bin", "level": 3, "threads": 1})
+    assert process.returncode == 0, process.stderr
+    notebook = nbformat.read(executed, as_version=4)
+    tags = [cell.metadata.get("tags", []) for cell in notebook.cells]
+    assert ["injected-parameters"] in tags  # the job's record keeps papermill's cell
+    shown = page(notebook)
+    assert [cell.metadata.get("tags", []) for cell in shown.cells] == [tag for tag in tags
+                                                                       if tag != ["injected-parameters"]]
+    assert shown.cells[0].source.splitlines() == [
+        "sky = \"data/sky.bin\"  # input: the Sky set", "level = 3  # the noise level", "runs = 2",
+        "threads = 1  # this job's value (no default in the notebook)"]
+    assert "data/sky.bin 3 2 1" in shown.cells[1].outputs[0]["text"]
+    text = html.read_text()
+    assert "celltag_parameters" in text and "celltag_injected-parameters" not in text
+    assert "this job&#39;s value" in text or "this job's value" in text
+
+
 def test_progress_bars_do_not_warn_in_a_notebook(plotting_run):
     _, executed, _ = plotting_run
     text = executed.read_text()

@@ -281,7 +281,7 @@ def _research_jobs(config: dict) -> dict[str, int]:
     network = config["research"].get("network", {})
     if network.get("enabled"):
         jobs |= {"network_train": len(network["losses"]) * network["runs"], "network_test": len(network["levels"]),
-                 "table7": 1, "network_bias": int(any(loss in ("sdm_paper", "sdm_recommended", "silhouette")  # BIAS_LOSSES
+                 "table7": 1, "network_bias": int(any(loss in ("sdm_paper", "sdm_closed_centred_r1", "silhouette")  # BIAS_LOSSES
                                                       for loss in network["losses"]))}
     return jobs
 
@@ -556,6 +556,20 @@ def test_every_rendered_page_is_titled_by_its_job(completed_run):
     assert len(pages) > 10
     for page in pages:
         assert f"<title>{page.stem}</title>" in page.read_text(), page.name
+
+
+def test_every_page_shows_its_jobs_values_and_no_log_holds_a_traceback(completed_run):
+    """Each page's parameters cell shows the values its job ran with (papermill's injected cell left out of the page,
+    kept in the executed notebook), and no job of the completed run left a traceback in its log."""
+    pages = sorted((completed_run / "results" / "notebooks").glob("*.html"))
+    for page in pages:
+        text = page.read_text()
+        assert "celltag_parameters" in text and "celltag_injected-parameters" not in text, page.name
+        executed = page.with_suffix(".ipynb")
+        assert "injected-parameters" in executed.read_text(), executed.name
+    logs = sorted((completed_run / "results" / "logs").glob("*.log"))
+    assert {log.stem for log in logs} >= {page.stem for page in pages}
+    assert [log.name for log in logs if "Traceback" in log.read_text()] == []
 
 
 def pd_read_csv(path: Path):

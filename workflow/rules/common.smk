@@ -224,7 +224,7 @@ def training(seed):
 
 def extra_tables_read_by_report():
     """What the report reads of Tables 3-5: each enabled table's Markdown and summary, and the CSVs of
-    Tables 3 and 4 (the verdict's best method and recommended rule)."""
+    Tables 3 and 4 (the verdict's best method and recommended schedule)."""
     enabled = [stage for stage in ("table3", "table4", "table5") if JOBS[stage]]
     files = {key: result(f"tables/{key}.md") for stage in enabled for key in (stage, f"{stage}_summary")}
     return files | {f"{stage}_csv": result(f"tables/{stage}.csv") for stage in enabled if stage != "table5"}

@@ -55,7 +55,7 @@ notebook_stage(
     "Table 7: where each label-free loss's mean gradient (SDM's flow, the silhouette's) vanishes on the test set, per noise level.",
     jobs=(
         [{}]
-        if NETWORK_ON and any(loss in ("sdm_paper", "sdm_recommended", "silhouette") for loss in NETWORK_LOSSES)
+        if NETWORK_ON and any(loss in ("sdm_paper", "sdm_closed_centred_r1", "silhouette") for loss in NETWORK_LOSSES)
         else []
     ),
     input=dict(sky=SKY_FILE),

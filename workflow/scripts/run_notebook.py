@@ -175,6 +175,53 @@ def remove_stale_temporaries(executed: str | Path) -> list[Path]:
     return stale
 
 
+def _values(source: str) -> dict[str, tuple[int, int, int, int]]:
+    """Each ``name = value`` statement of a cell: name -> where its value is (first and last line, counted from 0;
+    start and end column in UTF-8 bytes, as :mod:`ast` gives them)."""
+    import ast
+
+    return {node.targets[0].id: (node.value.lineno - 1, node.value.col_offset, node.value.end_lineno - 1,
+                                 node.value.end_col_offset)
+            for node in ast.parse(source).body
+            if isinstance(node, ast.Assign) and len(node.targets) == 1 and isinstance(node.targets[0], ast.Name)}
+
+
+def page(executed):
+    """The notebook as its page shows it: the parameters cell holds the values this job ran with.
+
+    papermill runs the notebook's parameters cell (its defaults, each with a comment that says what it is), then
+    the cell it injects (this job's values). On the page the parameters cell shows each default replaced by this
+    job's value, its comment kept, and a value the notebook has no default for added at its end; papermill's cell
+    is left out, so the reader sees one cell, true for this job. ``executed`` (the executed notebook, the job's
+    record) is not changed: the page is drawn from a copy.
+    """
+    import copy
+
+    notebook = copy.deepcopy(executed)
+    tags = [set(cell.get("metadata", {}).get("tags", [])) for cell in notebook.cells]
+    defaults = [i for i, cell_tags in enumerate(tags) if "parameters" in cell_tags]
+    injected = [i for i, cell_tags in enumerate(tags) if "injected-parameters" in cell_tags]
+    if len(defaults) != 1 or len(injected) != 1:
+        return notebook
+    cell = notebook.cells[defaults[0]]
+    job = notebook.cells[injected[0]].source
+    job_lines = job.encode().splitlines()
+    given = {name: b"\n".join([job_lines[first][start:], *job_lines[first + 1:last], job_lines[last][:end]]
+                               if last > first else [job_lines[first][start:end]]).decode()
+             for name, (first, start, last, end) in _values(job).items()}
+    lines = cell.source.encode().splitlines()
+    # From the last statement up: a value replaced over several lines leaves the earlier positions true.
+    for name, (first, start, last, end) in sorted(_values(cell.source).items(), key=lambda item: item[1],
+                                                  reverse=True):
+        if name in given:
+            lines[first:last + 1] = [lines[first][:start] + given.pop(name).encode() + lines[last][end:]]
+    cell.source = "\n".join([line.decode() for line in lines] +
+                             [f"{name} = {value}  # this job's value (no default in the notebook)"
+                              for name, value in given.items()])
+    del notebook.cells[injected[0]]
+    return notebook
+
+
 #: The executed notebook's metadata key that holds the stage's name and the fingerprint of the code it ran
 #: (``workflow/scripts/snapshot.py`` reads it into a snapshot's provenance).
 STAGE_METADATA = "sdm_stage"
@@ -215,7 +262,7 @@ def main(source: str, executed: str, html: str, parameters: str | dict, stderr_l
                 log_output=False,
             ))
             # The page's title is its job's name (the HTML file's: results/notebooks/<job>.html), not "Notebook".
-            body, _ = HTMLExporter().from_notebook_node(result, resources={"metadata": {"name": Path(html).stem}})
+            body, _ = HTMLExporter().from_notebook_node(page(result), resources={"metadata": {"name": Path(html).stem}})
             library_io().write_text(html, body)
         except Exception as error:  # noqa: BLE001 - every failure is reported the same way, cause first
             noise = output()

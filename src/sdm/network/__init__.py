@@ -12,10 +12,10 @@ outputs ``theta_i``:
 
 The losses it is trained with (:data:`LOSSES`), the same architecture, data, initialisation seed and epochs:
 
-* ``sdm_paper``, ``sdm_recommended``: the SDM layer's loss on ``Q_i + theta_i`` against ``L_i``; its backward
+* ``sdm_paper``, ``sdm_closed_centred_r1``: the SDM layer's loss on ``Q_i + theta_i`` against ``L_i``; its backward
   is the dynamic gradient flow, carried by autograd through ``theta_i`` into the weights. No labels. The zoom
-  level goes from ``s`` to 0 over the epochs (:func:`epoch_levels`). The paper's rule, or the recommended
-  rule ``closed_centred_r1``.
+  level goes from ``s`` to 0 over the epochs (:func:`epoch_levels`). The paper's rule, or ``closed_centred_r1``
+  (the rule of the recommended schedule's first pass).
 * ``silhouette``: the soft-silhouette image loss (:mod:`sdm.baselines.silhouette`), coarse to fine on the same
   levels. No labels.
 * ``chamfer``: the two-way 2D Chamfer distance (:mod:`sdm.baselines.chamfer`). No labels.

@@ -126,7 +126,7 @@ def refine_settings(refine: dict, seed: int):
 #: The losses whose mean gradient's zero :func:`loss_bias` measures: SDM's flow (per point) and the silhouette's
 #: gradient (per image), each a gradient of one configuration's own term. (Chamfer's mean runs over the batch's
 #: pairs, supervised regression's vanishes at theta*.)
-BIAS_LOSSES = ("sdm_paper", "sdm_recommended", "silhouette")
+BIAS_LOSSES = ("sdm_paper", "sdm_closed_centred_r1", "silhouette")
 
 
 def loss_bias(test: ShiftSet, level: int, kind: str, settings: NetworkSettings, step: float = 1e-3,

@@ -22,17 +22,17 @@ from .tables import TableFormat, write_table
 #: How the table and the figure name each training loss.
 LOSS_LABELS = {
     "sdm_paper": "SDM, the paper's rule",
-    "sdm_recommended": "SDM, closed_centred_r1",
+    "sdm_closed_centred_r1": "SDM, closed_centred_r1",
     "silhouette": "soft silhouette",
     "chamfer": "2D Chamfer",
     "supervised": "supervised, theta* labels",
 }
 #: Label-free losses through the SDM layer.
-SDM_LOSSES = ("sdm_paper", "sdm_recommended")
+SDM_LOSSES = ("sdm_paper", "sdm_closed_centred_r1")
 #: The label-free baselines the SDM-trained network must beat.
 IMAGE_LOSSES = ("silhouette", "chamfer")
 #: The SDM-trained network every other network is paired with, where it was trained (else the first SDM loss).
-PAIRED_WITH = "sdm_recommended"
+PAIRED_WITH = "sdm_closed_centred_r1"
 
 TABLE7_FORMAT = TableFormat(
     columns=("level", "method", "runs", "mean", "sd", "median", "offset", "diff", "diff_sd", "diff_min", "diff_max",

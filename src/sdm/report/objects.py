@@ -247,10 +247,49 @@ def _mm(value: float) -> str:
     return f"{1e3 * value:.1f}e-3 m"
 
 
-def table6_summary(table: pd.DataFrame, scaling: pd.DataFrame | None) -> str:
+#: A car ends far from theta* beyond this distance (metres): the tail that the car level's mean is made of.
+FAR_M = 0.1
+
+
+def tail_words(run_frames: Sequence[pd.DataFrame], scale: int, method: str = "sdm_schedule",
+               worst: int = 3) -> list[str]:
+    """Where the car level's mean distance of ``method`` comes from on the screen of ``scale``, per noise level:
+    the runs' configurations and distinct cars (every run draws the same configurations, each with its own theta*
+    and start), the share of the cars' runs that end farther than :data:`FAR_M` and their share of the summed
+    distance, and the share the ``worst`` cars (by their mean over the runs) make. ``run_frames``: the per-unit
+    records of :func:`sdm.objects.objects_runs` (a ``scale`` column, or scale 1 without one)."""
+    frames = [frame for frame in run_frames if len(frame)]
+    if not frames:
+        return []
+    units = pd.concat(frames, ignore_index=True)
+    on_screen = units["scale"] == scale if "scale" in units.columns else pd.Series(scale == 1, index=units.index)
+    rows = units[on_screen & (units["sharing"] == "car") & (units["method"] == method)]
+    lines = []
+    for level, own in rows.groupby("level", sort=True):
+        total = float(own["distance"].sum())
+        if not total > 0:
+            continue
+        far = own["distance"] > FAR_M
+        cars = own.groupby(["config", "car"])["distance"]
+        top = cars.mean().nlargest(worst).index
+        top_far = cars.apply(lambda d: (d > FAR_M).mean()).loc[top]
+        top_share = float(cars.sum().loc[top].sum()) / total
+        lines.append(
+            f"- Car level, noise {int(level)}, where the mean comes from: {own['run'].nunique()} runs of the same "
+            f"{own['config'].nunique()} configurations ({cars.ngroups} cars, each run with its own theta* and start); "
+            f"{100 * far.mean():.0f} % of the cars' runs end farther than {FAR_M:g} m from theta* and make "
+            f"{100 * own.loc[far, 'distance'].sum() / total:.0f} % of the summed distance; the {len(top)} cars with "
+            f"the largest mean make {100 * top_share:.0f} % of it, each ending that far in "
+            f"{100 * top_far.min():.0f}-{100 * top_far.max():.0f} % of its runs.")
+    return lines
+
+
+def table6_summary(table: pd.DataFrame, scaling: pd.DataFrame | None,
+                   run_frames: Sequence[pd.DataFrame] = ()) -> str:
     """Table 6 in plain words (Markdown): per screen scale, sharing level and noise level, the share of its start's
     error that SDM and the best peer remove and their CPU time ratio, beside the exact-match set's extent; the bars
-    per screen; the scaling against doing nothing and the best peer."""
+    per screen, with where the car level's mean comes from when ``run_frames`` (the per-unit records) are given
+    (:func:`tail_words`); the scaling against doing nothing and the best peer."""
     lines = ["## Table 6 in words", ""]
     for scale in _scales(table):
         lines += [f"### {_screen_words(scale).capitalize()}", ""]
@@ -265,7 +304,7 @@ def table6_summary(table: pd.DataFrame, scaling: pd.DataFrame | None) -> str:
                      "(the exact-match set's extent, a x b)" if not math.isnan(extent[0]) else "")
             lines.append(f"- **{UNIT[sharing].capitalize()}** ({hidden} hidden cars over the runs, left out{where}): "
                          + "; ".join(_removed_words(row) for row in compared) + ".")
-        lines += [""] + _bars(table, scale) + [""]
+        lines += [""] + _bars(table, scale) + tail_words(run_frames, scale) + [""]
     if scaling is not None and len(scaling):
         lines += _scaling_words(scaling)
     return "\n".join(lines).rstrip("\n") + "\n"

@@ -31,7 +31,7 @@ def best_methods(table3: pd.DataFrame, methods: Sequence[str]) -> pd.DataFrame:
     return rows.loc[rows.groupby("level")["mean_m"].idxmin()].set_index("level")
 
 
-def recommended_rule(table4: pd.DataFrame, rules: Sequence[str]) -> str | None:
+def recommended_schedule(table4: pd.DataFrame, rules: Sequence[str]) -> str | None:
     """The rule of Table 4 among ``rules`` that meets the bar "half the paper's mean" at the most levels, ties
     broken by the lower mean distance over its levels; None when no rule meets the bar at any level (keep the
     paper's)."""
@@ -122,13 +122,13 @@ def search_facts(rows: pd.DataFrame | None, table3: pd.DataFrame | None) -> dict
 
 
 def schedule_facts(table4: pd.DataFrame | None, rules: Sequence[str]) -> dict | None:
-    """The recommended rule of Table 4 (:func:`recommended_rule`): the levels where it meets the bar "half the
+    """The recommended schedule of Table 4 (:func:`recommended_schedule`): the levels where it meets the bar "half the
     paper's mean", its mean over the paper's rule's on the same draws, and against CMA-ES on the runs both have
     (the bar: within :data:`sdm.report.research.CMAES_FACTOR` of CMA-ES's mean). None without Table 4; ``name`` None
     when no rule meets the bar anywhere."""
     if table4 is None:
         return None
-    rule = recommended_rule(table4, rules)
+    rule = recommended_schedule(table4, rules)
     if rule is None:
         return {"name": None}
     rows = table4[table4["flow"] == rule].sort_values("level")
@@ -150,7 +150,7 @@ def schedule_facts(table4: pd.DataFrame | None, rules: Sequence[str]) -> dict | 
 def level_rows(table2: pd.DataFrame, search: pd.DataFrame | None, table4: pd.DataFrame | None,
                rule: str | None) -> list[dict]:
     """The verdict's table, one row per noise level of Table 2 (millimetres): the paper's mean, ours (the paper's
-    rule), the black-box search's and the recommended rule's (None where the run has none)."""
+    rule), the black-box search's and the recommended schedule's (None where the run has none)."""
     by_search = search.set_index("level") if search is not None else None
     by_rule = table4[table4["flow"] == rule].set_index("level") if rule else None
     out = []
