@@ -20,19 +20,19 @@ import torch
 
 from sdm.data import SkyFile
 from sdm.io import read_json
-from sdm.sky import rescaled_configuration, scaled_camera
+from sdm.representation import screen_pixels
+from sdm.sky import rescaled_configuration, scaled_camera, shift_vector
 
 UNITS = "docs/results/objects/table6_units.csv.gz"
 SKY, SPLIT = "results/sky/sky.bin", "results/split/split.json"
 SCALE, CONFIGURATIONS, METHOD, FAR_M = 12, 4, "sdm_schedule", 0.1
 
 
-def pixels(points: torch.Tensor, shift: tuple[float, float], camera, shape) -> set[tuple[int, int]]:
-    """The screen pixels ``(row, col)`` of ``points`` (``(K, 3)`` metres) moved by ``(a, b, 0)``; off-screen dropped."""
-    moved = points + torch.tensor([shift[0], shift[1], 0.0], dtype=points.dtype)
-    rc = torch.floor(camera.project(moved)).to(torch.int64)
-    inside = (rc[:, 0] >= 0) & (rc[:, 0] < shape[0]) & (rc[:, 1] >= 0) & (rc[:, 1] < shape[1])
-    return {tuple(p) for p in rc[inside].tolist()}
+def pixels(points: torch.Tensor, shift: tuple[float, float], camera) -> set[tuple[int, int]]:
+    """The screen pixels ``(row, col)`` of ``points`` (``(K, 3)`` metres) moved by ``(a, b, 0)``, as
+    :func:`sdm.sky.shifted_target` finds them; off-screen ones dropped."""
+    rc, on_screen = screen_pixels(camera.project(points + shift_vector(shift, points)), camera)
+    return {tuple(p) for p in rc[on_screen].tolist()}
 
 
 def on_others(own: set, others: set) -> float:
@@ -48,20 +48,19 @@ def main() -> int:
         configs, camera = [file[i] for i in chosen], file.camera
     configs = [rescaled_configuration(c, camera, SCALE, "pixels") for c in configs]
     camera = scaled_camera(camera, SCALE)
-    shape = tuple(configs[0].target.shape)
     points = [c.points(camera) for c in configs]
     for level, frame in rows.groupby("level"):
         records = []
         for (run, config), cars in frame.groupby(["run", "config"]):
             cfg, pts = configs[int(config)], points[int(config)]
             truth = {int(r.car): (r.a_true, r.b_true) for r in cars.itertuples()}
-            target = {int(k): pixels(pts[cfg.cars == k], truth[int(k)], camera, shape) for k in truth}
+            target = {int(k): pixels(pts[cfg.cars == k], truth[int(k)], camera) for k in truth}
             for r in cars.itertuples():
                 k = int(r.car)
                 others = set().union(*(target[j] for j in target if j != k))
                 own = pts[cfg.cars == k]
                 record = {"far": r.distance > FAR_M, "distance": r.distance,
-                          "final": on_others(pixels(own, (r.a, r.b), camera, shape), others),
+                          "final": on_others(pixels(own, (r.a, r.b), camera), others),
                           "truth": on_others(target[k], others)}
                 if record["far"]:
                     da, db = r.a - r.a_true, r.b - r.b_true
@@ -70,7 +69,7 @@ def main() -> int:
                         t = 2 * math.pi * i / 9
                         shift = (r.a_true + da * math.cos(t) - db * math.sin(t),
                                  r.b_true + da * math.sin(t) + db * math.cos(t))
-                        turned.append(on_others(pixels(own, shift, camera, shape), others) > 0.5)
+                        turned.append(on_others(pixels(own, shift, camera), others) > 0.5)
                     record["chance"] = sum(turned) / len(turned)
                 records.append(record)
         table = pd.DataFrame(records)
