@@ -40,6 +40,7 @@ floor = {"evaluations_per_unknown": 50, "restarts": 2}
 silhouette = {"lr": 0.1, "sigma": 0.5, "batch_size": 8, "steps": 27}
 screen = {"scale": 1, "disc": "pixels"}  # the screen scale (128 x 256 is 1) and the disc rule (sdm.sky)
 methods = ["sdm_paper", "sdm_schedule", "cmaes", "cmaes_car", "cmaes_reg", "silhouette", "floor"]  # sdm.objects.METHODS
+gate = 3.5  # the prior gate scored beside every method, prior standard deviations (sdm.gate.prior_gate)
 identifiability = {"reach": 0.6, "step": 0.01}  # the exact-match scan at scale 1, metres (divided by the scale)
 seed = 0  # noise.seed: run r at level n draws theta*, its noise and its seeds from (seed, n, r)
 s = 4
@@ -67,7 +68,8 @@ configs = [rescaled_configuration(config, camera, int(screen["scale"]), screen["
 camera = scaled_camera(camera, int(screen["scale"]))
 data = ConfigurationSet.from_configurations(configs, camera)
 n_cars = torch.tensor([int(config.centres.shape[0]) for config in configs], dtype=torch.int64)
-settings = settings_from_config(truth, warm, rows, schedule, cmaes, floor, silhouette, s, batch_size, lr_decay)
+settings = settings_from_config(truth, warm, rows, schedule, cmaes, floor, silhouette, s, batch_size, lr_decay,
+                                gate)
 print(f"{len(data)} configurations, {data.points.shape[0]} points, {int(n_cars.sum())} cars on screen")
 
 # %%

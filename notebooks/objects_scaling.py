@@ -32,6 +32,7 @@ cmaes = {"evaluations_per_unknown": 150}
 floor = {"evaluations_per_unknown": 50, "restarts": 2}
 silhouette = {"lr": 0.1, "sigma": 0.5, "batch_size": 8, "steps": 27}
 screen = {"scale": 1, "disc": "pixels"}  # the screen scale (128 x 256 is 1) and the disc rule (sdm.sky)
+gate = 3.5  # the prior gate scored beside every method, prior standard deviations (sdm.gate.prior_gate)
 identifiability = {"reach": 0.6, "step": 0.01}  # the exact-match scan at scale 1, metres (divided by the scale)
 seed = 0
 s = 4
@@ -55,7 +56,8 @@ data = set_with_cars(int(scaling["n_images"]), cars, int(scaling["seed"]),
                      n_images_name="research.objects.scaling.n_images", n_cars_name="research.objects.scaling.cars",
                      seed_name="research.objects.scaling.seed",
                      radius=disc_radius(int(screen["scale"]), screen["disc"]))
-settings = settings_from_config(truth, warm, rows, schedule, cmaes, floor, silhouette, s, batch_size, lr_decay)
+settings = settings_from_config(truth, warm, rows, schedule, cmaes, floor, silhouette, s, batch_size, lr_decay,
+                                gate)
 print(f"{len(data)} images with {cars} cars each, {data.points.shape[0]} points")
 
 # %%

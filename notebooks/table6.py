@@ -43,6 +43,7 @@ from IPython.display import Image, Markdown, display
 
 from sdm.io import write_bytes, write_json, write_text
 from sdm.report import objects as report
+from sdm.report import scaling as scaling_report
 from sdm.report.io import read_csv
 
 frames = [read_csv(path) for path in runs_files]
@@ -54,9 +55,9 @@ display(Markdown(Path(table6_md).read_text()))
 
 # %%
 scaling_frames = [read_csv(path) for path in scaling_files]
-scaling = report.scaling_table(scaling_frames) if scaling_frames else None
+scaling = scaling_report.scaling_table(scaling_frames) if scaling_frames else None
 write_bytes(table6_units, report.units_archive(frames, scaling_frames))
-summary = report.table6_summary(table, scaling, frames)
+summary = scaling_report.with_scaling(report.table6_summary(table, frames), scaling)
 write_text(table6_summary, summary)
 write_json(table6_verdict, report.verdict_facts(table))  # what the README's verdict says of Table 6, as data
 display(Markdown(summary))
@@ -65,5 +66,5 @@ display(Markdown(summary))
 report.plot_table6(table, figure)
 display(Image(figure))
 if scaling is not None:
-    report.plot_scaling(scaling, scaling_figure)
+    scaling_report.plot_scaling(scaling, scaling_figure)
     display(Image(scaling_figure))

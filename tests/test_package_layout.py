@@ -50,7 +50,7 @@ OPTIONAL_IMPORTS = {
     ("report/baselines.py", "baselines_figure", ".figures"),  # matplotlib, only where a figure is drawn
     ("report/network.py", "plot_curves", ".figures"),
     ("report/objects.py", "plot_table6", ".figures"),
-    ("report/objects.py", "plot_scaling", ".figures"),
+    ("report/scaling.py", "plot_scaling", ".figures"),
     ("report/research.py", "rules_figure", ".figures"),
     ("report/depth.py", "depth_figure", ".figures"),
 }

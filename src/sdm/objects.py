@@ -34,6 +34,12 @@ What the pixels identify (:data:`EXACT_SET`, where asked for): on a job's first 
 reproduce its noise-free target exactly (the others at theta*), its extent per axis and the mean distance of its
 points from theta*, the error of a method that lands anywhere in it.
 
+The prior gate (:func:`sdm.gate.prior_gate`), scored beside every method where a unit is one row (the configuration
+and car levels): each unit whose estimate ends farther from the method's start than :attr:`ObjectsSettings.gate`
+standard deviations of its prior (:func:`sdm.gate.prior_sd`) is returned to that start (record column ``gated``).
+No method's rule knows the prior; the gate is the check a practitioner who knows it adds to any of them, as the
+regularised search adds its penalty.
+
 The do-nothing references (:data:`REFERENCES`), scored on the same units: ``start``, the paper's rule's shared
 start that SDM's paper-rule rows, CMA-ES and the silhouette are given, and ``prior``, theta*'s mean (the centre
 of :class:`sdm.sharing.TruthDistribution`, a guess that looks at no pixel). Every record carries the distance of
@@ -60,6 +66,7 @@ from .baselines.silhouette import SilhouetteSettings
 from .batch import ConfigurationSet
 from .errors import SDMInputError
 from .experiments import noisy_targets, run_seed
+from .gate import prior_gate, prior_sd
 from .identifiability import exact_sets
 from .train import TrainSettings, parse_schedule, rates_per_point, refine_runs, train_runs
 
@@ -85,6 +92,7 @@ class ObjectsSettings:
         cmaes, floor, silhouette: the baselines' settings (``sdm.baselines``).
         truth: how theta* is drawn.
         car_sigma0: CMA-ES per car's initial step, metres (``cmaes.sigma0`` is the joint and regularised searches').
+        gate: the prior gate, in standard deviations of a row's prior (:func:`prior_gate`).
     """
 
     warm: TrainSettings
@@ -95,6 +103,7 @@ class ObjectsSettings:
     silhouette: object
     truth: S.TruthDistribution = S.TruthDistribution()
     car_sigma0: float = 0.3
+    gate: float = 3.5
 
 
 def _cpu() -> float:
@@ -197,7 +206,9 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
 
     Returns:
         A DataFrame with columns ``sharing, level, run, seed, method, config, car, unit, a, b, a_true, b_true,
-        distance, start, cpu_s, extent_a, extent_b`` (``car`` -1 for a configuration's unit; ``start`` the distance
+        distance, gated, start, cpu_s, extent_a, extent_b`` (``car`` -1 for a configuration's unit; ``gated`` the
+        distance after the prior gate (:func:`prior_gate`; NaN for the floor, the exact-match sets and at the
+        camera+car level, where a unit is two rows); ``start`` the distance
         of the method's start on the unit, the paper's shared start for the floor and the references; ``cpu_s`` the
         run's CPU seconds per configuration with units; ``extent_a``, ``extent_b`` metres, the exact-match set's
         extent per axis on :data:`EXACT_SET`'s records, NaN on the others), and per run a row of method ``"hidden"``
@@ -214,6 +225,9 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
     units = S.units(data, sharing.param_index, sharing.n_rows)
     unit_car = _unit_cars(sharing, units)
     owners = max(int((units.offsets[1:] > units.offsets[:-1]).sum()), 1)
+    # the gate's spread per unit, where a unit is one row (not a camera + residual total)
+    unit_sd = prior_sd(sharing, settings.truth)[units.rows[:, -1].cpu()] if units.rows.shape[1] == 1 else None
+    nan = float("nan")
     records = []
     for index, run in enumerate(tqdm(list(runs), desc=f"{level}, noise {noise}", unit="run", disable=not progress,
                                      leave=False)):
@@ -250,18 +264,20 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
         start_totals = S.unit_totals(_start_table(sharing, paper_start[0]), units)
         estimates["start"] = (start_totals, paper_start[1], start_totals)
         estimates["prior"] = (prior_totals(settings.truth, len(units)), 0.0, start_totals)
-        nan = float("nan")
         for method, (totals, seconds, given) in estimates.items():
             distance = (totals - true_totals).norm(dim=1)
-            # the floor is given theta* itself: its row reads against the start the others are given
+            # the floor is given theta* itself: its row reads against the start the others are given, ungated
             start_distance = ((start_totals if given is None else given) - true_totals).norm(dim=1)
+            gated = (torch.full_like(distance, nan) if unit_sd is None or given is None else
+                     (prior_gate(totals, given, unit_sd, settings.gate)[0] - true_totals).norm(dim=1))
             for u in range(len(units)):
                 records.append({"sharing": level, "level": noise, "run": run, "seed": own_seed, "method": method,
                                 "config": int(units.config[u]), "car": int(unit_car[u]), "unit": u,
                                 "a": float(totals[u, 0]), "b": float(totals[u, 1]),
                                 "a_true": float(true_totals[u, 0]), "b_true": float(true_totals[u, 1]),
-                                "distance": float(distance[u]), "start": float(start_distance[u]),
-                                "cpu_s": seconds / owners, "extent_a": nan, "extent_b": nan})
+                                "distance": float(distance[u]), "gated": float(gated[u]),
+                                "start": float(start_distance[u]), "cpu_s": seconds / owners, "extent_a": nan,
+                                "extent_b": nan})
         if scan is not None and index == 0:
             sets, seconds = exact_set_records(data, sharing, units, own_seed, settings.truth, scan)
             start_distance = (start_totals - true_totals).norm(dim=1)
@@ -270,18 +286,18 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
                                 "config": int(units.config[u]), "car": int(unit_car[u]), "unit": u,
                                 "a": nan, "b": nan, "a_true": float(true_totals[u, 0]),
                                 "b_true": float(true_totals[u, 1]), "distance": float(sets.distance[u]),
-                                "start": float(start_distance[u]), "cpu_s": seconds / owners,
+                                "gated": nan, "start": float(start_distance[u]), "cpu_s": seconds / owners,
                                 "extent_a": float(sets.extent[u, 0]), "extent_b": float(sets.extent[u, 1])})
         records.append({"sharing": level, "level": noise, "run": run, "seed": own_seed, "method": "hidden",
                         "config": -1, "car": -1, "unit": int(sharing.hidden.shape[0]), "a": 0.0, "b": 0.0,
-                        "a_true": 0.0, "b_true": 0.0, "distance": 0.0, "start": 0.0, "cpu_s": 0.0,
+                        "a_true": 0.0, "b_true": 0.0, "distance": 0.0, "gated": nan, "start": 0.0, "cpu_s": 0.0,
                         "extent_a": nan, "extent_b": nan})
     return pd.DataFrame.from_records(records, columns=RUN_COLUMNS)
 
 
 #: The columns of :func:`objects_runs`' records.
 RUN_COLUMNS = ["sharing", "level", "run", "seed", "method", "config", "car", "unit", "a", "b", "a_true", "b_true",
-               "distance", "start", "cpu_s", "extent_a", "extent_b"]
+               "distance", "gated", "start", "cpu_s", "extent_a", "extent_b"]
 
 
 def _missed_by_truth(data: ConfigurationSet, units: S.Units, truth: torch.Tensor) -> list[int]:
@@ -326,22 +342,26 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
                  progress: bool = False, scan: tuple[float, float] | None = None) -> pd.DataFrame:
     """Error against CPU time per configuration, one row per car, for SDM and CMA-ES at several budgets.
 
-    Images with exactly ``n_cars`` cars each (:func:`sdm.data.set_with_cars`), one row per car. SDM (the
-    paper's rule, :func:`sdm_rows`) runs with ``n_epoch`` in ``epochs`` for its rows; CMA-ES jointly (``cmaes``)
-    and per car (``cmaes_car``, block sweeps) with ``evaluations_per_unknown`` in ``budgets``, from SDM's shared
-    start. The do-nothing references
-    (:data:`REFERENCES`: the shared start both are given, theta*'s mean) are scored per run with budget 0; with
-    ``scan = (reach, step)`` metres, :data:`EXACT_SET` on the first run's cars (:func:`exact_set_records`).
+    Images with exactly ``n_cars`` cars each (:func:`sdm.data.set_with_cars`), one row per car. SDM's rows
+    (:func:`sdm_rows`: the paper's rule ``sdm_paper`` and the recommended schedule ``sdm_schedule``, each scored
+    against its own shared start) run with ``n_epoch`` in ``epochs``; CMA-ES jointly (``cmaes``) and per car
+    (``cmaes_car``, block sweeps) with ``evaluations_per_unknown`` in ``budgets``, from the paper's rule's shared
+    start. The do-nothing references (:data:`REFERENCES`: that shared start, theta*'s mean) are scored per run with
+    budget 0; with ``scan = (reach, step)`` metres, :data:`EXACT_SET` on the first run's cars
+    (:func:`exact_set_records`). Every method is also scored after the prior gate (:func:`prior_gate`, from its own
+    start).
 
     Returns:
         A DataFrame with columns ``cars, level, run, method, budget, mean, median, start, closer, cpu_s, extent_a,
-        extent_b`` (distances in metres over the run's cars; ``start`` the mean distance of the shared start over
-        the same cars, ``closer`` the share of cars that end closer than the start; ``cpu_s`` per configuration;
-        ``extent_a``, ``extent_b`` the median over the cars of the exact-match set's extent per axis, metres, on
-        :data:`EXACT_SET`'s record, NaN on the others).
+        extent_b, gated_mean, gated_closer`` (distances in metres over the run's cars; ``start`` the mean distance
+        of the method's start over the same cars, ``closer`` the share of cars that end closer than it; ``cpu_s``
+        per configuration; ``extent_a``, ``extent_b`` the median over the cars of the exact-match set's extent per
+        axis, metres, on :data:`EXACT_SET`'s record, NaN on the others; ``gated_mean``, ``gated_closer`` the same
+        after the prior gate, NaN on :data:`EXACT_SET`'s record).
     """
     sharing = S.sharing("car", data)
     units = S.units(data, sharing.param_index, sharing.n_rows)
+    sd = prior_sd(sharing, settings.truth)
     records = []
     for index, run in enumerate(tqdm(list(runs), desc=f"{n_cars} cars", unit="run", disable=not progress,
                                      leave=False)):
@@ -350,16 +370,17 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
         start_totals = S.unit_totals(_start_table(sharing, start), units)
         start_error = start_totals - true_totals
 
-        def record(method, budget, totals, seconds):
-            records.append(_scaling_record(n_cars, noise, run, method, budget, totals - true_totals, start_error,
-                                           seconds / len(data)))
+        def record(method, budget, totals, seconds, given=start_totals):
+            gated = prior_gate(totals, given, sd, settings.gate)[0]
+            records.append(_scaling_record(n_cars, noise, run, method, budget, totals - true_totals,
+                                           given - true_totals, seconds / len(data), gated - true_totals))
 
         record("start", 0, start_totals, shared_seconds)
         record("prior", 0, prior_totals(settings.truth, len(units)), 0.0)
         if scan is not None and index == 0:
             sets, seconds = exact_set_records(data, sharing, units, own_seed, settings.truth, scan)
             set_record = _scaling_record(n_cars, noise, run, EXACT_SET, 0, torch.zeros_like(start_error),
-                                         start_error, seconds / len(data))
+                                         start_error, seconds / len(data), None)
             set_record |= {"mean": float(sets.distance.mean()), "median": float(sets.distance.median()),
                            "closer": float((sets.distance < start_error.norm(dim=1)).to(torch.float64).mean()),
                            "extent_a": float(sets.extent[:, 0].median()),
@@ -370,6 +391,13 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
                 data, targets, sharing, own_seed, replace(settings, rows=replace(settings.rows, n_epoch=int(n_epoch))),
                 None, paper_start)
             record("sdm_paper", n_epoch, S.unit_totals(theta, units), seconds)
+        for n_epoch in epochs:
+            theta, shared, seconds, _ = sdm_rows(
+                data, targets, sharing, own_seed, replace(settings, rows=replace(settings.rows, n_epoch=int(n_epoch))),
+                settings.schedule)
+            # scored against the schedule's rule's own shared start
+            record("sdm_schedule", n_epoch, S.unit_totals(theta, units), seconds,
+                   S.unit_totals(_start_table(sharing, shared), units))
         for method in ("cmaes", "cmaes_car"):
             for budget in budgets:
                 began = _cpu()
@@ -381,15 +409,20 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
 
 #: The columns of :func:`scaling_runs`' records.
 SCALING_COLUMNS = ["cars", "level", "run", "method", "budget", "mean", "median", "start", "closer", "cpu_s",
-                   "extent_a", "extent_b"]
+                   "extent_a", "extent_b", "gated_mean", "gated_closer"]
 
 
-def _scaling_record(n_cars, noise, run, method, budget, error, start_error, cpu_s) -> dict:
+def _scaling_record(n_cars, noise, run, method, budget, error, start_error, cpu_s, gated_error) -> dict:
+    """One record of the scaling: ``error``, ``start_error`` and ``gated_error`` (``(U, 2)`` metres, the last after
+    the prior gate, or None) over the run's cars."""
     distance, start = error.norm(dim=1), start_error.norm(dim=1)
+    gated = gated_error.norm(dim=1) if gated_error is not None else None
     return {"cars": int(n_cars), "level": int(noise), "run": int(run), "method": method, "budget": int(budget),
             "mean": float(distance.mean()), "median": float(distance.median()), "start": float(start.mean()),
             "closer": float((distance < start).to(torch.float64).mean()), "cpu_s": float(cpu_s),
-            "extent_a": float("nan"), "extent_b": float("nan")}
+            "extent_a": float("nan"), "extent_b": float("nan"),
+            "gated_mean": float(gated.mean()) if gated is not None else float("nan"),
+            "gated_closer": float((gated < start).to(torch.float64).mean()) if gated is not None else float("nan")}
 
 
 def search_settings(warm: dict, rows: dict, schedule: str, cmaes: dict, s: int, batch_size: int,
@@ -412,17 +445,17 @@ def settings_from_sections(section: dict, train: dict) -> ObjectsSettings:
     """:func:`settings_from_config` from the config's whole ``research.objects`` section and its ``train`` section."""
     return settings_from_config(section["truth"], section["warm"], section["rows"], section["schedule"], section["cmaes"],
                                 section["floor"], section["silhouette"], train["s"], section["batch_size"],
-                                train["lr_decay"])
+                                train["lr_decay"], section["gate"])
 
 
 def settings_from_config(truth: dict, warm: dict, rows: dict, schedule: str, cmaes: dict, floor: dict,
-                         silhouette: dict, s: int, batch_size: int, lr_decay: float) -> ObjectsSettings:
+                         silhouette: dict, s: int, batch_size: int, lr_decay: float, gate: float) -> ObjectsSettings:
     """:class:`ObjectsSettings` from the config's ``research.objects`` values and the ``train`` section."""
     return replace(
         search_settings(warm, rows, schedule, cmaes, s, batch_size, lr_decay),
         floor=RowsFloorSettings(evaluations_per_unknown=int(floor["evaluations_per_unknown"]),
                                 restarts=int(floor["restarts"])),
-        silhouette=SilhouetteSettings(**silhouette),
+        silhouette=SilhouetteSettings(**silhouette), gate=float(gate),
         truth=S.TruthDistribution(camera_sd=float(truth["camera_sd"]), car_sd=float(truth["car_sd"]),
                                   residual_sd=float(truth["residual_sd"])),
     )

@@ -11,8 +11,8 @@ from sdm.baselines.rows import RowsCMAESSettings, RowsFloorSettings
 from sdm.baselines.silhouette import SilhouetteSettings
 from sdm.errors import SDMInputError
 from sdm.objects import EXACT_SET, METHODS, REFERENCES, ObjectsSettings, objects_runs, scaling_runs
-from sdm.report.objects import (read_units_archive, scaling_table, table6, table6_summary, tail_words, units_archive,
-                                verdict_facts)
+from sdm.report.objects import read_units_archive, table6, table6_summary, tail_words, units_archive, verdict_facts
+from sdm.report.scaling import scaling_table, scaling_words
 from sdm.train import TrainSettings
 
 from sdm.batch import ConfigurationSet
@@ -80,7 +80,7 @@ def test_table6_and_its_words(data):
     assert list(rows.index) == list(REFERENCES) + list(METHODS)
     own = frames[1][frames[1]["method"] == "cmaes"]["distance"]
     assert rows.loc["cmaes", "mean_m"] == pytest.approx(own.mean())
-    words = table6_summary(table, None)
+    words = table6_summary(table)
     assert "A configuration's shift" in words and "of its start's error" in words
     found = verdict_facts(table)
     assert [(row["sharing"], row["level"]) for row in found["rows"]] == [
@@ -100,13 +100,22 @@ def test_scaling_gives_one_point_per_budget(data):
 
     cars = set_with_cars(16, 2, seed=0)
     frame = scaling_runs(cars, 2, 0, [0], seed=1, settings=SETTINGS, epochs=[1, 2], budgets=[5])
-    assert sorted(zip(frame["method"], frame["budget"])) == [("cmaes", 5), ("cmaes_car", 5), ("prior", 0),
-                                                              ("sdm_paper", 1), ("sdm_paper", 2), ("start", 0)]
+    assert sorted(zip(frame["method"], frame["budget"])) == [
+        ("cmaes", 5), ("cmaes_car", 5), ("prior", 0), ("sdm_paper", 1), ("sdm_paper", 2), ("sdm_schedule", 1),
+        ("sdm_schedule", 2), ("start", 0)]
     fitted = frame[~frame["method"].isin(["prior"])]
     assert (fitted["cpu_s"] > 0).all()
     start = frame[frame["method"] == "start"].iloc[0]
-    assert (frame["start"] == start["mean"]).all() and start["closer"] == 0.0
-    assert "doing nothing" in table6_summary(table6([]), scaling_table([frame]))
+    paper_started = frame[frame["method"] != "sdm_schedule"]  # the schedule is scored against its own shared start
+    assert (paper_started["start"] == start["mean"]).all() and start["closer"] == 0.0
+    assert frame["gated_mean"].notna().all() and start["gated_mean"] == start["mean"]
+    kept = scaling_runs(cars, 2, 0, [0], seed=1, settings=replace(SETTINGS, gate=1e6), epochs=[1], budgets=[5])
+    assert (kept["gated_mean"] == kept["mean"]).all()  # no car travels 1e6 sd
+    returned = scaling_runs(cars, 2, 0, [0], seed=1, settings=replace(SETTINGS, gate=1e-9), epochs=[1], budgets=[5])
+    moved = returned[returned["mean"] != returned["start"]]  # a gate of 1e-9 sd returns every moved car
+    assert len(moved) and (moved["gated_mean"] - moved["start"]).abs().max() < 1e-12
+    assert (moved["gated_closer"] == 0.0).all()
+    assert "doing nothing" in "\n".join(scaling_words(scaling_table([frame])))
 
 
 def test_bad_level_and_method_are_named(data):
@@ -130,7 +139,7 @@ def test_exact_sets_are_scored_on_the_first_run_and_read_beside_the_distances(da
     assert row["extent_a_m"] == pytest.approx(sets["extent_a"].median())
     assert row["extent_b_m"] == pytest.approx(sets["extent_b"].median())
     assert table[table["method"] == EXACT_SET].iloc[0]["mean_m"] == pytest.approx(sets["distance"].mean())
-    assert "its pixels identify it to a median" in table6_summary(table, None)
+    assert "its pixels identify it to a median" in table6_summary(table)
 
 
 def test_the_floor_is_theta_star_where_theta_star_reproduces_the_target(data):
@@ -149,7 +158,7 @@ def test_two_screens_give_two_blocks_each_naming_its_scale(data):
     assert list(dict.fromkeys(table["scale"])) == [4, 1]  # the first screen first
     assert table.loc[table["sharing"] == "shared", "scale"].tolist() == [1]  # Table 2's runs: the Sky screen
     assert len(table[(table["scale"] == 4) & (table["method"] == "sdm_paper")]) == 1
-    words = table6_summary(table, None)
+    words = table6_summary(table)
     assert "scale 4 (512 x 1024)" in words and "scale 1 (128 x 256, the paper's)" in words
     assert words.index("scale 4") < words.index("scale 1 (")
     assert [row["scale"] for row in verdict_facts(table)["rows"]] == [4, 1]  # the first screen first
@@ -177,7 +186,7 @@ def test_scaling_reports_the_exact_sets_and_the_crossover():
     frame = scaling_runs(cars, 2, 0, [0, 1], seed=1, settings=SETTINGS, epochs=[1], budgets=[5], scan=(0.3, 0.02))
     sets = frame[frame["method"] == EXACT_SET]
     assert len(sets) == 1 and sets.iloc[0]["run"] == 0 and sets.iloc[0]["extent_a"] > 0
-    words = table6_summary(table6([]), scaling_table([frame.assign(scale=3)]))
+    words = "\n".join(scaling_words(scaling_table([frame.assign(scale=3)])))
     assert "scale 3" in words and "exact-match set" in words
     assert "crossover" in words or "closer to theta* than" in words
 
@@ -190,23 +199,84 @@ def test_scaling_reports_the_exact_sets_and_the_crossover():
      "at every K measured (2-8). The best peer ends farther than doing nothing at K = 8."),
 ])
 def test_the_crossover_in_words(rows, expected):
-    from sdm.report.objects import _crossover
+    from sdm.report.scaling import _crossover
 
     assert expected in _crossover(rows)
 
 
 def test_tail_words_say_which_cars_make_the_mean():
     """Two runs of one configuration with three cars: the far runs' share of the summed distance and the worst car's,
-    counted from the records; other methods, sharing levels and screens are left out."""
+    counted from the records; other methods, sharing levels and screens are left out. After the gate, the runs it
+    returned (those whose gated distance is not their distance) and their share."""
     def records(scale, method="sdm_schedule", sharing="car"):
+        distance = [0.5, 0.01, 0.02, 0.3, 0.01, 0.2]
         return pd.DataFrame({"scale": scale, "sharing": sharing, "level": 0, "run": [0, 0, 0, 1, 1, 1],
-                             "method": method, "config": 0, "car": [0, 1, 2, 0, 1, 2],
-                             "distance": [0.5, 0.01, 0.02, 0.3, 0.01, 0.2]})
+                             "method": method, "config": 0, "car": [0, 1, 2, 0, 1, 2], "distance": distance,
+                             "gated": [0.2, *distance[1:]]})  # run 0's car 0 returned to its start: 0.5 -> 0.2
     frames = [records(12), records(1, "cmaes"), records(12, "sdm_paper"), records(12, sharing="configuration"),
               records(1).assign(distance=9.0)]
     words = tail_words(frames, 12, worst=1)
-    assert words == ["- Car level, noise 0, where the mean comes from: 2 runs of the same 1 configurations (3 cars, "
-                     "each run with its own theta* and start); 50 % of the cars' runs end farther than 0.1 m from "
-                     "theta* and make 96 % of the summed distance; the 1 cars with the largest mean make 77 % of it, "
-                     "each ending that far in 100-100 % of its runs."]
+    assert words == ["- Car level, noise 0, the recommended schedule, where the mean comes from: 2 runs of the same 1 "
+                     "configurations (3 cars, each run with its own theta* and start); 50 % of the cars' runs end "
+                     "farther than 0.1 m from theta* and make 96 % of the summed distance; the 1 cars with the largest "
+                     "mean make 77 % of it, each ending that far in 100-100 % of its runs."]
     assert tail_words([], 12) == [] and tail_words(frames, 3) == []
+    words = tail_words(frames, 12, worst=1, gated=True)
+    assert words[0].startswith("- Car level, noise 0, the recommended schedule with the prior gate, where the mean")
+    assert words[0].endswith("; the gate returned 16.7 % of the cars' runs to their start, 27 % of the summed "
+                             "distance.")
+
+
+def test_the_prior_gate_returns_exactly_the_rows_beyond_it_to_their_start():
+    from sdm.gate import prior_gate
+
+    start = torch.tensor([[0.5, 0.3], [0.5, 0.3], [0.0, 0.0], [1.0, 1.0]], dtype=torch.float64)
+    # travels 0.29 (within 2 x 0.15), 0.4 (beyond), 0.09 (beyond 2 x 0.04) and 0.3 (not beyond: kept)
+    theta = start + torch.tensor([[0.29, 0.0], [0.0, -0.4], [0.09, 0.0], [0.18, 0.24]], dtype=torch.float64)
+    sd = torch.tensor([0.15, 0.15, 0.04, 0.15], dtype=torch.float64)
+    gated, returned = prior_gate(theta, start, sd, 2.0)
+    assert returned.tolist() == [False, True, True, False]
+    assert torch.equal(gated[returned], start[returned]) and torch.equal(gated[~returned], theta[~returned])
+    for bad in (0, -1.0, float("nan"), True):
+        with pytest.raises(SDMInputError, match="gate"):
+            prior_gate(theta, start, sd, bad)
+    with pytest.raises(SDMInputError, match="sd"):
+        prior_gate(theta, start, sd[:3], 2.0)
+
+
+def test_each_row_is_gated_with_the_spread_its_theta_star_is_drawn_with(data):
+    from sdm.gate import prior_sd
+    from sdm import sharing as S
+
+    truth = S.TruthDistribution(camera_sd=0.2, car_sd=0.15, residual_sd=0.05)
+    for level in ("configuration", "car", "camera+car"):
+        sharing = S.sharing(level, data)
+        sd = prior_sd(sharing, truth)
+        drawn = S.draw_truth(sharing, 5, truth) - torch.tensor(truth.centre, dtype=torch.float64)
+        is_car = sharing.rows[:, 1] != S.NO_INDEX
+        expected = {"configuration": torch.full_like(sd, 0.2), "car": torch.full_like(sd, 0.15),
+                    "camera+car": torch.where(is_car, 0.05, 0.2).to(torch.float64)}[level]
+        assert torch.equal(sd, expected)
+        if level == "camera+car":  # the residual rows are drawn around zero, not around the centre
+            drawn[is_car] += torch.tensor(truth.centre, dtype=torch.float64)
+        assert (drawn.abs() <= 6 * sd.unsqueeze(1)).all()  # the spread it names is the one drawn with
+
+
+def test_every_method_is_scored_after_the_gate_from_its_own_start(data):
+    """A gate no unit passes leaves every distance as it is; a gate of 1e-9 sd returns every unit that moved to its
+    method's start. The floor (given theta*) and the camera+car level (a unit is two rows) are not gated."""
+    methods = ["sdm_paper", "sdm_schedule", "cmaes_car", "floor"]
+    kept = objects_runs(data, "car", 0, [0], seed=3, settings=replace(SETTINGS, gate=1e6), methods=methods)
+    returned = objects_runs(data, "car", 0, [0], seed=3, settings=replace(SETTINGS, gate=1e-9), methods=methods)
+    scored = kept[~kept["method"].isin(["floor", "hidden"])]
+    assert (scored["gated"] == scored["distance"]).all()
+    moved = returned[~returned["method"].isin(["floor", "hidden"]) & (returned["distance"] != returned["start"])]
+    assert set(moved["method"]) >= {"sdm_paper", "sdm_schedule", "cmaes_car"}
+    assert (moved["gated"] - moved["start"]).abs().max() < 1e-12
+    assert returned.loc[returned["method"] == "floor", "gated"].isna().all()
+    pair = objects_runs(data, "camera+car", 0, [0], seed=3, settings=SETTINGS, methods=["sdm_paper"])
+    assert pair["gated"].isna().all()
+    table = table6([kept.assign(scale=1), returned.assign(scale=2)])
+    sdm = table[(table["method"] == "sdm_schedule")].set_index("scale")
+    assert sdm.loc[1, "gated_m"] == pytest.approx(sdm.loc[1, "mean_m"])
+    assert sdm.loc[2, "gated_of_start"] <= 1.0 and table.loc[table["method"] == "floor", "gated_m"].isna().all()

@@ -230,8 +230,12 @@ def test_the_words_follow_the_data_not_the_other_way():
                                                 "search_closer_at": []}
     text = verdict_text.render(verdict_text.verdict(snapshots))
     assert_readable(text)
-    assert "**Beats black-box search?** Yes" in text and "per car SDM, which removes as much error" in text
+    assert "**Beats black-box search?** Yes" in text and "per car SDM, which removes more error than the" in text
     assert "CMA-ES for one shift" not in text
+    rows = [row for row in snapshots["objects"]["facts"]["rows"] if row["peer"] is not None]
+    rows[0]["peer_removed"] = rows[0]["removed"] + 0.01  # the peer ahead at one level only: as much, not more
+    text = verdict_text.render(verdict_text.verdict(snapshots))
+    assert "per car SDM, which removes as much error as the" in text
 
 
 def test_the_readability_check_finds_a_long_or_a_second_sentence():

@@ -41,7 +41,7 @@ def objects_settings(scale):
             return lambda wildcards: objects_screen(scale(wildcards))[key]
         return objects_screen(scale)[key]
 
-    common = {key: OBJECTS.get(key) for key in ("truth", "warm", "schedule", "floor", "identifiability")}
+    common = {key: OBJECTS.get(key) for key in ("truth", "warm", "schedule", "floor", "identifiability", "gate")}
     screen = {
         "screen": (
             (lambda wildcards: {"scale": int(scale(wildcards)), "disc": of("disc")(wildcards)})

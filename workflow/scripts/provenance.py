@@ -131,7 +131,10 @@ PARTS = {
 #: The snapshots known to be stale, each with why (``tests/workflow/test_provenance.py`` checks that every listed one is stale
 #: and every other one fresh, and names the command that refreshes a snapshot: :attr:`Part.refresh`; take one off
 #: the list once it is taken again, then write the README's verdict again: ``make verdict``).
-KNOWN_STALE: dict[str, str] = {}
+KNOWN_STALE: dict[str, str] = {
+    "objects": "the prior gate scored beside every method; Table 6 runs again with it",
+    "network": "Table 7's evaluation imports sdm.objects, which the prior gate changed",
+}
 
 
 def sha256(path: Path) -> str:
@@ -162,17 +165,25 @@ def now() -> str:
     return datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
 
 
-def record(part: Part, folder: Path, stages: dict[str, str], root: Path = ROOT) -> dict:
+def record(part: Part, folder: Path, stages: dict[str, str], root: Path = ROOT, jobs: dict | None = None) -> dict:
     """The provenance of ``part`` as taken now into ``folder`` (its files already there): the commit, the date,
-    the config's digest, each stage's code fingerprint as the run recorded it and each file's SHA-256."""
+    the config's digest, each stage's code fingerprint as the run recorded it and each file's SHA-256; with ``jobs``
+    (``workflow/scripts/snapshot.py``'s ``job_times``), each job's stage, CPU and wall seconds, and the CPU seconds of
+    the jobs of each stage, summed."""
     commit, tree = git_commit(root)
+    timing = {}
+    if jobs is not None:
+        per_stage: dict[str, float] = {}
+        for job in jobs.values():
+            per_stage[job["stage"]] = per_stage.get(job["stage"], 0.0) + job["cpu_s"]
+        timing = {"jobs": jobs, "stage_cpu_s": {stage: round(cpu, 2) for stage, cpu in sorted(per_stage.items())}}
     return {
         "snapshot": part.name, "folder": (Path("docs/results") / part.folder).as_posix() + "/",
         "commit": commit, "tree": tree, "date": now(),
         "config": {"files": list(part.config), "sha256": config_digest(part.config, root)},
         "stages": dict(sorted(stages.items())),
         "files": {name: sha256(folder / name) for name in sorted(part.files)},
-        "run": part.run, "take": part.take,
+        "run": part.run, "take": part.take, **timing,
     }
 
 

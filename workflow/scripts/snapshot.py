@@ -77,6 +77,24 @@ def run_stages(results: Path) -> dict[str, set[str]]:
     return found
 
 
+def job_times(results: Path, stages) -> dict[str, dict]:
+    """Job -> its stage and the CPU and wall seconds Snakemake's ``benchmark:`` file measured (``cpu_time`` and ``s``
+    of the last line of ``results/benchmarks/<job>.tsv``), for every job of ``stages`` with an executed notebook in
+    ``results/notebooks/`` (its name is the job's) and a benchmark file; in job order."""
+    times = {}
+    for path in sorted((results / "notebooks").glob("*.ipynb")):
+        try:
+            stage = json.loads(path.read_text(encoding="utf-8")).get("metadata", {}).get(STAGE_METADATA)
+            header, *lines = (results / "benchmarks" / f"{path.stem}.tsv").read_text().splitlines()
+            measured = dict(zip(header.split("\t"), lines[-1].split("\t")))
+            cpu_s, wall_s = float(measured["cpu_time"]), float(measured["s"])
+        except (OSError, ValueError, KeyError, IndexError):
+            continue
+        if isinstance(stage, dict) and stage.get("name") in stages:
+            times[path.stem] = {"stage": stage["name"], "cpu_s": round(cpu_s, 2), "wall_s": round(wall_s, 2)}
+    return times
+
+
 def problems_of(part: provenance.Part, results: Path, code=fingerprint) -> list[str]:
     """Why the run in ``results`` cannot be taken as ``part``'s snapshot, one line each (none: it can)."""
     io, problems = library_io(), []
@@ -135,7 +153,8 @@ def take(name: str = "default", results: Path | None = None, snapshot: Path = SN
             (staging / target).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(results / source, staging / target)
         ran = run_stages(results)
-        provenance.write(staging, provenance.record(part, staging, {stage: min(ran[stage]) for stage in part.stages}))
+        provenance.write(staging, provenance.record(part, staging, {stage: min(ran[stage]) for stage in part.stages},
+                                                    jobs=job_times(results, part.stages)))
         verdict = assemble(snapshot, staged={name: staging})
         _swap_in(part, staging, folder)
         library_io().write_text(readme, with_verdict(text, verdict))

@@ -19,6 +19,7 @@ LINKS = {
     "cmaes": "docs/method/paper.md#against-other-losses-table-3",
     "schedule": "docs/method/floor.md#the-schedule-that-reaches-the-floor-closed_centred_r1-then-group_crossing-passes",
     "objects": "docs/method/objects.md#doing-nothing",
+    "gate": "docs/method/objects.md#the-prior-gate",
     "network": "docs/method/network.md",
     "data": "docs/data.md",
     "stale": "docs/results/README.md#provenance-and-stale-snapshots",
@@ -60,6 +61,7 @@ def _per_unit(objects: dict | None) -> dict | None:
         return None
     peered = [row for row in rows if row["peer"] is not None]
     return {"scale": scale, "screen": rows[0]["screen"], "levels": [row["level"] for row in rows],
+            "gated": all(row.get("gated") for row in rows),
             "removed": [row["removed"] for row in rows], "closer": [row["closer"] for row in rows],
             "peer": peered[0]["peer_label"] if peered else None, "peer_method": peered[0]["peer"] if peered else None,
             "peer_removed": [row["peer_removed"] for row in peered], "cpu_ratio": [row["cpu_ratio"] for row in peered]}
@@ -190,8 +192,9 @@ def _instead(answer: dict) -> str:
             parts.append(f"per car {who} still removes more error ({peer} against SDM's {own}) but takes "
                          f"{_span(unit['cpu_ratio'], 0)} SDM's CPU time")
         else:
-            parts.append(f"per car SDM, which removes as much error at 1/{min(unit['cpu_ratio']):.0f} of "
-                         f"{unit['peer']}'s CPU time")
+            more = all(own > peer for own, peer in zip(unit["removed"], unit["peer_removed"]))
+            parts.append(f"per car SDM, which removes {'more error than' if more else 'as much error as'} the "
+                         f"{unit['peer']} at 1/{min(unit['cpu_ratio']):.0f} of its CPU time")
     return "**Use instead, and when?** " + ("; ".join(parts) if parts else "SDM itself") + "."
 
 
@@ -199,7 +202,8 @@ def _good_for(answer: dict) -> str:
     unit, network = answer["per_unit"], answer["network"]
     parts = []
     if unit:
-        parts.append(f"per car ({unit['screen'][0]} x {unit['screen'][1]} screen) SDM removes "
+        gated = f"[gated]({LINKS['gate']}) " if unit.get("gated") else ""
+        parts.append(f"per car ({unit['screen'][0]} x {unit['screen'][1]} screen) {gated}SDM removes "
                      f"{_span([100 * v for v in unit['removed']], 0, ' %')} of [doing nothing]({LINKS['objects']})'s "
                      f"error")
     if network:

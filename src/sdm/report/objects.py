@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import gzip
 import io
+import itertools
 import math
 from pathlib import Path
 from typing import Sequence
@@ -28,6 +29,8 @@ LABELS = {
 }
 #: Table 6's rows per (scale, sharing, level): the do-nothing references first, what the pixels identify, the methods.
 ROWS = REFERENCES + (EXACT_SET,) + METHODS
+#: SDM's rows, each a row of the table; the summaries speak of the one with the lower mean.
+SDM_METHODS = ("sdm_paper", "sdm_schedule")
 #: The black-box peers SDM is compared with (the floor is a reference, not a peer).
 PEERS = ("cmaes", "cmaes_car", "cmaes_reg", "silhouette")
 #: The sharing levels in table order; "shared" is Table 2's runs.
@@ -38,12 +41,14 @@ UNIT = {"shared": "the shared shift", "configuration": "a configuration's shift"
 
 TABLE6_FORMAT = TableFormat(
     columns=("scale", "sharing", "level", "method", "units", "hidden", "mean", "median", "q3", "start", "of_start",
-             "closer", "extent_a", "extent_b", "cpu_ms"),
+             "closer", "gated", "gated_of_start", "extent_a", "extent_b", "cpu_ms"),
     headers={"scale": "screen scale", "sharing": "sharing", "level": "noise level", "method": "method",
              "units": "units scored", "hidden": "hidden cars", "mean": "mean", "median": "median", "q3": "Q3",
              "start": "its start's mean", "of_start": "x start", "closer": "closer than start",
+             "gated": "mean, gated", "gated_of_start": "x start, gated",
              "extent_a": "exact set a", "extent_b": "exact set b", "cpu_ms": "CPU ms / config"},
     formats={"mean": ".2f", "median": ".2f", "q3": ".2f", "start": ".2f", "of_start": ".2f", "closer": ".2f",
+             "gated": ".2f", "gated_of_start": ".2f",
              "extent_a": ".1f", "extent_b": ".1f", "cpu_ms": ".2f"},
     caption="Table 6: parameters attached to points, distance per unit to theta* (1e-3 m) and CPU time",
     label="tab:table6",
@@ -64,6 +69,9 @@ TABLE6_FORMAT = TableFormat(
         "the median over the units of the first run of each job of the extent per axis of the set of shifts that "
         "reproduce the unit's noise-free target exactly (1e-3 m): what its pixels identify. The row 'any point of "
         "the exact-match set' is the mean distance from theta* of a point of that set.",
+        "Gated: the method's estimates after the prior gate (docs/method/objects.md, 'The prior gate'): a unit that "
+        "ends farther from the method's start than research.objects.gate standard deviations of its prior is "
+        "returned to that start. Scored where a unit is one row (a configuration's or a car's shift).",
     ),
 )
 
@@ -100,10 +108,13 @@ def table6(run_frames: Sequence[pd.DataFrame], table2_distances: pd.DataFrame | 
             own = group[group["method"] == method]
             if len(own):
                 per_run = own.groupby("run")["cpu_s"].first()
+                gated = own["gated"].to_numpy(dtype=float) if "gated" in own.columns else None
                 rows.append(_row(int(scale), sharing, int(level), method, own["distance"].to_numpy(dtype=float),
-                                 hidden, 1000 * float(per_run.mean()), own["start"].to_numpy(dtype=float), extent))
+                                 hidden, 1000 * float(per_run.mean()), own["start"].to_numpy(dtype=float), extent,
+                                 gated))
     table = pd.DataFrame(rows, columns=["scale", "sharing", "level", "method", "units", "hidden", "mean_m", "median_m",
-                                        "q3_m", "start_m", "of_start", "closer", "extent_a_m", "extent_b_m", "cpu_ms"])
+                                        "q3_m", "start_m", "of_start", "closer", "gated_m", "gated_median_m",
+                                        "gated_of_start", "gated_closer", "extent_a_m", "extent_b_m", "cpu_ms"])
     order = {name: i for i, name in enumerate(SHARING_ORDER)}
     methods = {name: i for i, name in enumerate(ROWS)}
     screens = {scale: i for i, scale in enumerate(scales)}
@@ -114,10 +125,18 @@ def table6(run_frames: Sequence[pd.DataFrame], table2_distances: pd.DataFrame | 
 
 
 def _row(scale, sharing, level, method, distances: np.ndarray, hidden: int, cpu_ms: float,
-         start: np.ndarray | None = None, extent: tuple[float, float] = (math.nan, math.nan)) -> dict:
-    """One row; ``start``: the distances of the method's start on the same units (paired), or None (Table 2's)."""
+         start: np.ndarray | None = None, extent: tuple[float, float] = (math.nan, math.nan),
+         gated: np.ndarray | None = None) -> dict:
+    """One row; ``start``: the distances of the method's start on the same units (paired), or None (Table 2's);
+    ``gated``: the distances after the prior gate (NaN where it is not scored), or None."""
     paired = start is not None and start.size and float(start.mean()) > 0
-    return {"scale": scale, "sharing": sharing, "level": level, "method": method, "units": int(distances.size),
+    scored = paired and gated is not None and gated.size and not np.isnan(gated).any()
+    nan = math.nan
+    return {"gated_m": float(gated.mean()) if scored else nan,
+            "gated_median_m": float(np.median(gated)) if scored else nan,
+            "gated_of_start": float(gated.mean() / start.mean()) if scored else nan,
+            "gated_closer": float((gated < start).mean()) if scored else nan,
+            "scale": scale, "sharing": sharing, "level": level, "method": method, "units": int(distances.size),
             "hidden": hidden, "mean_m": float(distances.mean()), "median_m": float(np.median(distances)),
             "q3_m": float(np.quantile(distances, 0.75)),
             "start_m": float(start.mean()) if start is not None and start.size else math.nan,
@@ -157,33 +176,37 @@ def _of_scale(table: pd.DataFrame, scale: int, sharing: str) -> pd.DataFrame:
     return rows[rows["scale"] == scale] if "scale" in table.columns else rows
 
 
-def against_start(table: pd.DataFrame, sharing: str, scale: int = 1) -> list[dict]:
+def against_start(table: pd.DataFrame, sharing: str, scale: int = 1, gated: bool = False) -> list[dict]:
     """Per noise level of ``sharing`` on the screen of ``scale``, in terms of doing nothing: SDM's closer rule and the
     best peer (:data:`PEERS`, the lower mean), each with the share of its start's error it removes (``1 - x start``,
     paired on the same units) and the share of units it ends closer than its start, and the peer's CPU time over
-    SDM's. Needs the reference columns (``of_start``); levels without SDM are left out."""
+    SDM's. With ``gated``, every method's estimates after the prior gate (the ``gated_*`` columns; levels where the
+    gate is not scored are left out). Needs the reference columns (``of_start``); levels without SDM are left out."""
+    mean, of_start, closer = ("gated_m", "gated_of_start", "gated_closer") if gated else ("mean_m", "of_start",
+                                                                                        "closer")
     out = []
     for level, group in _of_scale(table, scale, sharing).groupby("level", sort=True):
         by = group.set_index("method")
-        rules = [m for m in ("sdm_paper", "sdm_schedule") if m in by.index]
+        if mean not in by.columns:
+            continue
+        rules = [m for m in SDM_METHODS if m in by.index and not math.isnan(by.loc[m, mean])]
         if not rules:
             continue
-        best = min(rules, key=lambda m: by.loc[m, "mean_m"])
-        peers = [m for m in PEERS if m in by.index]
-        peer = min(peers, key=lambda m: by.loc[m, "mean_m"]) if peers else None
-        row = {"level": int(level), "rule": best, "removed": 1 - float(by.loc[best, "of_start"]),
-               "closer": float(by.loc[best, "closer"]), "start_m": float(by.loc[best, "start_m"]),
+        best = min(rules, key=lambda m: by.loc[m, mean])
+        peers = [m for m in PEERS if m in by.index and not math.isnan(by.loc[m, mean])]
+        peer = min(peers, key=lambda m: by.loc[m, mean]) if peers else None
+        row = {"level": int(level), "rule": best, "gated": gated, "removed": 1 - float(by.loc[best, of_start]),
+               "closer": float(by.loc[best, closer]), "start_m": float(by.loc[best, "start_m"]),
                "prior_m": float(by.loc["prior", "mean_m"]) if "prior" in by.index else math.nan,
                "extent": (float(by.loc[best, "extent_a_m"]), float(by.loc[best, "extent_b_m"]))
                if "extent_a_m" in by.columns else (math.nan, math.nan),
                "peer": peer}
         if peer is not None:
-            row |= {"peer_removed": 1 - float(by.loc[peer, "of_start"]), "peer_closer": float(by.loc[peer, "closer"]),
+            row |= {"peer_removed": 1 - float(by.loc[peer, of_start]), "peer_closer": float(by.loc[peer, closer]),
                     "speed": float(by.loc[peer, "cpu_ms"] / by.loc[best, "cpu_ms"]),
-                    "ratio": float(by.loc[best, "mean_m"] / by.loc[peer, "mean_m"])}
+                    "ratio": float(by.loc[best, mean] / by.loc[peer, mean])}
         out.append(row)
     return out
-
 
 def _removed_words(row: dict) -> str:
     """One level in words: the share of the start's error SDM removes, the best peer's, the CPU ratio."""
@@ -196,54 +219,46 @@ def _removed_words(row: dict) -> str:
     return words
 
 
-def _screen_words(scale: int) -> str:
+def screen_words(scale: int) -> str:
     return f"on the screen of scale {scale} ({128 * scale} x {256 * scale}{', the paper' + chr(39) + 's' if scale == 1 else ''})"
 
 
 def verdict_facts(table: pd.DataFrame) -> dict:
     """Table 6 for the verdict, as data (``results/tables/table6_verdict.json``): per screen scale, sharing level and
     noise level, SDM's closer rule and the best peer against doing nothing (:func:`against_start`: the share of the
-    start's error each removes, the share of units SDM ends closer, the peer's CPU time over SDM's). The screens in
-    the table's order (the chosen one first); no rows for a table without the reference columns."""
+    start's error each removes, the share of units SDM ends closer, the peer's CPU time over SDM's), every method
+    with the prior gate where it is scored (``gated``), as it is otherwise. The screens in the table's order (the
+    chosen one first); no rows for a table without the reference columns."""
     rows = []
     if "of_start" in table.columns:
         for scale in _scales(table):
             for sharing in SHARING_ORDER[1:]:
-                for row in against_start(table, sharing, scale):
-                    peer = row["peer"]
+                compared = against_start(table, sharing, scale, gated=True) or against_start(table, sharing, scale)
+                for row in compared:
+                    peer, gate = row["peer"], " with the prior gate" if row["gated"] else ""
                     rows.append({"scale": int(scale), "screen": [128 * int(scale), 256 * int(scale)],
                                  "sharing": sharing, "level": row["level"], "rule": row["rule"],
+                                 "gated": row["gated"], "rule_label": LABELS[row["rule"]] + gate,
                                  "removed": row["removed"], "closer": row["closer"], "peer": peer,
-                                 "peer_label": LABELS[peer] if peer else None,
+                                 "peer_label": LABELS[peer] + gate if peer else None,
                                  "peer_removed": row.get("peer_removed"), "cpu_ratio": row.get("speed")})
     return {"scales": _scales(table), "rows": rows}
-
 
 def write_table6(frame: pd.DataFrame, stem: str | Path) -> list[Path]:
     """Table 6's CSV (metres), Markdown, LaTeX and HTML (1e-3 m)."""
     shown = frame.assign(mean=1e3 * frame["mean_m"], median=1e3 * frame["median_m"], q3=1e3 * frame["q3_m"],
-                         start=1e3 * frame["start_m"], method=frame["method"].map(LABELS))
+                         start=1e3 * frame["start_m"], method=frame["method"].map(LABELS),
+                         gated=1e3 * frame["gated_m"])
     if "extent_a_m" in frame.columns:
         shown = shown.assign(extent_a=1e3 * frame["extent_a_m"], extent_b=1e3 * frame["extent_b_m"])
     return write_table(frame, stem, TABLE6_FORMAT, shown)
 
 
-def scaling_table(frames: Sequence[pd.DataFrame]) -> pd.DataFrame:
-    """Per (scale, cars, method, budget): the mean over runs of the run's mean and median distance, its start's mean
-    distance on the same cars, the share of cars ending closer than the start, CPU s per config, and the exact-match
-    set's median extent per axis (its record only). A frame without ``scale`` is of scale 1."""
-    frame = pd.concat(frames, ignore_index=True)
-    if "scale" not in frame.columns:
-        frame = frame.assign(scale=1)
-    columns = [c for c in ("mean", "median", "start", "closer", "cpu_s", "extent_a", "extent_b") if c in frame.columns]
-    return frame.groupby(["scale", "cars", "method", "budget"], sort=True)[columns].mean().reset_index()
-
-
-def _bar(met: bool) -> str:
+def bar_word(met: bool) -> str:
     return "met" if met else "missed"
 
 
-def _mm(value: float) -> str:
+def in_mm(value: float) -> str:
     return f"{1e3 * value:.1f}e-3 m"
 
 
@@ -252,47 +267,56 @@ FAR_M = 0.1
 
 
 def tail_words(run_frames: Sequence[pd.DataFrame], scale: int, method: str = "sdm_schedule",
-               worst: int = 3) -> list[str]:
+               worst: int = 3, gated: bool = False) -> list[str]:
     """Where the car level's mean distance of ``method`` comes from on the screen of ``scale``, per noise level:
     the runs' configurations and distinct cars (every run draws the same configurations, each with its own theta*
     and start), the share of the cars' runs that end farther than :data:`FAR_M` and their share of the summed
-    distance, and the share the ``worst`` cars (by their mean over the runs) make. ``run_frames``: the per-unit
-    records of :func:`sdm.objects.objects_runs` (a ``scale`` column, or scale 1 without one)."""
+    distance, and the share the ``worst`` cars (by their mean over the runs) make. With ``gated``, of its estimates
+    after the prior gate (record column ``gated``), with the share of the cars' runs the gate returned to their
+    start and theirs of the summed distance. ``run_frames``: the per-unit records of
+    :func:`sdm.objects.objects_runs` (a ``scale`` column, or scale 1 without one)."""
     frames = [frame for frame in run_frames if len(frame)]
     if not frames:
         return []
     units = pd.concat(frames, ignore_index=True)
     on_screen = units["scale"] == scale if "scale" in units.columns else pd.Series(scale == 1, index=units.index)
     rows = units[on_screen & (units["sharing"] == "car") & (units["method"] == method)]
+    column = "gated" if gated else "distance"
+    if column not in rows.columns:
+        return []
     lines = []
     for level, own in rows.groupby("level", sort=True):
-        total = float(own["distance"].sum())
+        total = float(own[column].sum())
         if not total > 0:
             continue
-        far = own["distance"] > FAR_M
-        cars = own.groupby(["config", "car"])["distance"]
+        far = own[column] > FAR_M
+        cars = own.groupby(["config", "car"])[column]
         top = cars.mean().nlargest(worst).index
         top_far = cars.apply(lambda d: (d > FAR_M).mean()).loc[top]
         top_share = float(cars.sum().loc[top].sum()) / total
-        lines.append(
-            f"- Car level, noise {int(level)}, where the mean comes from: {own['run'].nunique()} runs of the same "
-            f"{own['config'].nunique()} configurations ({cars.ngroups} cars, each run with its own theta* and start); "
-            f"{100 * far.mean():.0f} % of the cars' runs end farther than {FAR_M:g} m from theta* and make "
-            f"{100 * own.loc[far, 'distance'].sum() / total:.0f} % of the summed distance; the {len(top)} cars with "
-            f"the largest mean make {100 * top_share:.0f} % of it, each ending that far in "
-            f"{100 * top_far.min():.0f}-{100 * top_far.max():.0f} % of its runs.")
+        name = LABELS[method].removeprefix("SDM, ") + (" with the prior gate" if gated else "")
+        words = (
+            f"- Car level, noise {int(level)}, {name}, where the mean comes from: {own['run'].nunique()} runs of the "
+            f"same {own['config'].nunique()} configurations ({cars.ngroups} cars, each run with its own theta* and "
+            f"start); {100 * far.mean():.0f} % of the cars' runs end farther than {FAR_M:g} m from theta* and make "
+            f"{100 * own.loc[far, column].sum() / total:.0f} % of the summed distance; the {len(top)} cars with the "
+            f"largest mean make {100 * top_share:.0f} % of it, each ending that far in "
+            f"{100 * top_far.min():.0f}-{100 * top_far.max():.0f} % of its runs")
+        if gated:
+            returned = own["gated"] != own["distance"]
+            words += (f"; the gate returned {100 * returned.mean():.1f} % of the cars' runs to their start, "
+                      f"{100 * own.loc[returned, 'gated'].sum() / total:.0f} % of the summed distance")
+        lines.append(words + ".")
     return lines
 
-
-def table6_summary(table: pd.DataFrame, scaling: pd.DataFrame | None,
-                   run_frames: Sequence[pd.DataFrame] = ()) -> str:
+def table6_summary(table: pd.DataFrame, run_frames: Sequence[pd.DataFrame] = ()) -> str:
     """Table 6 in plain words (Markdown): per screen scale, sharing level and noise level, the share of its start's
     error that SDM and the best peer remove and their CPU time ratio, beside the exact-match set's extent; the bars
     per screen, with where the car level's mean comes from when ``run_frames`` (the per-unit records) are given
-    (:func:`tail_words`); the scaling against doing nothing and the best peer."""
+    (:func:`tail_words`). The scaling's words are :func:`sdm.report.scaling.scaling_words`."""
     lines = ["## Table 6 in words", ""]
     for scale in _scales(table):
-        lines += [f"### {_screen_words(scale).capitalize()}", ""]
+        lines += [f"### {screen_words(scale).capitalize()}", ""]
         for sharing in SHARING_ORDER[1:]:
             rows = _of_scale(table, scale, sharing)
             if not len(rows):
@@ -304,34 +328,44 @@ def table6_summary(table: pd.DataFrame, scaling: pd.DataFrame | None,
                      "(the exact-match set's extent, a x b)" if not math.isnan(extent[0]) else "")
             lines.append(f"- **{UNIT[sharing].capitalize()}** ({hidden} hidden cars over the runs, left out{where}): "
                          + "; ".join(_removed_words(row) for row in compared) + ".")
-        lines += [""] + _bars(table, scale) + tail_words(run_frames, scale) + [""]
-    if scaling is not None and len(scaling):
-        lines += _scaling_words(scaling)
+            gated = against_start(table, sharing, scale, gated=True)
+            if gated:
+                lines.append("  With the prior gate on every method: " + "; ".join(_removed_words(row) for row in gated)
+                             + ".")
+        lines += [""] + _bars(table, scale) + [line for gated in (False, True)
+                                               for line in tail_words(run_frames, scale, gated=gated)] + [""]
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
 def _bars(table: pd.DataFrame, scale: int) -> list[str]:
-    """The bars of one screen: the car level's schedule noise-free and at level 2, every method closer than its start
-    noise-free, the floor, SDM against the best peer at the car level."""
+    """The bars of one screen: the car level's schedule noise-free and at level 2 (as it is and with the prior gate),
+    every method closer than its start noise-free, the floor, SDM against the best peer at the car level (as they
+    are and every method with the prior gate)."""
     own = table[table["scale"] == scale] if "scale" in table.columns else table
     lines = []
     car = own[own["sharing"] == "car"].set_index(["level", "method"])
-    for level, bar in ((0, 0.2), (2, 0.5)):
-        if (level, "sdm_schedule") in car.index:
-            row = car.loc[(level, "sdm_schedule")]
-            moon = f"; moonshot at most 0.1x: {_bar(row['of_start'] <= 0.1)}" if level == 0 else ""
-            start_median = (f" against the shared start's {1e3 * car.loc[(level, 'start'), 'median_m']:.1f}e-3 m"
-                            if (level, "start") in car.index else "")
-            lines.append(f"- Car level, noise {level}: the recommended schedule ends at {row['of_start']:.2f}x its "
-                         f"start's mean distance ({1e3 * row['mean_m']:.1f} against {1e3 * row['start_m']:.1f}e-3 m); "
-                         f"at most {bar}x: {_bar(row['of_start'] <= bar)}{moon}. Its median is "
-                         f"{1e3 * row['median_m']:.1f}e-3 m{start_median}; {100 * (1 - row['closer']):.0f} % of the "
-                         "cars end no closer than their start.")
+    for (level, bar), gated in itertools.product(((0, 0.2), (2, 0.5)), (False, True)):
+        if (level, "sdm_schedule") not in car.index:
+            continue
+        row = car.loc[(level, "sdm_schedule")]
+        start = car.loc[(level, "start")] if (level, "start") in car.index else None
+        mean, median, of_start, closer = (row[f"{'gated_' if gated else ''}{key}"]
+                                          for key in ("m" if gated else "mean_m", "median_m", "of_start", "closer"))
+        if math.isnan(of_start):
+            continue
+        moon = f"; moonshot at most 0.1x: {bar_word(of_start <= 0.1)}" if level == 0 else ""
+        start_median = f" against the shared start's {1e3 * start['median_m']:.1f}e-3 m" if start is not None else ""
+        name = "the recommended schedule" + (" with the prior gate" if gated else "")
+        lines.append(f"- Car level, noise {level}: {name} ends at {of_start:.2f}x its start's mean distance "
+                     f"({1e3 * mean:.1f} against {1e3 * row['start_m']:.1f}e-3 m); at most {bar}x: "
+                     f"{bar_word(of_start <= bar)}{moon}. Its median is {1e3 * median:.1f}e-3 m{start_median}; "
+                     f"{100 * (1 - closer):.0f} % of the cars end no closer than their start.")
     floors = own[(own["method"] == "floor") & (own["level"] == 0)]
     if len(floors):
         worst = floors.loc[floors["of_start"].idxmax()]
         lines.append(f"- The floor without noise: at most {worst['of_start']:.3f}x the start's error over the "
-                     f"sharing levels (worst: {worst['sharing']}); at most 0.05x: {_bar(worst['of_start'] <= 0.05)}.")
+                     f"sharing levels (worst: {worst['sharing']}); at most 0.05x: "
+                     f"{bar_word(worst['of_start'] <= 0.05)}.")
     noise_free = own[(own["level"] == 0) & own["method"].isin(METHODS)]
     if len(noise_free):
         worse = noise_free[noise_free["of_start"] > 1]
@@ -339,90 +373,20 @@ def _bars(table: pd.DataFrame, scale: int) -> list[str]:
                      "- Without noise, these end farther than their start on average: " + "; ".join(
                          f"{LABELS[r['method']]} ({r['sharing']}, {r['of_start']:.2f}x)" for _, r in worse.iterrows())
                      + ".")
-    for row in against_start(table, "car", scale):
-        if row["peer"] is None:
-            continue
-        if row["peer_removed"] < 0:
-            lines.append(f"- Car level, noise {row['level']}: the best peer ({LABELS[row['peer']]}) ends farther than "
-                         "its start: no ratio to it is a comparison.")
-            continue
-        within, cheap = row["ratio"] <= 1.5, row["speed"] >= 10
-        lines.append(f"- Car level, noise {row['level']}: SDM's mean is {row['ratio']:.2f}x the best peer's "
-                     f"({LABELS[row['peer']]}) at 1/{row['speed']:.0f} of its CPU time; within 1.5x at no more than "
-                     f"1/10 of its time: {_bar(within and cheap)}.")
-    return lines
-
-
-def _scaling_words(scaling: pd.DataFrame) -> list[str]:
-    """The scaling in words: per K, doing nothing, SDM's best and the best peer's best against the start, the
-    exact-match extent, the bar for K >= 8; then the crossover against the best peer."""
-    lines = []
-    for scale, on_screen in scaling.groupby("scale", sort=False):
-        lines += [f"### Scaling with the number of cars per image, {_screen_words(int(scale))}", "",
-                  "One shift per car, error against CPU time per configuration; x start: the mean over the shared "
-                  "start's mean on the same cars.", ""]
-        crossed = []
-        for cars, group in on_screen.groupby("cars", sort=True):
-            sdm = group[group["method"] == "sdm_paper"]
-            cma = group[group["method"].isin(["cmaes", "cmaes_car"])]  # the best peer: joint or per car
-            if not len(sdm) or not len(cma):
+    for gated in (False, True):
+        for row in against_start(table, "car", scale, gated):
+            if row["peer"] is None:
                 continue
-            best_sdm, best_cma = sdm.loc[sdm["mean"].idxmin()], cma.loc[cma["mean"].idxmin()]
-            peer = LABELS[best_cma["method"]]
-            start = float(best_sdm["start"])
-            prior = group.loc[group["method"] == "prior", "mean"]
-            sets = group[group["method"] == EXACT_SET]
-            line = (f"- K = {cars} ({2 * cars} unknowns): doing nothing {_mm(start)} (the shared start)"
-                    + (f", {_mm(float(prior.iloc[0]))} (theta*'s mean)" if len(prior) else "")
-                    + (f"; exact-match set {1e3 * float(sets['extent_a'].iloc[0]):.1f} x "
-                       f"{1e3 * float(sets['extent_b'].iloc[0]):.1f}e-3 m, any point of it "
-                       f"{float(sets['mean'].iloc[0]) / start:.2f}x start" if len(sets) else "")
-                    + f"; SDM's best {best_sdm['mean'] / start:.2f}x start at {1e3 * best_sdm['cpu_s']:.2f} ms, "
-                    f"the best peer's ({peer}, budget {int(best_cma['budget'])}) {best_cma['mean'] / start:.2f}x "
-                    f"start at {1e3 * best_cma['cpu_s']:.1f} ms per configuration.")
-            crossed.append((int(cars), float(best_sdm["mean"]), float(best_cma["mean"]), start, peer,
-                            float(best_cma["cpu_s"] / best_sdm["cpu_s"])))
-            if cars >= 8:
-                if best_cma["mean"] > start:
-                    line += " The best peer ends farther than doing nothing here: no ratio to it is a comparison."
-                else:
-                    within = best_sdm["mean"] <= 1.5 * best_cma["mean"]
-                    cheap = best_sdm["cpu_s"] <= best_cma["cpu_s"] / 10
-                    line += (f" Within 1.5x of the best peer's mean at no more than 1/10 of its time: "
-                             f"{_bar(within and cheap)} ({best_sdm['mean'] / best_cma['mean']:.2f}x its mean, "
-                             f"{best_cma['cpu_s'] / best_sdm['cpu_s']:.0f}x less time).")
-            lines.append(line)
-        if crossed:
-            lines += ["", "- " + _crossover(crossed)]
-        lines.append("")
+            which = "with the prior gate on every method, " if gated else ""
+            if row["peer_removed"] < 0:
+                lines.append(f"- Car level, noise {row['level']}, {which}the best peer ({LABELS[row['peer']]}) ends "
+                             "farther than its start: no ratio to it is a comparison.")
+                continue
+            within, cheap = row["ratio"] <= 1.5, row["speed"] >= 10
+            lines.append(f"- Car level, noise {row['level']}, {which}SDM's mean is {row['ratio']:.2f}x the best "
+                         f"peer's ({LABELS[row['peer']]}) at 1/{row['speed']:.0f} of its CPU time; within 1.5x at no "
+                         f"more than 1/10 of its time: {bar_word(within and cheap)}.")
     return lines
-
-
-def _crossover(crossed: list[tuple]) -> str:
-    """The crossover against the best peer in plain words, from ``(K, SDM's best, peer's best, start, peer, time
-    ratio)`` per K."""
-    closer = [k for k, sdm, peer, *_ in crossed if sdm < peer]
-    farther = [k for k, sdm, peer, *_ in crossed if sdm >= peer]
-    worse = [k for k, _, peer, start, *_ in crossed if peer > start]
-    ks = [k for k, *_ in crossed]
-    if not closer:
-        ratios = [sdm / peer for _, sdm, peer, *_ in crossed]
-        words = (f"No crossover: at every K measured ({ks[0]}-{ks[-1]}) the best peer ends closer to theta* than SDM's "
-                 f"best (SDM at {min(ratios):.2f}-{max(ratios):.2f}x its mean), at "
-                 f"{min(r for *_, r in crossed):.0f}-{max(r for *_, r in crossed):.0f}x SDM's CPU time.")
-    elif not farther:
-        words = f"SDM's best ends closer to theta* than the best peer's at every K measured ({ks[0]}-{ks[-1]})."
-    else:
-        first = min(closer)
-        behind = min(farther)
-        words = (f"SDM's best ends closer to theta* than the best peer's at K = {', '.join(map(str, closer))} and "
-                 f"farther at K = {', '.join(map(str, farther))}"
-                 + (f": it overtakes the best peer from K = {first} on." if all(k < first for k in farther) else
-                    f": the best peer overtakes it from K = {behind} on." if all(k < behind for k in closer) else "."))
-    if worse:
-        words += f" The best peer ends farther than doing nothing at K = {', '.join(map(str, worse))}."
-    return words
-
 
 def plot_table6(table: pd.DataFrame, path: str | Path) -> Path:
     """Mean distance per unit against the noise level, one panel per (screen scale, sharing level), one line per
@@ -452,38 +416,5 @@ def plot_table6(table: pd.DataFrame, path: str | Path) -> Path:
         for handle, label in zip(*ax.get_legend_handles_labels()):
             handles.setdefault(label, handle)
     fig.legend(list(handles.values()), list(handles), fontsize=7, loc="center left", bbox_to_anchor=(1.0, 0.5))
-    fig.tight_layout()
-    return save_figure(fig, path)
-
-
-def plot_scaling(scaling: pd.DataFrame, path: str | Path) -> Path:
-    """Mean distance per car against CPU seconds per configuration: one curve per K and method, doing nothing (the
-    shared start) as a dotted line per K; one panel per screen scale."""
-    from .figures import plt, save_figure
-
-    scaling = scaling if "scale" in scaling.columns else scaling.assign(scale=1)
-    scales = list(dict.fromkeys(int(v) for v in scaling["scale"]))
-    fig, axes = plt.subplots(1, len(scales), figsize=(6.5 * len(scales), 4.6), squeeze=False)
-    for ax, scale in zip(axes[0], scales):
-        own_scale = scaling[scaling["scale"] == scale]
-        cars = sorted(set(own_scale["cars"]))
-        colours = plt.cm.viridis(np.linspace(0, 0.9, max(len(cars), 1)))
-        for colour, k in zip(colours, cars):
-            for method, style, name in (("sdm_paper", "-o", "SDM"), ("cmaes", "--s", "CMA-ES"),
-                                        ("cmaes_car", "-.^", "CMA-ES per car")):
-                own = own_scale[(own_scale["cars"] == k) & (own_scale["method"] == method)].sort_values("cpu_s")
-                if len(own):
-                    ax.plot(own["cpu_s"], 1e3 * own["mean"], style, color=colour, markersize=4,
-                            label=f"K = {k}, {name}")
-            start = own_scale[(own_scale["cars"] == k) & (own_scale["method"] == "start")]
-            if len(start):
-                ax.axhline(1e3 * float(start["mean"].iloc[0]), color=colour, linestyle=":", linewidth=0.8)
-        ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_xlabel("CPU seconds per configuration")
-        ax.set_ylabel("mean distance per car (1e-3 m)")
-        ax.set_title(f"Scale {scale}, one shift per car: SDM (solid), CMA-ES (dashed, per car dash-dot),\n"
-                     "doing nothing: the shared start (dotted)", fontsize=9)
-        ax.legend(fontsize=6, ncol=2)
     fig.tight_layout()
     return save_figure(fig, path)
