@@ -250,3 +250,18 @@ def test_the_readability_check_finds_a_long_or_a_second_sentence():
         assert_readable(base[:table_end] + "\n- **Q?** One answer. And another one.\n")
     with pytest.raises(AssertionError):
         assert_readable(base[:table_end] + "\n- **Q?** It ends 0.061e-3 m away.\n")
+
+
+@pytest.mark.parametrize("words, expected", [
+    (["level"] * 5, "level with silhouette training at all 5 levels"),
+    (["farther", "level", "farther", "level", "level"], "loses to silhouette training at 2 of 5 levels"),
+    (["closer", "level", "level", "level", "level"], "beats silhouette training at 1 of 5 levels."),
+])
+def test_the_network_against_silhouette_training_in_words(words, expected):
+    """Ahead, level or behind the silhouette-trained network beyond the training runs' spread, level by level: the
+    answer names what the paired runs found, never 'beats at 0 levels'."""
+    snapshots = copy.deepcopy(_committed())
+    for row, word in zip(snapshots["network"]["facts"]["levels"], words):
+        row["paired"] = {"silhouette": word, "chamfer": "closer"}
+    text = verdict_text.render(verdict_text.verdict(snapshots))
+    assert expected in text and "at 0 of" not in text

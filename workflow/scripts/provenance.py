@@ -131,10 +131,7 @@ PARTS = {
 #: The snapshots known to be stale, each with why (``tests/workflow/test_provenance.py`` checks that every listed one is stale
 #: and every other one fresh, and names the command that refreshes a snapshot: :attr:`Part.refresh`; take one off
 #: the list once it is taken again, then write the README's verdict again: ``make verdict``).
-KNOWN_STALE: dict[str, str] = {
-    "objects": "the prior gate scored beside every method; Table 6 runs again with it",
-    "network": "Table 7's evaluation imports sdm.objects, which the prior gate changed",
-}
+KNOWN_STALE: dict[str, str] = {}
 
 
 def sha256(path: Path) -> str:

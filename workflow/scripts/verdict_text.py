@@ -211,10 +211,15 @@ def _good_for(answer: dict) -> str:
                    f"{_span(network['to_supervised'])} a labelled network's error")
         words = f"a label-free [SDM-trained network]({LINKS['network']}), {against}"
         if network.get("paired_levels"):  # paired by training seed: ahead or behind beyond the seeds' spread
-            words += (f", beats silhouette training at {network['ahead_of_silhouette']} of "
-                      f"{network['paired_levels']} levels")
-            if network["behind_silhouette"]:
-                words += f", loses at {network['behind_silhouette']}"
+            ahead, behind, levels = (network[key] for key in ("ahead_of_silhouette", "behind_silhouette",
+                                                              "paired_levels"))
+            if ahead:
+                words += f", beats silhouette training at {ahead} of {levels} levels"
+                words += f", loses at {behind}" if behind else ""
+            elif behind:
+                words += f", loses to silhouette training at {behind} of {levels} levels"
+            else:
+                words += f", level with silhouette training at all {levels} levels"
         parts.append(words)
     return "**Good for?** Many unknowns at once: " + "; ".join(parts) + "."
 
