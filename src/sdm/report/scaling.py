@@ -117,15 +117,15 @@ def _crossover(crossed: list[tuple]) -> str:
 
 
 def plot_scaling(scaling: pd.DataFrame, path: str | Path) -> Path:
-    """Mean distance per car against CPU seconds per configuration: one curve per K and method (each with the prior
-    gate where the records score it), doing nothing (the shared start) as a dotted line per K; one panel per screen
-    scale."""
+    """Mean distance per car against CPU seconds per configuration: one curve per K and method through its budgets in
+    increasing order (each with the prior gate where the records score it), doing nothing (the shared start) as a
+    dotted line per K; one panel per screen scale, its legend beside it."""
     from .figures import plt, save_figure
 
     scaling = scaling if "scale" in scaling.columns else scaling.assign(scale=1)
     scales = list(dict.fromkeys(int(v) for v in scaling["scale"]))
     gated = "gated_mean" in scaling.columns and bool(scaling["gated_mean"].notna().any())
-    fig, axes = plt.subplots(1, len(scales), figsize=(6.5 * len(scales), 4.6), squeeze=False)
+    fig, axes = plt.subplots(1, len(scales), figsize=(9.5 * len(scales), 4.6), squeeze=False)
     for ax, scale in zip(axes[0], scales):
         own_scale = scaling[scaling["scale"] == scale]
         cars = sorted(set(own_scale["cars"]))
@@ -135,7 +135,7 @@ def plot_scaling(scaling: pd.DataFrame, path: str | Path) -> Path:
                                         ("sdm_schedule", "-D", "SDM, the recommended schedule"),
                                         ("cmaes", "--s", "CMA-ES"),
                                         ("cmaes_car", "-.^", "CMA-ES per car")):
-                own = own_scale[(own_scale["cars"] == k) & (own_scale["method"] == method)].sort_values("cpu_s")
+                own = own_scale[(own_scale["cars"] == k) & (own_scale["method"] == method)].sort_values("budget")
                 if len(own):
                     ax.plot(own["cpu_s"], 1e3 * own["gated_mean" if gated else "mean"], style, color=colour,
                             markersize=4,
@@ -149,6 +149,6 @@ def plot_scaling(scaling: pd.DataFrame, path: str | Path) -> Path:
         ax.set_ylabel("mean distance per car (1e-3 m)")
         ax.set_title(f"Scale {scale}, one shift per car{', every method with the prior gate' if gated else ''}: SDM "
                      "(solid), CMA-ES (dashed),\ndoing nothing: the shared start (dotted)", fontsize=9)
-        ax.legend(fontsize=6, ncol=2)
+        ax.legend(fontsize=6, ncol=1, loc="center left", bbox_to_anchor=(1.0, 0.5))
     fig.tight_layout()
     return save_figure(fig, path)
