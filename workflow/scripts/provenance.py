@@ -131,9 +131,7 @@ PARTS = {
 #: The snapshots known to be stale, each with why (``tests/workflow/test_provenance.py`` checks that every listed one is stale
 #: and every other one fresh, and names the command that refreshes a snapshot: :attr:`Part.refresh`; take one off
 #: the list once it is taken again, then write the README's verdict again: ``make verdict``).
-KNOWN_STALE: dict[str, str] = {
-    "objects": "the scaling figure draws each curve in budget order, its legend beside it",
-}
+KNOWN_STALE: dict[str, str] = {}
 
 
 def sha256(path: Path) -> str:
