@@ -762,6 +762,7 @@ def _objects_cases() -> dict[str, tuple[dict, str | None]]:
         "batch_size": (4, "objects_runs"),
         "screens": ([{"scale": 1}, {"scale": 3, "sharings": ["car"], "levels": [0]}], "objects_runs"),
         "methods": (["sdm_paper", "floor"], "objects_runs"),
+        "gate": (2.5, "objects_runs"),
         "identifiability.reach": (0.3, "objects_runs"),
         "identifiability.step": (0.02, "objects_runs"),
         "truth.camera_sd": (0.1, "objects_runs"),
