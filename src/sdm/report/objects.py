@@ -208,6 +208,7 @@ def against_start(table: pd.DataFrame, sharing: str, scale: int = 1, gated: bool
         out.append(row)
     return out
 
+
 def _removed_words(row: dict) -> str:
     """One level in words: the share of the start's error SDM removes, the best peer's, the CPU ratio."""
     words = (f"level {row['level']}: {LABELS[row['rule']]} removes {100 * row['removed']:.0f} % of its start's "
@@ -243,6 +244,7 @@ def verdict_facts(table: pd.DataFrame) -> dict:
                                  "peer_label": LABELS[peer] + gate if peer else None,
                                  "peer_removed": row.get("peer_removed"), "cpu_ratio": row.get("speed")})
     return {"scales": _scales(table), "rows": rows}
+
 
 def write_table6(frame: pd.DataFrame, stem: str | Path) -> list[Path]:
     """Table 6's CSV (metres), Markdown, LaTeX and HTML (1e-3 m)."""

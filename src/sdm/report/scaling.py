@@ -138,8 +138,7 @@ def plot_scaling(scaling: pd.DataFrame, path: str | Path) -> Path:
                 own = own_scale[(own_scale["cars"] == k) & (own_scale["method"] == method)].sort_values("budget")
                 if len(own):
                     ax.plot(own["cpu_s"], 1e3 * own["gated_mean" if gated else "mean"], style, color=colour,
-                            markersize=4,
-                            label=f"K = {k}, {name}")
+                            markersize=4, label=f"K = {k}, {name}")
             start = own_scale[(own_scale["cars"] == k) & (own_scale["method"] == "start")]
             if len(start):
                 ax.axhline(1e3 * float(start["mean"].iloc[0]), color=colour, linestyle=":", linewidth=0.8)
