@@ -21,11 +21,12 @@ from sdm.train import TrainSettings
 
 def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera=None, method: str = "fast",
                     theta0=(0.0, 0.0), param_index=None, row_rate=None, levels=None, rates=None,
-                    crossing_widths=None) -> tuple[torch.Tensor, torch.Tensor]:
+                    crossing_widths=None, row_level=None) -> tuple[torch.Tensor, torch.Tensor]:
     """``(theta (steps + 1, n_params), loss (steps,))`` float64 CPU of one run (the set's own targets).
 
     ``param_index`` ``(P, G)`` (parameters attached to points): ``theta0`` is ``(K, 2)``, each point moved by the sum
-    of its rows in column order, and theta comes back ``(steps + 1, K, 2)``, every step.
+    of its rows in column order, and theta comes back ``(steps + 1, K, 2)``, every step. ``row_level`` ``(K,)``:
+    each row's first level; above it the row's step is skipped.
 
     ``levels``: the loss levels trained one after another (default ``s .. zoom``; a refinement's ``0, 0, ...``);
     ``rates``: the learning rate of each (default ``lr``, times ``lr_decay`` after each level); ``crossing_widths``:
@@ -85,7 +86,12 @@ def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera
                     )
                     out.loss.backward()
                     with torch.no_grad():
-                        if row_rate is not None:
+                        if row_level is not None:  # the rows whose first level is below this one stay
+                            rate_k = rate * (row_rate if row_rate is not None else torch.ones(len(row_level)))
+                            move = rate_k[:, None] * theta.grad
+                            move[torch.as_tensor(row_level) < level] = 0.0
+                            theta -= move
+                        elif row_rate is not None:
                             theta -= (rate * row_rate)[:, None] * theta.grad
                         else:
                             theta -= rate * theta.grad if not settings.fit_depth else rate * rate_scale * theta.grad

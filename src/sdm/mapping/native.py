@@ -214,7 +214,8 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
             caller (:func:`sdm.train.train_runs`): point ``i`` is moved by the sum of rows
             ``param_index[i, 0..G-1]`` of its run's ``(K, 2)`` theta, and each of those rows takes its flow.
             With ``group_crossing``, every rigid group's points must share their rows.
-        row_rate: ``None`` or ``(K,)`` float64, each row's factor on the level's rate (with ``param_index``).
+        row_rate: ``None`` or ``(L, K)`` float64, each row's factor on the rate of each of ``levels`` (with
+            ``param_index``; 0 leaves the row where it is at that level).
         record_every: theta is recorded before the first step and after every ``record_every``-th step (the
             total number of steps must be a multiple of it).
 
@@ -289,10 +290,10 @@ def check_program(points, pixels, rank, offsets, camera, steps, levels, n_epoch,
 
     The sizes: ``P`` points, ``N`` configurations (``offsets``: ``0``, non-decreasing, ``P`` last), ``R`` runs
     (``orders``, ``targets``, ``bases``, ``theta0``), ``L`` loss levels (``levels`` in ``0..steps``, ``rates``,
-    ``windows``, ``crossing_widths`` and each run's ``targets``), ``K`` rows of theta (``theta0``, ``row_rate``,
-    the entries of ``param_index``). Every shuffled configuration lies in ``0..N-1``; every target level is
-    ``(N, H >> level, W >> level)`` bool; the screen divides into blocks of ``2^steps``; the steps are a multiple of
-    ``record_every``.
+    ``windows``, ``crossing_widths``, each run's ``targets`` and ``row_rate``'s rows), ``K`` rows of theta
+    (``theta0``, ``row_rate``'s columns, the entries of ``param_index``). Every shuffled configuration lies in
+    ``0..N-1``; every target level is ``(N, H >> level, W >> level)`` bool; the screen divides into blocks of
+    ``2^steps``; the steps are a multiple of ``record_every``.
 
     Raises:
         SDMInputError: naming ``train_program`` and the argument.
@@ -343,7 +344,7 @@ def check_program(points, pixels, rank, offsets, camera, steps, levels, n_epoch,
     else:
         arrays.update(theta0=(theta0, torch.float64, ("R", "K", 2)), param_index=(param_index, int64, ("P", "G")))
         if row_rate is not None:
-            arrays["row_rate"] = (row_rate, torch.float64, ("K",))
+            arrays["row_rate"] = (row_rate, torch.float64, (n_levels, "K"))
     sizes = check_arrays(call, **arrays)
     n_configs = sizes["N"]
     if n_configs < 1 or int(offsets[0]) != 0 or int(offsets[-1]) != sizes["P"] or bool((offsets.diff() < 0).any()):

@@ -163,6 +163,25 @@ def checked_row_rate(row_rate, rows, device) -> torch.Tensor | None:
     return rate.to(dtype=torch.float64, device=device)
 
 
+def checked_row_level(row_level, rows, common: TrainSettings) -> torch.Tensor | None:
+    """``row_level`` checked against the checked ``rows`` and the schedule's levels ``common.s .. common.zoom``:
+    ``(K,)`` int64 on the CPU, or ``None``."""
+    if row_level is None:
+        return None
+    if rows is None:
+        raise SDMInputError("row_level needs param_index (it names each row's first level)")
+    n_rows = int(rows.max()) + 1
+    level = torch.as_tensor(row_level)
+    if level.shape != (n_rows,) or level.is_floating_point() or level.is_complex() or level.dtype == torch.bool:
+        raise SDMInputError(f"row_level must be {n_rows} integers (one per row of param_index), got {level.dtype} "
+                            f"{tuple(level.shape)}")
+    level = level.to("cpu", torch.int64)
+    if n_rows and not bool(((level >= common.zoom) & (level <= common.s)).all()):
+        raise SDMInputError(f"row_level must lie in the schedule's levels {common.zoom} .. {common.s}, got "
+                            f"{int(level.min())} .. {int(level.max())}")
+    return level
+
+
 def usable_device(device: torch.device | str) -> torch.device:
     """``device`` as a :class:`torch.device`; :class:`SDMInputError` naming it where this torch cannot use it."""
     try:

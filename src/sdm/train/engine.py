@@ -26,7 +26,7 @@ from ..mapping import native
 from ..mapping.crossing import rigid_groups
 from ..mapping.rules import RULES, KernelFlow
 from ..zoom import target_pyramid
-from .checks import check_divergence, checked_runs
+from .checks import check_divergence, checked_row_level, checked_runs
 from .settings import History, RunsHistory, TrainSettings
 from .torch_path import train_torch
 
@@ -83,6 +83,7 @@ def train_runs(
     progress: bool = False,
     param_index: torch.Tensor | None = None,
     row_rate: torch.Tensor | None = None,
+    row_level: torch.Tensor | None = None,
 ) -> RunsHistory:
     """``R`` independent training runs on the same points as one program: the one training engine.
 
@@ -163,6 +164,7 @@ def train_runs(
     runs = checked_runs(train_set, targets, settings, camera, device, theta0, method, param_index, row_rate)
     train_set, settings, common, rows, starts = runs.train_set, runs.settings, runs.common, runs.rows, runs.starts
     n_configs, batch_size = len(train_set), common.batch_size
+    first_levels = checked_row_level(row_level, rows, common)
 
     levels = list(range(common.s, common.zoom - 1, -1))
     rates, rate = [], common.lr
@@ -180,7 +182,8 @@ def train_runs(
     record_every = 1 if rows is None else n_configs // batch_size  # rows: after every epoch
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
         thetas, losses = train_steps(train_set, targets, runs.own_targets, settings, runs.camera, method, levels,
-                                        rates, orders, starts, bar, rows, record_every, runs.row_rate)
+                                        rates, orders, starts, bar, rows, record_every, runs.row_rate,
+                                        row_level=first_levels)
     theta_steps = torch.arange(0, total + 1, record_every, dtype=torch.int64, device="cpu")
     check_divergence(thetas.cpu(), theta_steps, step_rates, runs)
     return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings, theta_steps)
@@ -214,15 +217,16 @@ def kernel_targets(train_set: ConfigurationSet, target: torch.Tensor, own: bool,
 
 
 def train_steps(train_set, targets, own_targets, settings, camera, method, levels, rates, orders, starts, bar,
-                   rows=None, record_every=1, row_rate=None, widths=None):
+                   rows=None, record_every=1, row_rate=None, widths=None, row_level=None):
     """The steps of :func:`train_runs` at ``levels`` (``settings[0].n_epoch`` epochs each, rates ``rates``,
     shufflings ``orders``) from ``starts``, on the compiled path where it applies, else the torch path:
     ``(thetas (steps / record_every + 1, R, ...), losses (steps, R))`` on the set's device. ``rows``: ``None``
-    or the checked ``(P, G)`` param_index (:func:`check_param_index`), ``row_rate`` ``None`` or its rows' rates;
-    ``widths``: ``None`` or, per entry of ``levels``, ``group_crossing``'s kernel half-width there (metres;
-    :attr:`Refinement.widths`)."""
+    or the checked ``(P, G)`` param_index (:func:`check_param_index`), ``row_rate`` ``None`` or its rows' rates,
+    ``row_level`` ``None`` or its rows' first levels (checked, :func:`checked_row_level`); ``widths``: ``None``
+    or, per entry of ``levels``, ``group_crossing``'s kernel half-width there (metres; :attr:`Refinement.widths`)."""
     common = settings[0]
     device = train_set.device
+    row_rate = level_row_rates(levels, row_rate, row_level, rows)
     rule = RULES.resolve(common.flow)
     windows = rule.kernel_flows(levels)  # None: no compiled form
     if not (method == "fast" and not common.fit_depth and windows is not None and device.type == "cpu"
@@ -248,6 +252,22 @@ def train_steps(train_set, targets, own_targets, settings, camera, method, level
         raise SDMInputError(f"theta of run {run} became non-finite at step {step + 1} (lr {rate!r} too large?)")
     bar.update(losses.shape[0])
     return thetas, losses
+
+
+def level_row_rates(levels: list[int], row_rate: torch.Tensor | None, row_level: torch.Tensor | None,
+                    rows: torch.Tensor | None) -> torch.Tensor | None:
+    """``(L, K)`` float64 each row's factor on each entry of ``levels``' rate, on ``rows``' device: ``row_rate``
+    (``(K,)``, or ones) at every level, times 0 at the levels above the row's first level ``row_level`` (``(K,)``
+    int64 CPU). ``None`` where both are ``None``."""
+    if row_rate is None and row_level is None:
+        return None
+    n_rows = int(row_level.shape[0]) if row_level is not None else int(row_rate.shape[0])
+    base = row_rate if row_rate is not None else torch.ones(n_rows, dtype=torch.float64, device=rows.device)
+    per_level = base.unsqueeze(0).expand(len(levels), n_rows)
+    if row_level is None:
+        return per_level.contiguous()
+    trains = row_level.unsqueeze(0) >= torch.tensor(levels, dtype=torch.int64).unsqueeze(1)  # (L, K)
+    return per_level * trains.to(base.device, base.dtype)
 
 
 def check_rigid_rows(train_set: ConfigurationSet, rows: torch.Tensor) -> None:

@@ -66,7 +66,7 @@ def train_torch(train_set, pyramids, settings, camera, method, levels, rates, or
                     out.loss.backward()
                     with torch.no_grad():  # plain SGD, per run: theta_r <- theta_r - lr * grad_r
                         if row_rate is not None:  # each row at its own rate (as the kernel rounds it)
-                            theta -= (rate * row_rate)[:, None] * theta.grad
+                            theta -= (rate * row_rate[index_level])[:, None] * theta.grad
                         elif common.fit_depth:
                             theta -= rate * rate_scale * theta.grad
                         else:

@@ -26,7 +26,7 @@
  * Parameters attached to points: theta is K rows (a, b); point i is moved by the sum of its n_cols rows
  *          param_index[i * n_cols ..] (in column order, as torch sums them). param_index NULL: K = 1 and every
  *          point moves by row 0 (the paper's shared shift). A row's flow is the sum of its points' flows.
- *          row_rate (K,): each row's factor on the level's rate (NULL: 1 for every row).
+ *          row_rate (L, K): each row's factor on loss level li's rate (NULL: 1 for every row at every level).
  * theta0:  (R, K, 2) starts (a, b), metres
  * Outputs: thetas (total / record_every + 1, R, K, 2) theta before the first step and after every
  *          record_every-th step; losses (total, R); failed (R,) the step (0-based) at which run r's theta
@@ -231,8 +231,9 @@ static ALWAYS_INLINE void train_configuration(const train_call *call, train_spac
 
 /* theta = theta - rate * grad on the n_moved moved rows (each at its own rate where row_rate is given), their grad
  * and marks cleared; whether theta stayed finite. */
-static ALWAYS_INLINE int sgd_update(const train_call *call, train_space *space, double rate, int64_t n_moved) {
-    const double *row_rate = call->row_rate;
+static ALWAYS_INLINE int sgd_update(const train_call *call, train_space *space, double rate, int64_t li,
+                                    int64_t n_moved) {
+    const double *row_rate = call->row_rate ? call->row_rate + li * call->n_rows : NULL;
     const int64_t *moved_rows = space->moved_rows;
     double *theta = space->theta, *grad = space->grad;
     uint8_t *row_moved = space->row_moved;
@@ -263,7 +264,7 @@ static ALWAYS_INLINE int train_step(const train_call *call, train_space *space, 
     }
     for (int64_t j = 0; j < batch_size; ++j)
         train_configuration(call, space, setting, order, batch * batch_size + j, &loss, &n_moved, wide);
-    const int finite = sgd_update(call, space, setting->rate, n_moved);
+    const int finite = sgd_update(call, space, setting->rate, setting->li, n_moved);
     const int64_t n_runs = call->n_runs, record_every = call->record_every, run_size = 2 * call->n_rows;
     call->losses[step * n_runs + run] = loss.sum + loss.compensation;
     if ((step + 1) % record_every == 0 || !finite) {
