@@ -27,7 +27,7 @@
 sky = "results/sky/sky.bin"  # input
 split = "results/split/split.json"  # input
 runs_file = "results/research/objects/configuration_level0.csv"  # output: one row per (run, method, unit)
-sharing = "configuration"  # the sharing level (sdm.objects.SHARINGS)
+sharing = "configuration"  # the sharing level (sdm.sharing.ROW_LEVELS)
 level = 0  # the noise level
 runs = 2  # runs 0..runs-1
 configurations = 8  # the first configurations of the training split

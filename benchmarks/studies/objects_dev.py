@@ -30,6 +30,7 @@ import torch
 import yaml
 
 import sdm.objects as objects
+import sdm.sharing as S
 from sdm.batch import ConfigurationSet
 from sdm.data import SkyFile
 from sdm.experiments import single_thread
@@ -45,7 +46,7 @@ def main(argv=None) -> int:
     parser.add_argument("--config", default="config.yaml")
     parser.add_argument("--scale", type=int, default=1)
     parser.add_argument("--disc", default="pixels")
-    parser.add_argument("--sharing", default="car", choices=objects.SHARINGS)
+    parser.add_argument("--sharing", default="car", choices=S.ROW_LEVELS)
     parser.add_argument("--levels", type=int, nargs="+", default=[0, 2])
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--first", type=int, default=8)

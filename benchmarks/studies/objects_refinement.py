@@ -19,6 +19,7 @@ import torch
 import yaml
 
 import sdm.objects as objects
+import sdm.sharing as S
 from sdm.batch import ConfigurationSet
 from sdm.data import SkyFile
 from sdm.experiments import single_thread
@@ -42,7 +43,7 @@ def main(argv=None) -> int:
     parser.add_argument("sky")
     parser.add_argument("split")
     parser.add_argument("--config", default="config.yaml")
-    parser.add_argument("--sharing", default="configuration", choices=objects.SHARINGS)
+    parser.add_argument("--sharing", default="configuration", choices=S.ROW_LEVELS)
     args = parser.parse_args(argv)
     single_thread(1)
     config = yaml.safe_load(open(args.config))

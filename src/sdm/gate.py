@@ -9,9 +9,6 @@ from . import sharing as S
 from .batch import ConfigurationSet
 from .errors import SDMInputError
 
-#: The sharing levels whose rows have a prior spread here (as :data:`sdm.objects.SHARINGS`).
-GATED_LEVELS = ("configuration", "car", "camera+car")
-
 
 def prior_sd(sharing: S.Sharing, truth: S.TruthDistribution) -> torch.Tensor:
     """Each row's prior spread per axis (metres), as :func:`sdm.sharing.draw_truth` draws it: ``camera_sd`` for a
@@ -21,14 +18,14 @@ def prior_sd(sharing: S.Sharing, truth: S.TruthDistribution) -> torch.Tensor:
     Returns:
         ``(K,)`` float64 on the CPU.
     """
-    is_car = sharing.rows[:, 1].cpu() != S.NO_INDEX
     if sharing.level == "configuration":
         return torch.full((sharing.n_rows,), float(truth.camera_sd), dtype=torch.float64)
     if sharing.level == "car":
         return torch.full((sharing.n_rows,), float(truth.car_sd), dtype=torch.float64)
     if sharing.level == "camera+car":
+        is_car = sharing.rows[:, 1].cpu() != S.NO_INDEX
         return torch.where(is_car, float(truth.residual_sd), float(truth.camera_sd)).to(torch.float64)
-    raise SDMInputError(f"sharing level must be one of {', '.join(GATED_LEVELS)}, got {sharing.level!r}")
+    raise SDMInputError(f"sharing level must be one of {', '.join(S.ROW_LEVELS)}, got {sharing.level!r}")
 
 
 def prior_gate(theta: torch.Tensor, start: torch.Tensor, sd: torch.Tensor, gate: float

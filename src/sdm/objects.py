@@ -79,8 +79,6 @@ REFERENCES = ("start", "prior")
 EXACT_SET = "exact_set"
 #: Where SDM's rows start training (:attr:`ObjectsSettings.first_level`).
 FIRST_LEVELS = ("s", "prior")
-#: The sharing levels Table 6 runs (the shared level is Table 2's runs, quoted).
-SHARINGS = ("configuration", "car", "camera+car")
 
 
 @dataclass(frozen=True)
@@ -211,7 +209,8 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
 
     Args:
         data: the configurations (with their points' cars for the car levels).
-        level: one of :data:`SHARINGS`; noise: the noise level of the targets (Table 2's).
+        level: one of :data:`sdm.sharing.ROW_LEVELS` (the shared level is Table 2's runs, quoted).
+        noise: the noise level of the targets (Table 2's).
         n_cars: ``(N,)`` cars per configuration (on screen, hidden or not), to count the hidden ones.
         methods: a subset of :data:`METHODS`; the :data:`REFERENCES` are always scored.
         scan: ``(reach, step)`` metres: score :data:`EXACT_SET` on the first run's units (:func:`exact_set_records`);
@@ -229,8 +228,8 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
     """
 
 
-    if level not in SHARINGS:
-        raise SDMInputError(f"level must be one of {', '.join(SHARINGS)}, got {level!r}")
+    if level not in S.ROW_LEVELS:
+        raise SDMInputError(f"level must be one of {', '.join(S.ROW_LEVELS)}, got {level!r}")
     unknown = sorted(set(methods) - set(METHODS))
     if unknown:
         raise SDMInputError(f"methods must be of {', '.join(METHODS)}, got {unknown}")
@@ -399,18 +398,13 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
                            "extent_a": float(sets.extent[:, 0].median()),
                            "extent_b": float(sets.extent[:, 1].median())}
             records.append(set_record)
-        for n_epoch in epochs:
-            theta, _, seconds, _ = sdm_rows(
-                data, targets, sharing, own_seed, replace(settings, rows=replace(settings.rows, n_epoch=int(n_epoch))),
-                None, paper_start)
-            record("sdm_paper", n_epoch, S.unit_totals(theta, units), seconds)
-        for n_epoch in epochs:
-            theta, shared, seconds, _ = sdm_rows(
-                data, targets, sharing, own_seed, replace(settings, rows=replace(settings.rows, n_epoch=int(n_epoch))),
-                settings.schedule)
-            # scored against the schedule's rule's own shared start
-            record("sdm_schedule", n_epoch, S.unit_totals(theta, units), seconds,
-                   S.unit_totals(_start_table(sharing, shared), units))
+        # each scored against its rule's own shared start: the paper's is ``start``
+        for method, schedule, given in (("sdm_paper", None, paper_start), ("sdm_schedule", settings.schedule, None)):
+            for n_epoch in epochs:
+                epoched = replace(settings, rows=replace(settings.rows, n_epoch=int(n_epoch)))
+                theta, shared, seconds, _ = sdm_rows(data, targets, sharing, own_seed, epoched, schedule, given)
+                record(method, n_epoch, S.unit_totals(theta, units), seconds,
+                       S.unit_totals(_start_table(sharing, shared), units))
         for method in ("cmaes", "cmaes_car"):
             for budget in budgets:
                 began = _cpu()

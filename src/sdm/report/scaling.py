@@ -12,6 +12,11 @@ from ..objects import EXACT_SET
 from .objects import LABELS, SDM_METHODS, bar_word, in_mm, screen_words
 
 
+def is_gated(scaling: pd.DataFrame) -> bool:
+    """Whether ``scaling`` (:func:`sdm.objects.scaling_runs`' records) scores every method after the prior gate."""
+    return "gated_mean" in scaling.columns and bool(scaling["gated_mean"].notna().any())
+
+
 def scaling_table(frames: Sequence[pd.DataFrame]) -> pd.DataFrame:
     """Per (scale, cars, method, budget): the mean over runs of the run's mean and median distance, its start's mean
     distance on the same cars, the share of cars ending closer than the start, CPU s per config, and the exact-match
@@ -37,7 +42,7 @@ def scaling_words(scaling: pd.DataFrame) -> list[str]:
     and every method with the prior gate (where the records score it), the exact-match extent, the bar for K >= 8
     (with the gate where scored); then the crossover against the best peer."""
     lines = []
-    gated = "gated_mean" in scaling.columns and bool(scaling["gated_mean"].notna().any())
+    gated = is_gated(scaling)
     for scale, on_screen in scaling.groupby("scale", sort=False):
         lines += [f"### Scaling with the number of cars per image, {screen_words(int(scale))}", "",
                   "One shift per car, error against CPU time per configuration; x start: the mean over the mean of "
@@ -124,7 +129,7 @@ def plot_scaling(scaling: pd.DataFrame, path: str | Path) -> Path:
 
     scaling = scaling if "scale" in scaling.columns else scaling.assign(scale=1)
     scales = list(dict.fromkeys(int(v) for v in scaling["scale"]))
-    gated = "gated_mean" in scaling.columns and bool(scaling["gated_mean"].notna().any())
+    gated = is_gated(scaling)
     fig, axes = plt.subplots(1, len(scales), figsize=(9.5 * len(scales), 4.6), squeeze=False)
     for ax, scale in zip(axes[0], scales):
         own_scale = scaling[scaling["scale"] == scale]

@@ -27,12 +27,12 @@ Tensors live on the device of the set they describe; ``theta`` is float64 metres
 from __future__ import annotations
 
 from .index import NO_INDEX, check_param_index, check_theta, point_shifts
-from .levels import LEVELS, Sharing, camera_and_car, check_cars, per_car, per_configuration, shared, sharing
+from .levels import LEVELS, ROW_LEVELS, Sharing, camera_and_car, check_cars, per_car, per_configuration, shared, sharing
 from .truth import TruthDistribution, draw_truth, render_targets, shifted_set
 from .units import DistanceSummary, Units, row_distances, summarise_distances, theta_from_totals, unit_totals, units
 
 __all__ = [
-    "LEVELS", "NO_INDEX", "DistanceSummary", "Sharing", "TruthDistribution", "Units", "camera_and_car",
+    "LEVELS", "NO_INDEX", "ROW_LEVELS", "DistanceSummary", "Sharing", "TruthDistribution", "Units", "camera_and_car",
     "check_cars", "check_param_index", "check_theta", "draw_truth", "per_car", "per_configuration",
     "point_shifts", "render_targets", "row_distances", "shared", "shifted_set", "sharing",
     "summarise_distances", "theta_from_totals", "unit_totals", "units",

@@ -12,6 +12,8 @@ from .index import NO_INDEX
 
 #: The sharing levels, from one row for everything to a row per car plus the camera.
 LEVELS = ("shared", "configuration", "car", "camera+car")
+#: The levels with rows of their own per configuration or car (Table 6's): every level but the paper's shared one.
+ROW_LEVELS = LEVELS[1:]
 
 
 # -- the sharing levels -----------------------------------------------------------------------------
