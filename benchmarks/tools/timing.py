@@ -21,9 +21,7 @@ status. The clone is deleted afterwards unless ``--keep``. The standard library 
 from __future__ import annotations
 
 import argparse
-import csv
 import datetime
-import json
 import os
 import platform
 import re
@@ -37,13 +35,14 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT / "workflow" / "scripts"))
+from job_times import job_times, stage_times  # noqa: E402  (the reader the snapshots' provenance shares)
+
 OUTPUT = ROOT / "docs" / "results" / "timing.md"
 #: The commands timed, in the order they run (the first installs the clone's environment).
 COMMANDS = ("make run", "make bench", "make test")
 #: Seconds between two samples of the load average while a command runs.
 SAMPLE_SECONDS = 5.0
-#: The executed notebook's metadata key naming its stage (workflow/scripts/run_notebook.py: STAGE_METADATA).
-STAGE_METADATA = "sdm_stage"
 
 
 class LoadSampler:
@@ -82,40 +81,6 @@ def run_timed(command: str, cwd: Path, log: Path, every: float = SAMPLE_SECONDS)
     return {"command": command, "cpu": cpu_of_children() - cpu_before, "seconds": time.monotonic() - start,
             "load_mean": sum(load.samples) / len(load.samples), "load_max": max(load.samples),
             "status": status, "tail": log.read_text()[-4000:]}
-
-
-def job_stage(notebooks: Path, job: str) -> str:
-    """The stage of ``job``, as its executed notebook records it ("?" where it records none)."""
-    try:
-        metadata = json.loads((notebooks / f"{job}.ipynb").read_text()).get("metadata", {})
-    except (OSError, ValueError):
-        return "?"
-    return str((metadata.get(STAGE_METADATA) or {}).get("name", "?"))
-
-
-def job_times(benchmarks: Path, notebooks: Path | None = None) -> list[dict]:
-    """Per Snakemake benchmark file of ``benchmarks``: ``job``, ``stage`` (from ``notebooks``), ``cpu`` and ``wall``
-    seconds, the most CPU first."""
-    jobs = []
-    for path in sorted(benchmarks.glob("*.tsv")):
-        with path.open() as handle:
-            rows = list(csv.DictReader(handle, delimiter="\t"))
-        if rows:
-            cpu = rows[-1].get("cpu_time") or "nan"
-            jobs.append({"job": path.stem, "stage": job_stage(notebooks, path.stem) if notebooks else "?",
-                         "cpu": float(cpu) if cpu != "-" else float("nan"), "wall": float(rows[-1]["s"])})
-    return sorted(jobs, key=lambda job: (-(job["cpu"] if job["cpu"] == job["cpu"] else 0.0), job["job"]))
-
-
-def stage_times(jobs: list[dict]) -> list[dict]:
-    """Per stage: its jobs, their CPU and wall seconds summed, the most CPU first."""
-    stages: dict[str, dict] = {}
-    for job in jobs:
-        row = stages.setdefault(job["stage"], {"stage": job["stage"], "jobs": 0, "cpu": 0.0, "wall": 0.0})
-        row["jobs"] += 1
-        row["cpu"] += job["cpu"]
-        row["wall"] += job["wall"]
-    return sorted(stages.values(), key=lambda row: (-row["cpu"], row["stage"]))
 
 
 def minutes(seconds: float) -> str:

@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Callable
 
 import code_deps
+import job_times
 
 ROOT = code_deps.ROOT
 #: Where the snapshots live: the default run's in this folder itself, the others in a folder each.
@@ -180,10 +181,10 @@ def record(part: Part, folder: Path, stages: dict[str, str], root: Path = ROOT, 
     commit, tree = git_commit(root)
     timing = {}
     if jobs is not None:
-        per_stage: dict[str, float] = {}
-        for job in jobs.values():
-            per_stage[job["stage"]] = per_stage.get(job["stage"], 0.0) + job["cpu_s"]
-        timing = {"jobs": jobs, "stage_cpu_s": {stage: round(cpu, 2) for stage, cpu in sorted(per_stage.items())}}
+        per_stage = job_times.stage_times([{"stage": job["stage"], "cpu": job["cpu_s"], "wall": job["wall_s"]}
+                                           for job in jobs.values()])
+        timing = {"jobs": jobs, "stage_cpu_s": {row["stage"]: round(row["cpu"], 2)
+                                                for row in sorted(per_stage, key=lambda row: row["stage"])}}
     return {
         "snapshot": part.name, "folder": (Path("docs/results") / part.folder).as_posix() + "/",
         "commit": commit, "tree": tree, "date": now(),

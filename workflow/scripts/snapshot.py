@@ -40,6 +40,7 @@ import shutil
 import sys
 from pathlib import Path
 
+import job_times as jobs
 import provenance
 import verdict_text
 from code_deps import fingerprint, library_io  # sdm/io.py (the CSVs' checksums), loaded without importing sdm
@@ -78,21 +79,13 @@ def run_stages(results: Path) -> dict[str, set[str]]:
 
 
 def job_times(results: Path, stages) -> dict[str, dict]:
-    """Job -> its stage and the CPU and wall seconds Snakemake's ``benchmark:`` file measured (``cpu_time`` and ``s``
-    of the last line of ``results/benchmarks/<job>.tsv``), for every job of ``stages`` with an executed notebook in
-    ``results/notebooks/`` (its name is the job's) and a benchmark file; in job order."""
-    times = {}
-    for path in sorted((results / "notebooks").glob("*.ipynb")):
-        try:
-            stage = json.loads(path.read_text(encoding="utf-8")).get("metadata", {}).get(STAGE_METADATA)
-            header, *lines = (results / "benchmarks" / f"{path.stem}.tsv").read_text().splitlines()
-            measured = dict(zip(header.split("\t"), lines[-1].split("\t")))
-            cpu_s, wall_s = float(measured["cpu_time"]), float(measured["s"])
-        except (OSError, ValueError, KeyError, IndexError):
-            continue
-        if isinstance(stage, dict) and stage.get("name") in stages:
-            times[path.stem] = {"stage": stage["name"], "cpu_s": round(cpu_s, 2), "wall_s": round(wall_s, 2)}
-    return times
+    """Job -> its stage and the CPU and wall seconds Snakemake's ``benchmark:`` file measured
+    (:func:`job_times.job_times` on ``results/benchmarks/`` and ``results/notebooks/``), for every job of ``stages``
+    with a measured CPU time; in job order."""
+    measured = jobs.job_times(results / "benchmarks", results / "notebooks")
+    return {job["job"]: {"stage": job["stage"], "cpu_s": round(job["cpu"], 2), "wall_s": round(job["wall"], 2)}
+            for job in sorted(measured, key=lambda job: job["job"])
+            if job["stage"] in stages and job["cpu"] == job["cpu"]}
 
 
 def problems_of(part: provenance.Part, results: Path, code=fingerprint) -> list[str]:
