@@ -140,7 +140,6 @@ KNOWN_STALE: dict[str, str] = {
     "default": _ROW_LEVEL,
     "depth": _ROW_LEVEL,
     "network": _ROW_LEVEL,
-    "objects": _ROW_LEVEL,
     "sample": _ROW_LEVEL,
 }
 
