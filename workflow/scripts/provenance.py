@@ -139,7 +139,6 @@ _ROW_LEVEL = ("the trainer took a first level per row (row_level) after the take
 KNOWN_STALE: dict[str, str] = {
     "default": _ROW_LEVEL,
     "depth": _ROW_LEVEL,
-    "network": _ROW_LEVEL,
     "sample": _ROW_LEVEL,
 }
 
