@@ -137,7 +137,6 @@ _ROW_LEVEL = ("the trainer took a first level per row (row_level) after the take
 #: and every other one fresh, and names the command that refreshes a snapshot: :attr:`Part.refresh`; take one off
 #: the list once it is taken again, then write the README's verdict again: ``make verdict``).
 KNOWN_STALE: dict[str, str] = {
-    "default": _ROW_LEVEL,
     "depth": _ROW_LEVEL,
     "sample": _ROW_LEVEL,
 }
