@@ -138,7 +138,6 @@ _ROW_LEVEL = ("the trainer took a first level per row (row_level) after the take
 #: the list once it is taken again, then write the README's verdict again: ``make verdict``).
 KNOWN_STALE: dict[str, str] = {
     "depth": _ROW_LEVEL,
-    "sample": _ROW_LEVEL,
 }
 
 
