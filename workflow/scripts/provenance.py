@@ -129,16 +129,10 @@ PARTS = {
         words="the 57 real frames of data/apollocar3d-sample: Tables 1-4"),
 }
 
-#: Why the snapshots taken before the trainer's per-row first level are stale.
-_ROW_LEVEL = ("the trainer took a first level per row (row_level) after the take; without it a run is the same to "
-              "the bit (tests/train/test_param_index.py)")
-
 #: The snapshots known to be stale, each with why (``tests/workflow/test_provenance.py`` checks that every listed one is stale
 #: and every other one fresh, and names the command that refreshes a snapshot: :attr:`Part.refresh`; take one off
 #: the list once it is taken again, then write the README's verdict again: ``make verdict``).
-KNOWN_STALE: dict[str, str] = {
-    "depth": _ROW_LEVEL,
-}
+KNOWN_STALE: dict[str, str] = {}
 
 
 def sha256(path: Path) -> str:
