@@ -78,10 +78,12 @@ def _set(config: dict, path: str, value) -> dict:
     ("research.objects.methods", [], r"config key 'research\.objects\.methods': \[\] should be non-empty"),
     ("research.objects.identifiability.step", 0, r"config key 'research\.objects\.identifiability\.step': 0 is less "
                                                  r"than or equal to the minimum of 0"),
+    ("research.objects.rows.first_level", "zero", r"config key 'research\.objects\.rows\.first_level': 'zero' is "
+                                                  r"not one of \['s', 'prior'\]"),
 ], ids=["unknown-key", "unknown-rule", "schedule-for-a-rule", "sizes", "train-batch", "per-epoch-over-train",
         "per-epoch-under-batch", "per-epoch-negative", "no-runs", "refine-batch",
         "silhouette-batch", "screen-twice", "scaling-off-screen", "screen-without-scale", "screen-scale-0",
-        "screen-method", "screen-key", "no-methods", "scan-step"])
+        "screen-method", "screen-key", "no-methods", "scan-step", "first-level"])
 def test_a_bad_research_key_is_refused_naming_its_path(path, value, message):
     """On main each of these passed the checks before the run and failed (if at all) inside the stages."""
     config = _set(_config(), path, value)
@@ -95,7 +97,7 @@ def test_config_yaml_runs_table6_on_two_screens_the_scaling_on_the_first():
     screens = objects["screens"]
     assert [screen["scale"] for screen in screens] == [12, 1]
     assert objects["scaling"]["scale"] == 12
-    assert screens[0]["rows"] == {"lr": 2.5e-3, "n_epoch": 16, "s": 6}
+    assert screens[0]["rows"] == {"lr": 2.5e-3, "n_epoch": 16, "s": 6, "first_level": "prior"}
     assert screens[0]["cmaes"]["car_step"] == 0.1 and screens[0]["cmaes"]["step"] == 0.03
     assert 0 in objects["levels"] and 2 in objects["levels"] and objects["runs"] >= 20
 
