@@ -16,7 +16,7 @@
 # The paper poses the general shift (a, b, c) with depth and solves (a, b) only. Here the training set's
 # targets are rebuilt for its points moved by theta* = (a*, b*, c*), noise is drawn as Table 2's (the same
 # seeds), and (a, b, c) is trained from (0, 0, 0) with the depth flow (`TrainSettings(fit_depth=True)`;
-# docs/method/depth.md). `flow` is a rule or a schedule `RULE+REFINE:E` (`sdm.train.parse_schedule`):
+# docs/method/depth.md). `schedule` is a rule or a schedule `RULE+REFINE:E` (`sdm.train.parse_schedule`):
 # the schedule's refinement passes at zoom 0 move c too (`Refinement.moves_c`), where the paper's schedule holds c
 # below `TrainSettings.depth_zoom`. The stage `table5` gathers this stage's files.
 #
@@ -29,7 +29,7 @@ sky = "results/sky/sky.bin"  # input
 split = "results/split/split.json"  # input
 best = "results/tuning/best.json"  # input: the tuned settings (Table 1)
 runs_file = "results/research/depth/c1.0_level0.csv"  # output: one row per run
-flow = "closed_centred_r1"  # the gradient rule or schedule of the runs
+schedule = "closed_centred_r1"  # the gradient rule or schedule of the runs
 c = 1.0  # the true depth shift c*, metres
 depth_lr_scale = 20.0  # learning rate of c relative to the tuned lr
 level = 0  # the noise level
@@ -53,12 +53,12 @@ from sdm.train import parse_schedule
 
 single_thread(threads)
 train_set, camera, settings = tuned_training(sky, read_json(split), read_json(best), s, batch_size, lr_decay, seed)
-print(f"{len(train_set)} training configurations; n_epoch {settings.n_epoch}, lr {settings.lr:g}, rule {flow}")
+print(f"{len(train_set)} training configurations; n_epoch {settings.n_epoch}, lr {settings.lr:g}, rule {schedule}")
 
 # %%
 run_indices = list(range(runs))
-rule, refine = parse_schedule(flow)
-depth_settings = replace(settings, flow=rule, depth_lr_scale=depth_lr_scale)
+rule, refine = parse_schedule(schedule)
+depth_settings = replace(settings, rule=rule, depth_lr_scale=depth_lr_scale)
 try:
     results = depth_noise_runs(train_set, c, level, run_indices, depth_settings, shift=shift, camera=camera,
                                refine=refine)

@@ -42,8 +42,8 @@ from sdm.report.io import read_json, write_csv
 
 single_thread(threads)
 train_set, _, camera = load_split(sky, read_json(split))
-bias = pd.concat([rule_bias(train_set, flow, levels, seed, s=s, shift=shift, camera=camera).assign(flow=flow)
-                  for flow in ["paper", *names]], ignore_index=True)
-bias = bias[["flow", *bias.columns.drop("flow")]]
+bias = pd.concat([rule_bias(train_set, rule, levels, seed, s=s, shift=shift, camera=camera).assign(rule=rule)
+                  for rule in ["paper", *names]], ignore_index=True)
+bias = bias[["rule", *bias.columns.drop("rule")]]
 write_csv(table4_bias, bias)
 display(bias)

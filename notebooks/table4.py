@@ -54,14 +54,14 @@ from sdm.report.tables import to_markdown
 
 single_thread(threads)
 expected = {(name, level, run) for name in names for level in levels for run in range(runs)}
-rule_runs = gathered_runs(rule_files, ("flow", "level", "run"), expected, "Table 4")
+rule_runs = gathered_runs(rule_files, ("rule", "level", "run"), expected, "Table 4")
 # Beside the rules: CMA-ES (Table 3's runs) and the floor (each run's exact-mismatch minimiser), on their own
 # paired runs; every row is compared with CMA-ES on the runs both have (the bar "within 2x of CMA-ES":
 # at most 2x its mean).
 baseline_runs = pd.concat([read_csv(path) for path in baseline_run_files]) if baseline_run_files else None
 floor_runs = pd.concat([read_csv(path) for path in floor_files]) if floor_files else None
 references = reference_rows(baseline_runs, floor_runs)
-cmaes_runs = references[references["flow"] == CMAES_ROW]
+cmaes_runs = references[references["rule"] == CMAES_ROW]
 table4 = table4_frame(pd.concat([rule_runs[references.columns], references], ignore_index=True),
                       read_csv(table2_distances), cmaes_runs if len(cmaes_runs) else None)
 written = write_table4(table4, Path(table4_csv).with_suffix(""))

@@ -22,7 +22,7 @@
 depth_files = []  # input: the depth_runs files
 sky = "results/sky/sky.bin"  # input
 split = "results/split/split.json"  # input
-flow = "closed_centred_r1"  # the depth runs' rule or schedule
+schedule = "closed_centred_r1"  # the depth runs' rule or schedule
 s = 4  # coarsest zoom level (train.s)
 seed = 0  # noise seed (noise.seed): the measurement takes run 0's draw of each level
 shift = [0.517, 0.303]  # (a*, b*), metres
@@ -83,10 +83,10 @@ display(Markdown(summary_of_table5(table5)))
 
 # %%
 train_set, _, _ = load_split(sky, read_json(split))
-rule, refine = parse_schedule(flow)
-measured = [(rule, min(TrainSettings.depth_zoom, s))] + ([(refine.flow, 0)] if refine and refine.moves_c else [])
-bias = pd.concat([depth_bias(train_set, value, levels, seed, flow=name, s=s, zooms=[zoom], shift=shift)
-                  .assign(flow=name) for value in shifts_c for name, zoom in measured], ignore_index=True)
+rule, refine = parse_schedule(schedule)
+measured = [(rule, min(TrainSettings.depth_zoom, s))] + ([(refine.rule, 0)] if refine and refine.moves_c else [])
+bias = pd.concat([depth_bias(train_set, value, levels, seed, schedule=name, s=s, zooms=[zoom], shift=shift)
+                  .assign(rule=name) for value in shifts_c for name, zoom in measured], ignore_index=True)
 write_csv(table5_bias, bias)
 display(bias)
 answer = table5_bias_summary(table5, bias)

@@ -70,7 +70,7 @@ def test_batch_takes_integers_of_any_kind_and_repeats(data):
         ("seed", 1.5, "seed must be an integer"),  # was accepted
         ("depth_zoom", 1.0, "depth_zoom must be an integer"),
         ("fit_depth", 1, "fit_depth must be True or False"),  # was accepted
-        ("flow", ["paper"], "flow must be a rule"),
+        ("rule", ["paper"], "rule must be a rule"),
     ],
 )
 def test_train_settings_check_every_fields_type_naming_it(field, value, message):

@@ -62,7 +62,7 @@ def test_runs_with_rows_and_refinement_on_cuda_equal_cpu():
     from sdm.train import Refinement, TrainSettings, rates_per_point, refine_runs, train_runs
 
     data = configuration_set(64, seed=11)
-    settings = [replace(TrainSettings(lr=1e-4, n_epoch=1, s=4, flow="closed_centred_r1"), seed=seed)
+    settings = [replace(TrainSettings(lr=1e-4, n_epoch=1, s=4, rule="closed_centred_r1"), seed=seed)
                 for seed in (4, 9)]
     targets = [noisy_targets(data.targets, 2, 1), noisy_targets(data.targets, 1, 5)]
     refinement = Refinement("group_crossing", 3, pass_steps=4)
@@ -90,7 +90,7 @@ def test_every_rule_flows_alike_on_cuda_and_cpu():
             for device in ("cpu", "cuda"):
                 batch = data.to(device).batch(torch.arange(8, device=device))
                 theta = torch.tensor([0.11, 0.07], dtype=torch.float64, device=device, requires_grad=True)
-                layer = SpatialDomainMapping(s=2, zoom=zoom, flow=name)
+                layer = SpatialDomainMapping(s=2, zoom=zoom, rule=name)
                 out = layer(batch.points + torch.nn.functional.pad(theta, (0, 1)), batch.pixels, batch.targets,
                             batch.config, batch.rank)
                 out.loss.backward()

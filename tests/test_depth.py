@@ -85,7 +85,7 @@ def test_depth_runs_trained_together_follow_their_own_histories():
     data = ConfigurationSet.from_configurations(configurations(48, 6))
     targets = [add_target_noise(depth_targets(data, (0.517, 0.303, depth)), level, torch.Generator().manual_seed(seed))
                for depth, level, seed in ((1.0, 0, 1), (-0.5, 2, 2))]
-    settings = [TrainSettings(lr=1e-4, n_epoch=1, s=3, seed=seed, fit_depth=True, flow="closed") for seed in (5, 6)]
+    settings = [TrainSettings(lr=1e-4, n_epoch=1, s=3, seed=seed, fit_depth=True, rule="closed") for seed in (5, 6)]
     packed = train_runs(data, targets, settings)
     assert packed.theta.shape[1:] == (2, 3)
     for run, (run_targets, run_settings) in enumerate(zip(targets, settings)):

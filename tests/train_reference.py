@@ -30,19 +30,19 @@ def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera
 
     ``levels``: the loss levels trained one after another (default ``s .. zoom``; a refinement's ``0, 0, ...``);
     ``rates``: the learning rate of each (default ``lr``, times ``lr_decay`` after each level); ``crossing_widths``:
-    per entry of ``levels``, ``group_crossing``'s kernel half-width there (metres; ``settings.flow`` must be
+    per entry of ``levels``, ``group_crossing``'s kernel half-width there (metres; ``settings.rule`` must be
     ``"group_crossing"``): a refinement's passes'.
     """
     camera = camera or train_set.camera
     device = train_set.device
     levels = list(range(settings.s, settings.zoom - 1, -1)) if levels is None else list(levels)
     if crossing_widths is None:
-        rules = [settings.flow] * len(levels)
+        rules = [settings.rule] * len(levels)
     else:
-        assert settings.flow == "group_crossing" and len(crossing_widths) == len(levels)
+        assert settings.rule == "group_crossing" and len(crossing_widths) == len(levels)
         rules = [by_zoom(functools.partial(group_crossing_flow, width=width), dynamic_flow, CROSSING_FINEST_COARSE)
                  for width in crossing_widths]
-    layers = [SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method, flow=rule,
+    layers = [SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method, rule=rule,
                                    fit_depth=settings.fit_depth) for level, rule in zip(levels, rules)]
     n_configs = len(train_set)
     start = torch.as_tensor(theta0, dtype=torch.float64, device=device)

@@ -40,7 +40,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     train_set, _, _ = load_split(args.sky, json.load(open(args.split)))
-    settings = replace(settings_for(**TUNED), fit_depth=True, flow=args.flow)
+    settings = replace(settings_for(**TUNED), fit_depth=True, rule=args.flow)
     if args.depth_lr_scale is not None:
         settings = replace(settings, depth_lr_scale=args.depth_lr_scale)
     if args.depth_zoom is not None:

@@ -96,14 +96,14 @@ def main(argv=None) -> int:
                   file=sys.stderr)
         for level in levels:
             frame = noise_runs(train_set, level, range(args.first_run, args.first_run + args.runs),
-                               replace(settings, flow=base), camera=camera, refine=refine)
+                               replace(settings, rule=base), camera=camera, refine=refine)
             frame.insert(0, "rule", rule)
             rows.append(frame)
             table.append({"rule": rule, "level": level, "mean_mm": 1e3 * frame.distance.mean(),
                           "std_mm": 1e3 * frame.distance.std(), "runs": len(frame),
                           "bar_mm": 0.68 if level == 0 else 0.5e3 * PAPER_TABLE2.get(level, float("nan"))})
         if not args.no_flow:
-            flow = flow_at_true_shift(train_set, levels, seed=0, flow=refine.flow if refine else base)
+            flow = flow_at_true_shift(train_set, levels, seed=0, rule=refine.rule if refine else base)
             flow = flow[flow.zoom == 0].drop(columns="zoom")
             flow.insert(0, "rule", rule)
             flows.append(flow)

@@ -119,14 +119,14 @@ def _cpu() -> float:
 
 
 def shared_start(data: ConfigurationSet, targets: torch.Tensor, seed: int, settings: ObjectsSettings,
-                 flow: str = "paper") -> tuple[torch.Tensor, float]:
-    """SDM's shared start: the schedule ``settings.warm`` with rule ``flow`` on one shift for every point.
+                 rule: str = "paper") -> tuple[torch.Tensor, float]:
+    """SDM's shared start: the schedule ``settings.warm`` with rule ``rule`` on one shift for every point.
 
     Returns:
         ``(shared (2,), seconds)``: the shift (metres) and the CPU seconds it took.
     """
     began = _cpu()
-    shared = train_runs(data, [targets], [replace(settings.warm, flow=flow, seed=seed)]).theta[-1, 0]
+    shared = train_runs(data, [targets], [replace(settings.warm, rule=rule, seed=seed)]).theta[-1, 0]
     return shared, _cpu() - began
 
 
@@ -142,10 +142,10 @@ def sdm_rows(data: ConfigurationSet, targets: torch.Tensor, sharing: S.Sharing, 
         ``(theta (K, 2), shared (2,), seconds, shared_seconds)``: the rows' estimate, the shared start (metres),
         the CPU seconds of the whole fit and of its shared start.
     """
-    flow, refine = parse_schedule(schedule) if schedule else ("paper", None)
-    shared, shared_seconds = start if start is not None else shared_start(data, targets, seed, settings, flow)
+    rule, refine = parse_schedule(schedule) if schedule else ("paper", None)
+    shared, shared_seconds = start if start is not None else shared_start(data, targets, seed, settings, rule)
     began = _cpu()
-    rows = [replace(settings.rows, flow=flow, seed=seed)]
+    rows = [replace(settings.rows, rule=rule, seed=seed)]
     row_rate, row_level = rates_per_point(sharing.param_index), None
     if settings.first_level == "prior":  # each row at rows.lr at its own first level, halved per level below it
         row_level = prior_levels(data, sharing, prior_sd(sharing, settings.truth), settings.rows.s)

@@ -42,7 +42,7 @@ def test_the_weights_gradient_is_the_networks_vjp_of_the_layers_flow(sets, kind)
     through_autograd = [p.grad.clone() for p in net.parameters()]
 
     batch = train.data.batch(indices)
-    layer = SpatialDomainMapping(train.data.camera, s=TINY.s, zoom=level, flow=N.SDM_RULES[kind])
+    layer = SpatialDomainMapping(train.data.camera, s=TINY.s, zoom=level, rule=N.SDM_RULES[kind])
     points = batch.points + shift_vector(theta.detach().index_select(0, batch.config), batch.points)
     out = layer(points, batch.pixels, batch.targets, batch.config, batch.rank)
     flow = torch.zeros(len(indices), 2, dtype=torch.float64).index_add(0, batch.config, out.result.flow)
@@ -334,7 +334,7 @@ def test_every_method_is_scored_per_run_with_its_error_and_the_training_sets_mea
     train, dev = sets
     searches = search_settings({"lr": 1e-4, "n_epoch": 2}, {"lr": 5e-3, "n_epoch": 1, "s": 2},
                                "closed_centred_r1+group_crossing:1", {"evaluations_per_unknown": 6}, 2, 8, 0.5)
-    refine = N.refine_settings({"s": 1, "n_epoch": 1, "lr": 5e-3, "flow": "closed_centred_r1", "batch_size": 4}, 0)
+    refine = N.refine_settings({"s": 1, "n_epoch": 1, "lr": 5e-3, "rule": "closed_centred_r1", "batch_size": 4}, 0)
     nets = {("supervised", 0): _fresh(train), ("supervised", 3): N.ShiftNet(train.data.camera.screen_shape)}
     frame = N.test_methods(dev, 1, nets, refine, searches, 0, train_mean=train.truth.mean(0))
     runs = frame.groupby("method")["run"].unique().map(sorted)

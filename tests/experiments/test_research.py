@@ -51,10 +51,10 @@ def small_set():
 
 def test_rule_noise_runs_are_table2_runs_with_the_rule_and_the_same_draws(small_set):
     table = rule_noise_runs(small_set, "closed", 2, [0, 3], SETTINGS, shift=SHIFT)
-    assert list(table.columns) == ["flow", *RUN_COLUMNS]
-    assert set(table["flow"]) == {"closed"}
-    for row in table.drop(columns="flow").to_dict("records"):  # each run is the run trained alone with the rule
-        assert row == noise_run(small_set, 2, row["run"], replace(SETTINGS, flow="closed"), shift=SHIFT)
+    assert list(table.columns) == ["rule", *RUN_COLUMNS]
+    assert set(table["rule"]) == {"closed"}
+    for row in table.drop(columns="rule").to_dict("records"):  # each run is the run trained alone with the rule
+        assert row == noise_run(small_set, 2, row["run"], replace(SETTINGS, rule="closed"), shift=SHIFT)
     # The seeds (noise draw and shuffling) are Table 2's: they do not depend on the rule.
     paper_rule = noise_runs(small_set, 2, [0, 3], SETTINGS, shift=SHIFT)
     assert table["seed"].tolist() == paper_rule["seed"].tolist() == [run_seed(7, 2, 0), run_seed(7, 2, 3)]
@@ -101,13 +101,13 @@ def test_depth_noise_runs_refuse_bad_shifts(small_set):
 # -- Table 4 ----------------------------------------------------------------------------------------------
 
 
-def _runs(levels, runs, scale, flow=None, seed=0):
+def _runs(levels, runs, scale, rule=None, seed=0):
     generator = np.random.default_rng(seed)
     rows = [{"level": level, "run": run, "distance": scale * (level + 1) * generator.uniform(0.5, 1.5)}
             for level in levels for run in runs]
     frame = pd.DataFrame(rows)
-    if flow:
-        frame.insert(0, "flow", flow)
+    if rule:
+        frame.insert(0, "rule", rule)
     return frame
 
 
@@ -136,9 +136,9 @@ def test_table4_pairs_each_rule_with_table2_runs_of_the_same_draws():
     rules = pd.concat([_runs([0, 1, 2], range(4), 2e-3, "closed", seed=2),
                        _runs([0, 1, 2], range(4), 5e-2, "nearest", seed=3)])
     table = table4_frame(rules, table2)
-    assert table[["flow", "level"]].values.tolist() == [[f, lv] for f in ("closed", "nearest") for lv in (0, 1, 2)]
+    assert table[["rule", "level"]].values.tolist() == [[f, lv] for f in ("closed", "nearest") for lv in (0, 1, 2)]
     for row in table.itertuples():
-        ours = rules[(rules["flow"] == row.flow) & (rules["level"] == row.level)]["distance"]
+        ours = rules[(rules["rule"] == row.rule) & (rules["level"] == row.level)]["distance"]
         theirs = table2[(table2["level"] == row.level) & (table2["run"] < 4)]["distance"]  # runs 4, 5 unpaired
         assert row.runs == 4 and row.paper_rule_runs == 4
         assert row.mean_m == pytest.approx(ours.mean()) and row.std_m == pytest.approx(ours.std())
@@ -160,12 +160,12 @@ def test_table4_summary_names_misses_and_numbers():
     words = table4_summary(table)
     assert "`closed` (3 runs per level) meets the bar (half the paper's mean) at every level run (2 of 2)" in words
     assert "`nearest` (3 runs per level) misses the bar (half the paper's mean) at level 0, 1" in words
-    row = table[(table["flow"] == "closed") & (table["level"] == 1)].iloc[0]
+    row = table[(table["rule"] == "closed") & (table["level"] == 1)].iloc[0]
     assert f"{1e3 * row.mean_m:.3f}" in words and f"{1e3 * row.paper_rule_mean_m:.3f}" in words
 
 
 def test_table4_refuses_runs_without_the_columns():
-    with pytest.raises(SDMInputError, match="flow"):
+    with pytest.raises(SDMInputError, match="rule"):
         table4_frame(_runs([0], range(2), 1e-3), _runs([0], range(2), 1e-3))
 
 
@@ -211,18 +211,18 @@ def test_depth_bias_measures_the_depth_flow_at_theta_star(small_set):
 
     clean = depth_bias(small_set, 0.5, [0], 7, zooms=[1, 0], shift=SHIFT, batch_size=3)
     assert list(clean.columns) == DEPTH_BIAS_COLUMNS and clean["flow_c"].tolist() == [0.0, 0.0]
-    noisy = depth_bias(small_set, 0.5, [2], 7, flow="closed_centred_r1+group_crossing:2", zooms=[0], shift=SHIFT,
+    noisy = depth_bias(small_set, 0.5, [2], 7, schedule="closed_centred_r1+group_crossing:2", zooms=[0], shift=SHIFT,
                        batch_size=3).iloc[0]
     truth = (*SHIFT, 0.5)
     targets = noisy_targets(depth_targets(small_set, truth), 2, run_seed(7, 2, 0))
     batch = small_set.with_targets(targets).batch(torch.arange(len(small_set)))
     points = batch.points + shift_vector(truth, batch.points)
-    layer = SpatialDomainMapping(small_set.camera, s=4, zoom=0, flow="group_crossing")
+    layer = SpatialDomainMapping(small_set.camera, s=4, zoom=0, rule="group_crossing")
     result = layer(points, batch.pixels, batch.targets, batch.config, batch.rank).result
     assert noisy["flow_c"] == pytest.approx(float(depth_flow(points, result.flow).sum()) / len(small_set), abs=1e-12)
     assert noisy["flow_c"] != 0 and math.isfinite(noisy["offset_c"]) and 0 <= noisy["unmatched_edge"] <= 1
     words = table5_bias_summary(table5_frame(_depth_runs({(0.5, 2): (1e-3, 1e-3, 1e-2)})),
-                                pd.DataFrame([noisy.to_dict() | {"flow": "group_crossing"}]))
+                                pd.DataFrame([noisy.to_dict() | {"rule": "group_crossing"}]))
     assert words.startswith("- c* = 0.5 m, level 2 (1e-3 m): mean c - c* -10.00; group_crossing at zoom 0:")
 
 
@@ -255,9 +255,9 @@ def test_the_schema_lists_the_library_rules():
     research = schema["properties"]["research"]["properties"]
     accepted = sorted(RULES)
     assert sorted(research["rules"]["properties"]["names"]["items"]["anyOf"][0]["enum"]) == accepted
-    assert research["depth"]["properties"]["flow"]["allOf"] == [research["rules"]["properties"]["names"]["items"]]
+    assert research["depth"]["properties"]["schedule"]["allOf"] == [research["rules"]["properties"]["names"]["items"]]
     for name in accepted:
-        TrainSettings(flow=name)
+        TrainSettings(rule=name)
 
 
 def test_the_public_registry_holds_the_rules_the_configuration_trains_with():
@@ -265,23 +265,23 @@ def test_the_public_registry_holds_the_rules_the_configuration_trains_with():
     other rule is an experiment, in RESEARCH_RULES only."""
     research = _config()["research"]
     trained = set()
-    for name in [research["depth"]["flow"], *research["rules"]["names"]]:
-        flow, refine = parse_schedule(name)
-        trained |= {flow, refine.flow} if refine else {flow}
+    for name in [research["depth"]["schedule"], *research["rules"]["names"]]:
+        rule, refine = parse_schedule(name)
+        trained |= {rule, refine.rule} if refine else {rule}
     assert set(FLOW_RULES) == {"paper", *trained}
     assert not set(FLOW_RULES) & set(RESEARCH_RULES)
 
 
 def test_the_schema_defaults_are_the_rules_config_yaml_names():
-    """A config without research.rules / research.depth.flow trains with the rules config.yaml names."""
+    """A config without research.rules / research.depth.schedule trains with the rules config.yaml names."""
     config, defaulted = _config(), _config()
     del defaulted["research"]
     validate_schema(defaulted)
     assert defaulted["research"]["rules"]["names"] == config["research"]["rules"]["names"]
-    assert defaulted["research"]["depth"]["flow"] == config["research"]["depth"]["flow"]
-    del config["research"]["depth"]["flow"]  # the key's own default, the section present
+    assert defaulted["research"]["depth"]["schedule"] == config["research"]["depth"]["schedule"]
+    del config["research"]["depth"]["schedule"]  # the key's own default, the section present
     validate_schema(config)
-    assert config["research"]["depth"]["flow"] == defaulted["research"]["depth"]["flow"]
+    assert config["research"]["depth"]["schedule"] == defaulted["research"]["depth"]["schedule"]
 
 
 @pytest.mark.parametrize(
@@ -296,8 +296,8 @@ def test_the_schema_defaults_are_the_rules_config_yaml_names():
         ({"depth": {"enabled": True, "shifts_c": [1.0, float("inf")]}}, "research.depth.shifts_c[1]"),
         ({"depth": {"enabled": True, "shifts_c": []}}, "research.depth.shifts_c"),
         ({"depth": {"enabled": True, "levels": [-1]}}, "research.depth.levels[0]"),
-        ({"depth": {"enabled": True, "flow": "smooth"}}, "research.depth.flow"),
-        ({"depth": {"enabled": True, "flow": "closed_centred_r1+smooth:4"}}, "research.depth.flow"),
+        ({"depth": {"enabled": True, "schedule": "smooth"}}, "research.depth.schedule"),
+        ({"depth": {"enabled": True, "schedule": "closed_centred_r1+smooth:4"}}, "research.depth.schedule"),
     ],
 )
 def test_bad_research_values_are_refused_naming_the_key(change, key):
@@ -318,7 +318,7 @@ def test_a_config_without_the_research_section_is_valid_with_both_off():
 
 
 def test_rule_times_set_each_rule_beside_the_paper_rule_with_the_bar():
-    runs = pd.DataFrame({"flow": ["fast"] * 2 + ["slow"] * 2, "level": [0, 1, 0, 1], "run": [0, 0, 0, 0],
+    runs = pd.DataFrame({"rule": ["fast"] * 2 + ["slow"] * 2, "level": [0, 1, 0, 1], "run": [0, 0, 0, 0],
                          "distance": [1e-3] * 4, "seconds": [0.10, 0.14, 0.30, 0.34]})
     text = rule_times(runs, [{"runs": 60, "seconds": 6.0}, {"runs": 40, "seconds": 4.0}])
     fast, slow = text.strip().splitlines()

@@ -34,14 +34,14 @@ def _map(batch, theta, target, zoom, rule):
 
 def test_paper_is_the_default_and_unknown_names_are_refused():
     assert FLOW_RULES["paper"].flow is dynamic_flow
-    assert TrainSettings().flow == "paper"
+    assert TrainSettings().rule == "paper"
     assert SpatialDomainMapping().flow_rule is dynamic_flow
-    with pytest.raises(SDMInputError, match="flow"):
-        TrainSettings(flow="no-such-rule")
-    with pytest.raises(SDMInputError, match="flow"):
-        SpatialDomainMapping(flow="no-such-rule")
-    with pytest.raises(SDMInputError, match="flow"):
-        SpatialDomainMapping(method="dense", flow="nearest")
+    with pytest.raises(SDMInputError, match="rule"):
+        TrainSettings(rule="no-such-rule")
+    with pytest.raises(SDMInputError, match="rule"):
+        SpatialDomainMapping(rule="no-such-rule")
+    with pytest.raises(SDMInputError, match="rule"):
+        SpatialDomainMapping(method="dense", rule="nearest")
 
 
 def test_experiments_are_chosen_by_name_as_rules_or_as_functions():
@@ -52,11 +52,11 @@ def test_experiments_are_chosen_by_name_as_rules_or_as_functions():
     assert RULES.resolve("nearest") is nearest and RULES.resolve(nearest) is nearest
     assert RULES.resolve("paper") is FLOW_RULES["paper"]
     assert RULES.resolve(nearest.flow).flow is nearest.flow and RULES.resolve(nearest.flow).compiled is None
-    assert SpatialDomainMapping(flow="nearest").flow_rule is nearest.flow
-    assert SpatialDomainMapping(flow=nearest).flow_rule is nearest.flow
-    assert SpatialDomainMapping(flow=nearest.flow).flow_rule is nearest.flow
-    assert TrainSettings(flow="nearest").flow == "nearest"
-    with pytest.raises(SDMInputError, match=r"^flow must be a rule of sdm\.mapping\.rules\.RULES \[.*'closed_centred_r1'"
+    assert SpatialDomainMapping(rule="nearest").flow_rule is nearest.flow
+    assert SpatialDomainMapping(rule=nearest).flow_rule is nearest.flow
+    assert SpatialDomainMapping(rule=nearest.flow).flow_rule is nearest.flow
+    assert TrainSettings(rule="nearest").rule == "nearest"
+    with pytest.raises(SDMInputError, match=r"^rule must be a rule of sdm\.mapping\.rules\.RULES \[.*'closed_centred_r1'"
                                             r".*'nearest'.*'paper'.*\], a Rule or a flow function, got 'no-such'"):
         RULES.resolve("no-such")
 
@@ -241,12 +241,12 @@ def test_group_crossing_pulls_by_what_the_nearest_crossing_lowers():
 
 
 def test_a_named_rule_reaches_training_alone_and_in_packed_runs():
-    """TrainSettings(flow=...) is honoured by train and train_runs alike (same history), and changes the training."""
+    """TrainSettings(rule=...) is honoured by train and train_runs alike (same history), and changes the training."""
     from sdm import train, train_runs
 
     data = ConfigurationSet.from_configurations(configurations(32, 9))
     noisy = add_target_noise(data.targets, 2, torch.Generator().manual_seed(3))
-    settings = TrainSettings(lr=1e-4, n_epoch=1, s=2, seed=4, flow="closed")
+    settings = TrainSettings(lr=1e-4, n_epoch=1, s=2, seed=4, rule="closed")
     alone = train(data.with_targets(noisy), settings, progress=False)
     packed = train_runs(data, [noisy], [settings])
     assert torch.equal(alone.theta, packed.theta[:, 0])

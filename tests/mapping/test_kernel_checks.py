@@ -14,7 +14,7 @@ from sdm.errors import SDMInputError
 from sdm.mapping import native
 from sdm.train import Refinement, TrainSettings, refine_runs, train_runs
 
-SETTINGS = TrainSettings(lr=1e-4, s=4, flow="closed_centred_r1")
+SETTINGS = TrainSettings(lr=1e-4, s=4, rule="closed_centred_r1")
 REFINE = Refinement("group_crossing", 1, pass_steps=4)
 needs_kernel = pytest.mark.skipif(not native.enabled(), reason="no C compiler: the compiled kernel is not built")
 

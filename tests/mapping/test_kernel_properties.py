@@ -52,7 +52,7 @@ def runs_arguments(draw):
     s = draw(st.integers(1, 2))
     base = TrainSettings(lr=draw(st.sampled_from([1e-4, 3e-4])), s=s, zoom=draw(st.integers(0, s)),
                          batch_size=draw(st.sampled_from([4, 8, 8, 16, 30])),
-                         flow=draw(st.sampled_from(["paper", "closed_centred_r1", "group_crossing"])))
+                         rule=draw(st.sampled_from(["paper", "closed_centred_r1", "group_crossing"])))
     n_runs = draw(st.integers(1, 3))
     settings_ = [replace(base, seed=draw(st.integers(0, 5))) for _ in range(n_runs)]
     if draw(st.integers(0, 9)) == 0:  # a run that differs beyond its seed
@@ -154,13 +154,13 @@ def layer_arguments(draw):
     elif wrong == "points":
         points[0, 2] = float("nan")
     s = draw(st.integers(0, 3))
-    return dict(s=s, zoom=draw(st.integers(0, s)), flow=draw(st.sampled_from(["paper", "closed_centred_r1"])),
+    return dict(s=s, zoom=draw(st.integers(0, s)), rule=draw(st.sampled_from(["paper", "closed_centred_r1"])),
                 validate=draw(st.booleans())), (points, pixels, target, config, rank)
 
 
 def _mapped(layer_keywords, tensors):
     points, pixels, target, config, rank = tensors
-    layer = SpatialDomainMapping(s=layer_keywords["s"], zoom=layer_keywords["zoom"], flow=layer_keywords["flow"])
+    layer = SpatialDomainMapping(s=layer_keywords["s"], zoom=layer_keywords["zoom"], rule=layer_keywords["rule"])
     points = points.clone().requires_grad_(True)
     out = layer(points, pixels, target, config, rank, validate=layer_keywords["validate"])
     out.loss.backward()

@@ -129,16 +129,16 @@ def compiled_calls(monkeypatch):
     return calls
 
 
-@pytest.mark.parametrize("flow", ["paper", "closed_centred_r1", "group_crossing"])
+@pytest.mark.parametrize("rule", ["paper", "closed_centred_r1", "group_crossing"])
 @pytest.mark.parametrize("seed", [0, 1, 2])
 @pytest.mark.parametrize("s,zoom,n_epoch", [(4, 0, 1), (3, 1, 2)])
-def test_the_compiled_run_equals_the_reference_loop_bit_for_bit(flow, seed, s, zoom, n_epoch, compiled_calls):
+def test_the_compiled_run_equals_the_reference_loop_bit_for_bit(rule, seed, s, zoom, n_epoch, compiled_calls):
     """One C call per program: R = 1 (train) and R = 3 (own noise, seeds, starts) against tests/train_reference.py."""
     from sdm.experiments import noisy_targets
     from train_reference import reference_train
 
     data = configuration_set(80, seed=10 + seed)
-    base = TrainSettings(lr=3e-4, n_epoch=n_epoch, s=s, zoom=zoom, flow=flow)
+    base = TrainSettings(lr=3e-4, n_epoch=n_epoch, s=s, zoom=zoom, rule=rule)
     settings = [replace(base, seed=seed + k) for k in (0, 5, 9)]
     targets = [data.targets, noisy_targets(data.targets, 2, seed), noisy_targets(data.targets, 1, seed + 1)]
     starts = [(0.0, 0.0), (0.45, 0.2), (0.7, 0.5)]
@@ -163,14 +163,14 @@ def test_the_compiled_run_on_real_sized_data(compiled_calls):
     data = configuration_set(512, seed=2024)
     targets = [noisy_targets(data.targets, 2, 3), noisy_targets(data.targets, 4, 4)]
     finals = {}
-    for flow in ("paper", "closed_centred_r1", "group_crossing"):
-        settings = [TrainSettings(lr=1e-4, n_epoch=2, seed=seed, flow=flow) for seed in (6, 7)]
+    for rule in ("paper", "closed_centred_r1", "group_crossing"):
+        settings = [TrainSettings(lr=1e-4, n_epoch=2, seed=seed, rule=rule) for seed in (6, 7)]
         compiled = train_runs(data, targets, settings)
         for run in range(2):
             theta, loss = reference_train(data.with_targets(targets[run]), settings[run])
-            assert torch.equal(compiled.theta[:, run], theta), (flow, run)
+            assert torch.equal(compiled.theta[:, run], theta), (rule, run)
             assert float((compiled.loss[:, run] - loss).abs().max()) <= 1e-12 * float(loss.abs().max())
-        finals[flow] = compiled.theta[-1]
+        finals[rule] = compiled.theta[-1]
     assert len(compiled_calls) == 3
     assert not torch.equal(finals["paper"], finals["closed_centred_r1"])  # the rules differ at zoom 0
     assert not torch.equal(finals["paper"], finals["group_crossing"])
@@ -194,7 +194,7 @@ def test_the_compiled_closing_on_a_screen_of_odd_sides(compiled_calls):
         [build_configuration(road_centres(generator, 12), camera=camera, image_id=f"odd{i}") for i in range(40)],
         camera=camera)
     assert data.targets.shape[1:] == (72, 200)
-    settings = [TrainSettings(lr=3e-4, n_epoch=1, s=3, flow="closed_centred_r1", seed=seed) for seed in (1, 2)]
+    settings = [TrainSettings(lr=3e-4, n_epoch=1, s=3, rule="closed_centred_r1", seed=seed) for seed in (1, 2)]
     targets = [noisy_targets(data.targets, 2, 5), noisy_targets(data.targets, 3, 6)]
     compiled = train_runs(data, targets, settings)
     assert len(compiled_calls) == 1
@@ -206,7 +206,7 @@ def test_the_compiled_closing_on_a_screen_of_odd_sides(compiled_calls):
 @pytest.mark.slow
 def test_other_training_settings_take_the_torch_path(compiled_calls):
     data = configuration_set(32, seed=12)
-    for settings in (TrainSettings(flow="closed", s=2), TrainSettings(fit_depth=True, s=2)):
+    for settings in (TrainSettings(rule="closed", s=2), TrainSettings(fit_depth=True, s=2)):
         train(data, settings, progress=False)
     train(data, TrainSettings(s=2, zoom=2), progress=False, method="dense")
     assert compiled_calls == []

@@ -43,11 +43,11 @@ def compiled_calls(monkeypatch):
 def test_a_registered_rule_trains_compiled_and_the_layer_uses_it(toy, compiled_calls):
     """A rule is added by defining and registering it (here, in this file): sdm.train runs it by name on the compiled
     kernel, with the torch path's theta history to the bit, and the layer takes it by name."""
-    assert SpatialDomainMapping(flow="toy_centred").rule is toy
-    assert SpatialDomainMapping(flow="toy_centred").flow_rule is toy.flow
+    assert SpatialDomainMapping(rule="toy_centred").rule is toy
+    assert SpatialDomainMapping(rule="toy_centred").flow_rule is toy.flow
     data = configuration_set(48, seed=21)
     noisy = data.with_targets(noisy_targets(data.targets, 2, 5))
-    settings = TrainSettings(lr=3e-4, s=3, seed=2, flow="toy_centred")
+    settings = TrainSettings(lr=3e-4, s=3, seed=2, rule="toy_centred")
     compiled = train(noisy, settings, progress=False)
     assert compiled_calls == [1]
     with native.disabled():
@@ -56,21 +56,21 @@ def test_a_registered_rule_trains_compiled_and_the_layer_uses_it(toy, compiled_c
     assert torch.equal(compiled.theta, reference.theta)
     assert not torch.equal(compiled.theta[0], compiled.theta[-1])  # it trained
     # the same arithmetic as the registered closed_centred_r1, and not the paper's rule
-    assert torch.equal(compiled.theta, train(noisy, TrainSettings(lr=3e-4, s=3, seed=2, flow="closed_centred_r1"),
+    assert torch.equal(compiled.theta, train(noisy, TrainSettings(lr=3e-4, s=3, seed=2, rule="closed_centred_r1"),
                                              progress=False).theta)
     paper = train(noisy, TrainSettings(lr=3e-4, s=3, seed=2), progress=False)
     assert not torch.equal(compiled.theta, paper.theta)
 
 
 def test_train_takes_a_rule_object_or_a_bare_function(compiled_calls):
-    """TrainSettings.flow takes a Rule (registered or not) or a bare flow function; a function has no compiled
+    """TrainSettings.rule takes a Rule (registered or not) or a bare flow function; a function has no compiled
     form, so it trains on the torch path, with the same theta as its Rule."""
     data = configuration_set(32, seed=22)
     unregistered = Rule.by_zoom("unregistered", window_rule(prepare=closing(3)), 1)
     assert "unregistered" not in RULES and unregistered.kernel_flows([1, 0]) is None
-    by_rule = train(data, TrainSettings(s=2, seed=1, flow=unregistered), progress=False)
+    by_rule = train(data, TrainSettings(s=2, seed=1, rule=unregistered), progress=False)
     bare = by_zoom(window_rule(prepare=closing(3)), dynamic_flow, 1)
-    by_function = train(data, TrainSettings(s=2, seed=1, flow=bare), progress=False)
+    by_function = train(data, TrainSettings(s=2, seed=1, rule=bare), progress=False)
     assert compiled_calls == []
     assert torch.equal(by_rule.theta, by_function.theta)
     assert not torch.equal(by_rule.theta[0], by_rule.theta[-1])

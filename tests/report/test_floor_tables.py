@@ -45,11 +45,11 @@ def test_table4_compares_every_row_with_cmaes_on_the_runs_both_have():
     """The bar "within 2x of CMA-ES": the rule's mean over the runs CMA-ES has (20 of its 60 by default), at most
     2x CMA-ES's; a rule at exactly 2x meets it, above it misses it, and the summary names the level and the factor."""
     table2 = _runs([1, 2], range(6), 1e-2, seed=1)
-    cmaes = _runs([1, 2], range(3), 1e-3, seed=2, flow=CMAES_ROW)
-    rule = cmaes[["level", "run"]].assign(flow="closed", distance=cmaes["distance"] * [2.0, 2.0, 2.0, 2.0, 2.0, 2.5])
-    rule = pd.concat([rule, _runs([1, 2], range(3, 6), 1.0, flow="closed")], ignore_index=True)  # runs CMA-ES lacks
+    cmaes = _runs([1, 2], range(3), 1e-3, seed=2, rule=CMAES_ROW)
+    rule = cmaes[["level", "run"]].assign(rule="closed", distance=cmaes["distance"] * [2.0, 2.0, 2.0, 2.0, 2.0, 2.5])
+    rule = pd.concat([rule, _runs([1, 2], range(3, 6), 1.0, rule="closed")], ignore_index=True)  # runs CMA-ES lacks
     table = table4_frame(pd.concat([rule, cmaes], ignore_index=True), table2, cmaes)
-    closed = table[table["flow"] == "closed"].set_index("level")
+    closed = table[table["rule"] == "closed"].set_index("level")
     assert closed.loc[1, "cmaes_runs"] == 3 and closed.loc[1, "runs"] == 6  # compared on 3 of its 6 runs
     assert closed.loc[1, "ratio_to_cmaes"] == pytest.approx(2.0) and closed.loc[1, "within_2x_cmaes"]
     expected = (2 * cmaes["distance"].iloc[3] + 2 * cmaes["distance"].iloc[4] + 2.5 * cmaes["distance"].iloc[5]) / \
@@ -66,29 +66,29 @@ def test_a_schedule_that_misses_cmaes_is_read_against_its_first_rule_alone():
     """A schedule RULE+REFINE:E beyond 2x CMA-ES: the summary sets, at each missed level, where RULE alone ends, where
     the refinement takes it and CMA-ES's mean on the same runs, with the share of the gap closed; none where it meets."""
     table2 = _runs([1, 2], range(4), 1e-2, seed=1)
-    cmaes = _runs([1, 2], range(4), 1e-3, seed=2, flow=CMAES_ROW)
-    alone = cmaes.assign(flow="closed_centred_r1", distance=cmaes["distance"] * 10)
-    schedule = cmaes.assign(flow="closed_centred_r1+group_crossing:4",
+    cmaes = _runs([1, 2], range(4), 1e-3, seed=2, rule=CMAES_ROW)
+    alone = cmaes.assign(rule="closed_centred_r1", distance=cmaes["distance"] * 10)
+    schedule = cmaes.assign(rule="closed_centred_r1+group_crossing:4",
                             distance=cmaes["distance"] * 8.0)
     schedule.loc[schedule["level"] == 2, "distance"] = cmaes.loc[cmaes["level"] == 2, "distance"] * 1.5
     table = table4_frame(pd.concat([alone, schedule, cmaes], ignore_index=True), table2, cmaes)
     words = table4_summary(table)
     line = next(line for line in words.splitlines() if line.startswith("  Why it misses"))
-    at = table.set_index(["flow", "level"])
+    at = table.set_index(["rule", "level"])
     start = at.loc[("closed_centred_r1", 1), "mean_m"]
     end = at.loc[("closed_centred_r1+group_crossing:4", 1), "mean_m"]
     target = at.loc[(CMAES_ROW, 1), "mean_m"]
     assert (f"level 1: `closed_centred_r1` alone ends at {1e3 * start:.3f}, the refinement at {1e3 * end:.3f}, CMA-ES "
             f"{1e3 * target:.3f} ({100 * (start - end) / (start - target):.0f}% of the gap closed)") in line
     assert "level 2" not in line  # met there
-    assert "Why it misses" not in table4_summary(table[table["flow"] != "closed_centred_r1"])  # no first rule alone
+    assert "Why it misses" not in table4_summary(table[table["rule"] != "closed_centred_r1"])  # no first rule alone
 
 
 def test_reference_rows_take_cmaes_from_table3_and_the_floor_as_is():
     baselines = pd.concat([_runs([0], range(2), 1e-3, method="cmaes"), _runs([0], range(2), 1.0, method="chamfer")])
     floor = _floor_runs([0], range(2))
     rows = reference_rows(baselines, floor)
-    assert rows["flow"].tolist() == [CMAES_ROW] * 2 + [FLOOR_ROW] * 2
+    assert rows["rule"].tolist() == [CMAES_ROW] * 2 + [FLOOR_ROW] * 2
     assert rows["distance"].tolist() == [*baselines["distance"].iloc[:2], *floor["distance"]]
     assert reference_rows(None, None).empty
 
@@ -130,8 +130,8 @@ def test_rule_bias_is_zero_without_noise_and_measured_under_it():
     assert bias.loc[0, "stiffness_a"] > 0 and bias.loc[0, "stiffness_b"] > 0
     assert bias.loc[3, "bias_b"] != 0
     assert bias.loc[3, "offset_b"] == pytest.approx(-bias.loc[3, "bias_b"] / bias.loc[3, "stiffness_b"])
-    table = table4_frame(_runs([0, 3], range(2), 1e-3, flow="closed"), _runs([0, 3], range(2), 1e-2))
-    words = bias_summary(bias.reset_index().assign(flow="paper"), table)
+    table = table4_frame(_runs([0, 3], range(2), 1e-3, rule="closed"), _runs([0, 3], range(2), 1e-2))
+    words = bias_summary(bias.reset_index().assign(rule="paper"), table)
     assert f"fixed point {1e3 * bias.loc[3, 'predicted_m']:.3f} from theta*" in words
 
 

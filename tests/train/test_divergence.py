@@ -56,9 +56,9 @@ def test_a_row_rate_that_diverges_names_row_rate(data):
 
 
 def test_a_refinement_that_diverges_is_named(data):
-    history = train_runs(data, [data.targets], [TrainSettings(lr=1e-4, flow="closed_centred_r1")])
+    history = train_runs(data, [data.targets], [TrainSettings(lr=1e-4, rule="closed_centred_r1")])
     with pytest.raises(SDMInputError, match=r"theta of run 0 ended beyond the bound .* from step 1[0-9] "):
-        refine_runs(data, [data.targets], [TrainSettings(lr=1e300, flow="closed_centred_r1")], history,
+        refine_runs(data, [data.targets], [TrainSettings(lr=1e300, rule="closed_centred_r1")], history,
                     Refinement("closed_centred_r1", 1, pass_steps=2))
 
 

@@ -61,9 +61,9 @@ SHARINGS = ["shared", "configuration", "car", "camera + car"]
 
 
 @pytest.mark.parametrize("sharing", SHARINGS)
-@pytest.mark.parametrize("flow", ["paper", "closed_centred_r1"])
+@pytest.mark.parametrize("rule", ["paper", "closed_centred_r1"])
 @pytest.mark.parametrize("compiled", [True, False])
-def test_rows_follow_the_reference_loop_bit_for_bit(sharing, flow, compiled):
+def test_rows_follow_the_reference_loop_bit_for_bit(sharing, rule, compiled):
     if compiled and not native.enabled():
         pytest.skip("no C compiler: the compiled kernel is not built")
     data = configuration_set(48, seed=31)
@@ -71,7 +71,7 @@ def test_rows_follow_the_reference_loop_bit_for_bit(sharing, flow, compiled):
     n_rows = int(index.max()) + 1
     truth = true_rows(n_rows, seed=5)
     data = data.with_targets(row_targets(data, index, truth))
-    settings = [TrainSettings(lr=3e-4, n_epoch=2, s=3, flow=flow, seed=seed) for seed in (1, 2)]
+    settings = [TrainSettings(lr=3e-4, n_epoch=2, s=3, rule=rule, seed=seed) for seed in (1, 2)]
     starts = [torch.zeros(n_rows, 2, dtype=torch.float64), 0.01 * torch.ones(n_rows, 2, dtype=torch.float64)]
     if compiled:
         runs = train_runs(data, [data.targets] * 2, settings, theta0=starts, param_index=index)
@@ -99,7 +99,7 @@ def test_rows_follow_the_reference_loop_bit_for_bit(sharing, flow, compiled):
 def test_one_row_for_every_point_is_the_shared_shift():
     """param_index all zeros (K = 1) trains the paper's shift: the same numbers as no param_index."""
     data = configuration_set(48, seed=32)
-    settings = [TrainSettings(lr=3e-4, n_epoch=1, seed=4, flow="closed_centred_r1")]
+    settings = [TrainSettings(lr=3e-4, n_epoch=1, seed=4, rule="closed_centred_r1")]
     shared = train_runs(data, [data.targets], settings)
     rows = train_runs(data, [data.targets], settings, param_index=torch.zeros(data.points.shape[0], dtype=torch.int32))
     assert torch.equal(rows.theta[:, :, 0], shared.theta[rows.theta_steps])
@@ -116,7 +116,7 @@ def test_the_refinement_moves_rows_as_the_torch_path(sharing):
     if sharing == "camera + car":
         truth[0] = 0.0  # the camera row's share is in the residuals
     data = data.with_targets(row_targets(data, index, truth))
-    settings = [TrainSettings(lr=3e-4, n_epoch=1, s=2, flow="closed_centred_r1", seed=3)]
+    settings = [TrainSettings(lr=3e-4, n_epoch=1, s=2, rule="closed_centred_r1", seed=3)]
     starts = [truth + 1e-3]
     runs = {}
     for compiled in (True, False):
@@ -195,7 +195,7 @@ def test_group_crossing_splits_a_group_between_rows():
     whose rule groups by depth alone, refuses."""
     data = configuration_set(16, seed=37)
     index = torch.arange(data.points.shape[0]) % 2  # neighbours of one disc in different rows
-    settings = [TrainSettings(s=2, flow="closed_centred_r1")]
+    settings = [TrainSettings(s=2, rule="closed_centred_r1")]
     history = train_runs(data, [data.targets], settings, param_index=index)
     if native.enabled():
         refined = refine_runs(data, [data.targets], settings, history, Refinement("group_crossing", 1),

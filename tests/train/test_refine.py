@@ -11,7 +11,7 @@ from sdm.experiments import noisy_targets, train_group
 from sdm.sky import SKY_SHIFT
 from sdm.train import Refinement, TrainSettings, parse_schedule, refine_runs, refine_seed, train_runs
 
-BASE = TrainSettings(lr=1e-4, n_epoch=1, s=4, flow="closed_centred_r1")
+BASE = TrainSettings(lr=1e-4, n_epoch=1, s=4, rule="closed_centred_r1")
 #: An epoch of the 64-configuration set: its passes below are one epoch each (pass_steps = PER_EPOCH).
 PER_EPOCH = 64 // 16
 
@@ -103,7 +103,7 @@ def test_the_refinement_moves_c_with_fit_depth_unless_told_not_to(small):
     assert not torch.equal(held.theta[-1, 0, :2], end[:2])
 
 
-@pytest.mark.parametrize("kwargs,match", [({"flow": "no-such"}, "flow"), ({"passes": 0}, "passes"),
+@pytest.mark.parametrize("kwargs,match", [({"rule": "no-such"}, "rule"), ({"passes": 0}, "passes"),
                                           ({"passes": 2.0}, "passes"), ({"passes": True}, "passes"),
                                           ({"pass_steps": 0}, "pass_steps"), ({"pass_steps": 32.0}, "pass_steps"),
                                           ({"pass_steps": False}, "pass_steps"), ({"pass_steps": "32"}, "pass_steps"),
@@ -153,7 +153,7 @@ def test_the_passes_widths_equal_the_reference_loop_bit_for_bit(small, monkeypat
     assert len(calls) == (2 if compiled else 0)
     main_steps = history.theta.shape[0] - 1
     for run, (one, run_targets) in enumerate(zip(settings, targets)):
-        passes = replace(one, flow="group_crossing", seed=refine_seed(one.seed), n_epoch=1)
+        passes = replace(one, rule="group_crossing", seed=refine_seed(one.seed), n_epoch=1)
         theta, loss = reference_train(small.with_targets(run_targets), passes, theta0=history.theta[-1, run],
                                       levels=[0] * 4, rates=refinement.rates(one), crossing_widths=refinement.widths)
         assert torch.equal(refined.theta[main_steps:, run], theta), run
@@ -171,7 +171,7 @@ def test_schedules_are_parsed_by_name(name, expected):
     assert parse_schedule(name) == expected
 
 
-@pytest.mark.parametrize("name,match", [("closedd", "flow"), ("paper+nope:2", "flow"), ("paper+group_crossing:0", ":"),
+@pytest.mark.parametrize("name,match", [("closedd", "rule"), ("paper+nope:2", "rule"), ("paper+group_crossing:0", ":"),
                                         ("paper+group_crossing:x", ":"), (3, "schedule")])
 def test_bad_schedules_are_refused_naming_the_part(name, match):
     with pytest.raises(SDMInputError, match=match):
@@ -227,7 +227,7 @@ def test_a_pass_that_ends_inside_an_epoch_is_cut_after_its_steps(small):
     cut = refine_runs(small, targets, settings, history, refinement)
     assert cut.theta.shape[0] == history.theta.shape[0] + 12
     orders = _shufflings([refine_seed(one.seed) for one in settings], 64, 4)
-    passes = [replace(one, flow="group_crossing", depth_zoom=one.zoom) for one in settings]
+    passes = [replace(one, rule="group_crossing", depth_zoom=one.zoom) for one in settings]
     theta = history.theta[-1]
     for index, (rate, width) in enumerate(zip(refinement.rates(passes[0]), refinement.widths)):
         steps, _ = _train_program(small, targets, [False, False], passes, small.camera, "fast", [0, 0], [rate, rate],

@@ -124,8 +124,8 @@ def test_runs_trained_together_follow_their_own_histories(sky768):
     assert torch.equal(together.lr, alone.lr) and torch.equal(together.level, alone.level)
 
 
-@pytest.mark.parametrize("flow", ["paper", "closed_centred_r1", "closed"])
-def test_the_torch_path_equals_the_reference_loop(sky768, flow):
+@pytest.mark.parametrize("rule", ["paper", "closed_centred_r1", "closed"])
+def test_the_torch_path_equals_the_reference_loop(sky768, rule):
     """The engine's torch path (what CUDA, other rules and a missing kernel run) against tests/train_reference.py.
 
     R = 1 (train) and R = 3 (noise, seeds and starts of their own): theta histories and each run's loss to the bit.
@@ -137,7 +137,7 @@ def test_the_torch_path_equals_the_reference_loop(sky768, flow):
 
     train_set, _ = sky768
     small = train_set.subset(range(64))
-    base = TrainSettings(lr=2e-4, n_epoch=1, s=3, flow=flow)
+    base = TrainSettings(lr=2e-4, n_epoch=1, s=3, rule=rule)
     settings = [replace(base, seed=seed) for seed in (1, 7, 12)]
     targets = [noisy_targets(small.targets, level, seed) for level, seed in ((0, 0), (2, 3), (1, 8))]
     starts = [(0.0, 0.0), (0.4, 0.1), (-0.3, 0.6)]
@@ -197,8 +197,8 @@ def test_bad_starts(sky768):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("flow", ["paper", "closed_centred_r1", "normalised"])
-def test_noise_runs_equal_single_noise_runs(sky768, flow):
+@pytest.mark.parametrize("rule", ["paper", "closed_centred_r1", "normalised"])
+def test_noise_runs_equal_single_noise_runs(sky768, rule):
     """Each batched run of Table 2 (the paper's rule) or Table 4 (another rule) is the run
     trained alone (tests/run_reference.py), to the bit where the rule's flow is a sum of signs (or of
     halves); normalised's weights are fractions, so packed sums may round otherwise: 1e-12 m."""
@@ -209,15 +209,15 @@ def test_noise_runs_equal_single_noise_runs(sky768, flow):
     small = train_set.subset(range(64))
     settings = TrainSettings(lr=1e-4, n_epoch=2, seed=3)
     for level in (0, 2):
-        if flow == "paper":
+        if rule == "paper":
             table = noise_runs(small, level, [0, 1, 2, 5], settings, group_size=3)  # two groups: 3 runs, then 1
         else:
-            table = rule_noise_runs(small, flow, level, [0, 1, 2, 5], settings, group_size=3)
-            assert set(table.pop("flow")) == {flow}
+            table = rule_noise_runs(small, rule, level, [0, 1, 2, 5], settings, group_size=3)
+            assert set(table.pop("rule")) == {rule}
         assert table["run"].tolist() == [0, 1, 2, 5]
         for row in table.to_dict("records"):
-            alone = noise_run(small, level, row["run"], replace(settings, flow=flow))
-            if flow == "normalised":
+            alone = noise_run(small, level, row["run"], replace(settings, rule=rule))
+            if rule == "normalised":
                 assert all(abs(row[key] - alone[key]) <= 1e-12 for key in ("a", "b", "distance"))
                 row |= {key: alone[key] for key in ("a", "b", "distance")}
             assert row == alone

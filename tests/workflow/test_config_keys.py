@@ -43,10 +43,10 @@ def _set(config: dict, path: str, value) -> dict:
 @pytest.mark.parametrize("path, value, message", [
     ("research.objects.silhouette", {"lrr": 0.5}, r"config key 'research\.objects\.silhouette': Additional "
                                                   r"properties are not allowed \('lrr' was unexpected\)"),
-    ("research.network.refine.flow", "nope_rule", r"config key 'research\.network\.refine\.flow': 'nope_rule' is "
+    ("research.network.refine.rule", "nope_rule", r"config key 'research\.network\.refine\.rule': 'nope_rule' is "
                                                   r"not a rule name of \["),
-    ("research.network.refine.flow", "closed_centred_r1+group_crossing:4",
-     r"config key 'research\.network\.refine\.flow': 'closed_centred_r1\+group_crossing:4' is not a rule name"),
+    ("research.network.refine.rule", "closed_centred_r1+group_crossing:4",
+     r"config key 'research\.network\.refine\.rule': 'closed_centred_r1\+group_crossing:4' is not a rule name"),
     ("research.network.sizes", [3000, 1000, 748], r"config key 'research\.network\.sizes': train \+ dev \+ test "
                                                   r"\[3000, 1000, 748\] ask for 4748 configurations; the Sky set has"),
     ("research.network.train.batch_size", 5000, r"config key 'research\.network\.train\.batch_size': at most the "
@@ -120,3 +120,30 @@ def test_the_workflow_refuses_a_bad_key_before_any_job(tmp_path):
     assert done.returncode != 0
     assert "config key 'research.objects.silhouette': Additional properties are not allowed ('lrr' was " \
            "unexpected)" in done.stdout + done.stderr
+
+
+@pytest.mark.parametrize("old, new", sorted(__import__("config_check").RENAMED.items()))
+def test_a_key_under_its_old_name_is_refused_naming_the_new_one(old, new):
+    """Each renamed key (config_check.RENAMED), written under its old name where config.yaml has the new one, is
+    refused before the schema runs, with the new name in the message."""
+    config = _config()
+    node = config
+    *parents, last = new.split(".")
+    for key in parents:
+        node = node[key]
+    node[old.split(".")[-1]] = node.pop(last)
+    with pytest.raises(ConfigError, match=rf"^config key '{old.replace('.', '[.]')}' is now "
+                                          rf"'{new.replace('.', '[.]')}'"):
+        _checked(config)
+
+
+def test_the_renamed_keys_exist_under_their_new_name_in_the_schema():
+    """A rename's new key is a key of the schema: the message never points to a key that does not exist."""
+    import config_check
+
+    schema = yaml.safe_load(config_check.SCHEMA_PATH.read_text())
+    for new in config_check.RENAMED.values():
+        node = schema
+        for key in new.split("."):
+            node = node["properties"][key]
+        assert "description" in node or "type" in node or "allOf" in node, new

@@ -533,8 +533,8 @@ def test_completed_run_has_the_research_tables_and_the_report_section(completed_
     levels = dot_test_config()["noise"]["levels"]
     # the rules, then Table 3's CMA-ES and the floor beside them, each compared with CMA-ES
     rows = [*config["rules"]["names"], "CMA-ES (Table 3)", "floor (exact-mismatch minimiser)"]
-    assert sorted(set(zip(table4["flow"], table4["level"]))) == sorted((name, level) for name in rows for level in levels)
-    rules = table4[table4["flow"].isin(config["rules"]["names"])]
+    assert sorted(set(zip(table4["rule"], table4["level"]))) == sorted((name, level) for name in rows for level in levels)
+    rules = table4[table4["rule"].isin(config["rules"]["names"])]
     assert (rules["runs"] == config["rules"]["runs"]).all() and (rules["paper_rule_runs"] == rules["runs"]).all()
     assert (table4["cmaes_runs"] == dot_test_config()["baselines"]["runs"]).all()
     table5 = pd_read_csv(tables / "table5.csv")
@@ -707,7 +707,7 @@ def _key_cases() -> dict[str, tuple[dict, str | None]]:
         "research.depth.shifts_c": ({"research": {"depth": {"shifts_c": [-1.0, 0.5, 1.0]}}}, "depth_runs"),
         "research.depth.levels": ({"research": {"depth": {"levels": [0, 1, 2]}}}, "depth_runs"),
         "research.depth.runs": ({"research": {"depth": {"runs": 1}}}, "depth_runs"),
-        "research.depth.flow": ({"research": {"depth": {"flow": "paper"}}}, "depth_runs"),
+        "research.depth.schedule": ({"research": {"depth": {"schedule": "paper"}}}, "depth_runs"),
         "research.depth.lr_scale": ({"research": {"depth": {"lr_scale": 3}}}, "depth_runs"),
         **_objects_cases(),
         **_network_cases(),
@@ -745,7 +745,7 @@ def _network_cases() -> dict[str, tuple[dict, str | None]]:
         "refine.s": (2, "network_test"),
         "refine.n_epoch": (2, "network_test"),
         "refine.lr": (1.0e-3, "network_test"),
-        "refine.flow": ("paper", "network_test"),
+        "refine.rule": ("paper", "network_test"),
         "refine.batch_size": (2, "network_test"),
     }
     return _nested_cases("network", cases)

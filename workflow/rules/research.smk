@@ -9,13 +9,13 @@ notebook_stage(
     "rule_runs",
     "One rule's runs at every noise level (one file per level): Table 2's noisy targets and shuffling, the "
     "rule's flow.",
-    jobs=[{"flow": label} for label in RULE_LABELS],
-    job="research_rules_{flow}",
+    jobs=[{"rule": label} for label in RULE_LABELS],
+    job="research_rules_{rule}",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE, best=BEST_FILE),
-    output=dict(runs_files=[result(f"research/rules/{{flow}}_level{level}.csv") for level in LEVELS]),
+    output=dict(runs_files=[result(f"research/rules/{{rule}}_level{level}.csv") for level in LEVELS]),
     params=dict(
         **training(seed=config["noise"]["seed"]),
-        flow=lambda wildcards: RULE_LABELS[wildcards.flow],
+        rule=lambda wildcards: RULE_LABELS[wildcards.rule],
         levels=LEVELS,
         runs=RULE_RUNS,
     ),
@@ -32,7 +32,7 @@ notebook_stage(
     params=dict(
         **training(seed=config["noise"]["seed"]),
         # the schema's defaults fill these in whenever the section is there (no jobs when it is not)
-        flow=RESEARCH_DEPTH.get("flow"),
+        schedule=RESEARCH_DEPTH.get("schedule"),
         depth_lr_scale=RESEARCH_DEPTH.get("lr_scale"),
         c=lambda wildcards: DEPTH_SHIFTS[wildcards.c],
         level=wildcard("level", int),
@@ -95,7 +95,7 @@ notebook_stage(
         shifts_c=list(DEPTH_SHIFTS.values()),
         levels=DEPTH_LEVELS,
         runs=DEPTH_RUNS,
-        flow=RESEARCH_DEPTH.get("flow"),
+        schedule=RESEARCH_DEPTH.get("schedule"),
         s=config["train"]["s"],
         seed=config["noise"]["seed"],
         shift=config["sky"]["shift"],

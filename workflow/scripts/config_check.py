@@ -54,8 +54,42 @@ def load_config(path: str | Path, schema: str | Path = SCHEMA_PATH) -> dict:
     return config
 
 
+#: Keys that have a new name: old dotted key -> new dotted key (``*`` stands for any one key). A config that
+#: still uses an old name is refused with a message that gives the new one (:func:`check_renamed`).
+RENAMED = {
+    "research.depth.flow": "research.depth.schedule",
+    "research.network.refine.flow": "research.network.refine.rule",
+}
+
+
+def check_renamed(config: Mapping[str, Any]) -> None:
+    """Refuse a key that has a new name (:data:`RENAMED`), naming the new one.
+
+    Raises:
+        ConfigError: ``config key 'research.depth.flow' is now 'research.depth.schedule' ...``.
+    """
+    for old, new in RENAMED.items():
+        for found in _matching(config, old.split(".")):
+            now = ".".join(part if wanted == "*" else wanted
+                           for part, wanted in zip(found.split("."), new.split(".")))
+            raise ConfigError(f"config key '{found}' is now '{now}': rename it (the value stays as it is)")
+
+
+def _matching(value: Any, parts: list[str], prefix: str = "") -> list[str]:
+    """The dotted keys of ``value`` that ``parts`` (``*`` for any one key) names."""
+    if not parts:
+        return [prefix]
+    if not isinstance(value, Mapping):
+        return []
+    keys = [str(key) for key in value] if parts[0] == "*" else [parts[0]] if parts[0] in value else []
+    return [found for key in keys for found in _matching(value[key], parts[1:], f"{prefix}.{key}" if prefix else key)]
+
+
 def validate_schema(config: dict, schema: str | Path = SCHEMA_PATH) -> None:
-    """Validate ``config`` against a JSON Schema written in YAML, filling in its defaults; the error names the key."""
+    """Validate ``config`` against a JSON Schema written in YAML, filling in its defaults; the error names the key
+    (a key that has a new name first: :func:`check_renamed`)."""
+    if isinstance(config, Mapping):
+        check_renamed(config)
     schema_data, validator = _validator(str(Path(schema).resolve()))
     errors = sorted(validator.iter_errors(config), key=lambda e: list(e.absolute_path))
     if errors:
@@ -250,7 +284,7 @@ def _check_research(config: Mapping[str, Any], noise_runs: int) -> None:
         _check_paired_runs(rules, "research.rules", noise_runs)
     depth = research.get("depth") or {}
     if depth.get("enabled"):
-        _check_schedule(depth.get("flow", ""), "research.depth.flow")
+        _check_schedule(depth.get("schedule", ""), "research.depth.schedule")
         shifts = depth.get("shifts_c")
         if not (isinstance(shifts, (list, tuple)) and shifts and all(
                 isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in shifts)):
@@ -318,8 +352,8 @@ def _check_network(network: Mapping[str, Any], n_sky: int) -> None:
         raise ConfigError(f"config key 'research.network.train.per_epoch': 0 (every training configuration) or at "
                           f"least one batch, research.network.train.batch_size ({batch}), got {per_epoch}")
     refine = network.get("refine") or {}
-    if "flow" in refine:
-        _check_rule(refine["flow"], "research.network.refine.flow")
+    if "rule" in refine:
+        _check_rule(refine["rule"], "research.network.refine.rule")
 
 
 def check_against_annotations(config: Mapping[str, Any], n_annotated: int, where: str) -> None:

@@ -19,7 +19,7 @@ from .runs import noisy_targets, run_seed
 
 def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed: int, s: int = 4,
                        shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
-                       batch_size: int = 64, flow: str = "paper", zooms: Sequence[int] | None = None,
+                       batch_size: int = 64, rule: str = "paper", zooms: Sequence[int] | None = None,
                        at: Sequence[float] | None = None) -> pd.DataFrame:
     """The dynamic gradient flow *at* theta*, on each noise level's training targets (run 0's draw).
 
@@ -27,7 +27,7 @@ def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed:
     targets it need not be: a non-zero mean flow at theta* is a pull that SGD follows past
     theta*, i.e. a bias of the noisy estimates, measured here instead of guessed.
 
-    ``flow`` names the gradient rule measured (:data:`sdm.FLOW_RULES`, default the paper's); ``zooms`` the
+    ``rule`` names the gradient rule measured (:data:`sdm.FLOW_RULES`, default the paper's); ``zooms`` the
     loss levels measured (default ``s .. 0``); ``at`` another theta to measure at (default theta* itself).
 
     Returns:
@@ -41,7 +41,7 @@ def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed:
     for level in levels:
         noisy = train_set.with_targets(noisy_targets(train_set.targets, level, run_seed(seed, level, 0)))
         for zoom in (range(s, -1, -1) if zooms is None else zooms):
-            layer = SpatialDomainMapping(camera, s=s, zoom=zoom, flow=flow)
+            layer = SpatialDomainMapping(camera, s=s, zoom=zoom, rule=rule)
             total = torch.zeros(2, dtype=torch.float64, device=train_set.device)
             entered = unmatched = 0
             for _, batch in noisy.batches(batch_size):
@@ -54,12 +54,12 @@ def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed:
     return pd.DataFrame.from_records(rows, columns=["level", "zoom", "flow_a", "flow_b", "unmatched"])
 
 
-def rule_bias(train_set: ConfigurationSet, flow: str, levels: Sequence[int], seed: int, s: int = 4,
+def rule_bias(train_set: ConfigurationSet, schedule: str, levels: Sequence[int], seed: int, s: int = 4,
               shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None, step: float = 1e-3) -> pd.DataFrame:
     """Where a rule's SGD settles, predicted from two measurements at the last level (zoom 0): the flow's
     bias at theta* under noise and its stiffness near theta* without noise.
 
-    ``flow`` may name a schedule (:func:`sdm.train.parse_schedule`): its last rule (the refinement's) is
+    ``schedule`` may name a bare rule or a schedule (:func:`sdm.train.parse_schedule`): its last rule (the refinement's) is
     measured, the one whose fixed point the runs end at.
 
     SGD stops moving on average where the mean flow vanishes. Near theta* the flow per configuration is
@@ -72,19 +72,19 @@ def rule_bias(train_set: ConfigurationSet, flow: str, levels: Sequence[int], see
         One row per level: ``level, bias_a, bias_b`` (flow per configuration), ``stiffness_a, stiffness_b``
         (per metre), ``offset_a, offset_b`` (metres, ``-bias / stiffness``) and ``predicted_m`` (their norm).
     """
-    _, refine = parse_schedule(flow)
-    flow = refine.flow if refine is not None else flow
+    first, refine = parse_schedule(schedule)
+    rule = refine.rule if refine is not None else first
     camera = camera or train_set.camera
     rows = []
     for level in levels:
-        bias = flow_at_true_shift(train_set, [level], seed, s, shift, camera, flow=flow, zooms=[0])
+        bias = flow_at_true_shift(train_set, [level], seed, s, shift, camera, rule=rule, zooms=[0])
         row = {"level": int(level)}
         for axis, name in enumerate("ab"):
             ends = []
             for sign in (1.0, -1.0):
                 at = [float(v) for v in shift]
                 at[axis] += sign * step
-                ends.append(float(flow_at_true_shift(train_set, [level], seed, s, shift, camera, flow=flow, zooms=[0],
+                ends.append(float(flow_at_true_shift(train_set, [level], seed, s, shift, camera, rule=rule, zooms=[0],
                                                      at=at)[f"flow_{name}"].iloc[0]))
             stiffness = (ends[0] - ends[1]) / (2 * step)
             row[f"bias_{name}"] = float(bias[f"flow_{name}"].iloc[0])
@@ -100,7 +100,7 @@ DEPTH_BIAS_COLUMNS = ["c_true", "level", "zoom", "flow_c", "stiffness_c", "offse
                       "unmatched_edge", "unmatched_inside"]
 
 
-def depth_bias(train_set: ConfigurationSet, c: float, levels: Sequence[int], seed: int, flow: str = "paper",
+def depth_bias(train_set: ConfigurationSet, c: float, levels: Sequence[int], seed: int, schedule: str = "paper",
                s: int = 4, zooms: Sequence[int] | None = None, shift: Sequence[float] = SKY_SHIFT,
                camera: Camera | None = None, step: float = 1e-2, batch_size: int = 64) -> pd.DataFrame:
     """Table 5's bias of ``c``, measured at theta* = ``(a*, b*, c*)``: the depth flow there under noise, where
@@ -121,7 +121,7 @@ def depth_bias(train_set: ConfigurationSet, c: float, levels: Sequence[int], see
     Args:
         train_set: the training configurations (their points; their own targets are not used).
         c: ``c*``, metres. levels: noise levels. seed: the experiment's seed.
-        flow: the rule measured (a name of :data:`sdm.FLOW_RULES`; a schedule's last rule for a schedule).
+        schedule: the rule measured (a name of :data:`sdm.FLOW_RULES`; a schedule's last rule for a schedule).
         s: coarsest zoom level; zooms: the loss levels measured (default ``s .. 0``).
         shift: ``(a*, b*)``, metres. camera: default the set's. step: metres of ``c``.
         batch_size: configurations per layer call (memory only: the sums are the same).
@@ -130,8 +130,8 @@ def depth_bias(train_set: ConfigurationSet, c: float, levels: Sequence[int], see
         One row per (noise level, zoom), columns :data:`DEPTH_BIAS_COLUMNS`; ``flow_c`` per training
         configuration, ``stiffness_c`` per configuration per metre, ``offset_c`` in metres.
     """
-    _, refine = parse_schedule(flow)
-    flow = refine.flow if refine is not None else flow
+    first, refine = parse_schedule(schedule)
+    rule = refine.rule if refine is not None else first
     camera = camera or train_set.camera
     truth = (float(shift[0]), float(shift[1]), float(c))
     clean = depth_targets(train_set, truth, camera)
@@ -147,7 +147,7 @@ def depth_bias(train_set: ConfigurationSet, c: float, levels: Sequence[int], see
     for level in levels:
         noisy = train_set.with_targets(noisy_targets(clean, level, run_seed(seed, level, 0)))
         for zoom in (range(s, -1, -1) if zooms is None else zooms):
-            layer = SpatialDomainMapping(camera, s=s, zoom=zoom, flow=flow)
+            layer = SpatialDomainMapping(camera, s=s, zoom=zoom, rule=rule)
             # [flow_c at c*, at c* + step, at c* - step, edge part at c*, (edge, inside) entered and unmatched]
             sums = np.zeros(8)
             for (_, batch), edge in zip(noisy.batches(batch_size), edges, strict=True):

@@ -266,7 +266,7 @@ def rule_noise_runs(train_set, rule: str, level: int, runs: Sequence[int], setti
                     group_size: int = NOISE_GROUP_SIZE, device: torch.device | str | None = None) -> pd.DataFrame:
     """Table 4: Table 2's runs at one level trained with another gradient rule or schedule, one row each.
 
-    :func:`noise_runs` with ``replace(settings, flow=rule)`` (and its refinement): run ``r`` draws the same
+    :func:`noise_runs` with ``replace(settings, rule=rule)`` (and its refinement): run ``r`` draws the same
     noisy targets and shuffling as Table 2's run ``r`` (:func:`run_seed` ``(settings.seed, level, r)``
     does not depend on the rule), so the comparison with the paper's rule is paired.
 
@@ -275,11 +275,11 @@ def rule_noise_runs(train_set, rule: str, level: int, runs: Sequence[int], setti
         the rest: as :func:`noise_runs`.
 
     Returns:
-        Columns ``flow`` (the schedule's name) then :data:`RUN_COLUMNS`, in the order of ``runs``.
+        Columns ``rule`` (the schedule's name) then :data:`RUN_COLUMNS`, in the order of ``runs``.
     """
-    flow, refine = parse_schedule(rule)
-    return sdm_runs(train_set, train_set.targets, level, runs, replace(settings, flow=flow),
-                     lambda theta: {"flow": rule} | shift_record(theta, shift), ["flow", *RUN_COLUMNS], camera,
+    first, refine = parse_schedule(rule)
+    return sdm_runs(train_set, train_set.targets, level, runs, replace(settings, rule=first),
+                     lambda theta: {"rule": rule} | shift_record(theta, shift), ["rule", *RUN_COLUMNS], camera,
                      group_size, device, refine)
 
 

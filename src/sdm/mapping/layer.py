@@ -114,7 +114,7 @@ class SpatialDomainMapping(nn.Module):
         method: ``"fast"`` (point rows) or ``"dense"`` (the paper's grids, for reference).
         sharpness: the dense path's kernel sharpness, the paper's ``c``, 1/metres (ignored by ``"fast"``,
             which is the ``c -> infinity`` limit).
-        flow: the gradient rule: a name of :data:`sdm.mapping.rules.RULES` (default ``"paper"``, eq. 19), a
+        rule: the gradient rule: a name of :data:`sdm.mapping.rules.RULES` (default ``"paper"``, eq. 19), a
             :class:`~sdm.mapping.rules.Rule`, or a function with :func:`~sdm.mapping.flow.dynamic_flow`'s
             signature; only ``"paper"`` with ``method="dense"``.
         fit_depth: also give ``z`` a gradient, the depth flow of :mod:`sdm.depth`
@@ -130,12 +130,12 @@ class SpatialDomainMapping(nn.Module):
     >>> out.loss.backward()
     >>> theta.grad  # the summed pulls: a step against them moves theta towards SKY_SHIFT = (0.517, 0.303)
     tensor([-46., -38.], dtype=torch.float64)
-    >>> SpatialDomainMapping(flow="closed_centred_r1").rule
+    >>> SpatialDomainMapping(rule="closed_centred_r1").rule
     Rule('closed_centred_r1', compiled=CENTRED)
     """
 
     def __init__(self, camera: Camera = APOLLO_CAMERA_5, s: int = 4, zoom: int = 0, method: str = "fast", sharpness: float = 1e9,
-                 flow="paper", fit_depth: bool = False):
+                 rule="paper", fit_depth: bool = False):
         super().__init__()
         check_divisible(camera.screen_shape, s)
         if int(zoom) != zoom or not 0 <= zoom <= s:
@@ -146,11 +146,11 @@ class SpatialDomainMapping(nn.Module):
             raise SDMInputError(f"sharpness (the dense kernel's c) must be positive, got {sharpness!r}")
         self.camera, self.s, self.zoom, self.method = camera, int(s), int(zoom), method
         self.sharpness = float(sharpness)
-        self.rule = RULES.resolve(flow)
+        self.rule = RULES.resolve(rule)
         self.flow_rule = self.rule.flow  # dynamic_flow itself for "paper": the kernel's flow (fast_mapping)
         self.fit_depth = bool(fit_depth)
         if method == "dense" and self.flow_rule is not dynamic_flow:
-            raise SDMInputError(f"flow: the dense reference implements only the paper's rule, got {flow!r}")
+            raise SDMInputError(f"rule: the dense reference implements only the paper's rule, got {rule!r}")
 
     def forward(
         self,

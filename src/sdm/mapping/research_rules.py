@@ -11,10 +11,10 @@ configuration or table of the workflow uses the ones below.
 
 Each is a :class:`~sdm.mapping.rules.Rule` (``experiment=True``, no compiled form) registered in
 :data:`sdm.mapping.rules.RULES` when :mod:`sdm.mapping` is imported; :data:`RESEARCH_RULES` is the registry's
-view of them. Selecting one: by name wherever a rule is named (``TrainSettings(flow="closed")``,
-``SpatialDomainMapping(flow="closed")``, ``research.rules.names`` of the workflow,
+view of them. Selecting one: by name wherever a rule is named (``TrainSettings(rule="closed")``,
+``SpatialDomainMapping(rule="closed")``, ``research.rules.names`` of the workflow,
 ``benchmarks/studies/flow_rules.py --rules``), or as the object itself
-(``SpatialDomainMapping(flow=RESEARCH_RULES["nearest"])``).
+(``SpatialDomainMapping(rule=RESEARCH_RULES["nearest"])``).
 
 Shapes and signature: those of :mod:`sdm.mapping.rules`.
 """

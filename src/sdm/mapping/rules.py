@@ -6,7 +6,7 @@ project is registered in :data:`RULES`; :data:`FLOW_RULES` (the rules a configur
 :data:`sdm.mapping.research_rules.RESEARCH_RULES` (the experiments of docs/method/rules.md) are live views of
 it, and the workflow schema's rule names are held to it by ``tests/experiments/test_research.py``.
 
-Wherever a rule is named (``SpatialDomainMapping(flow=...)``, ``TrainSettings(flow=...)``) it may be a
+Wherever a rule is named (``SpatialDomainMapping(rule=...)``, ``TrainSettings(rule=...)``) it may be a
 registered name, a :class:`Rule`, or a bare function with the signature of
 :func:`~sdm.mapping.flow.dynamic_flow` ``(screen, depth, config, landed, block, landing, target, zoom, camera)
 -> (flow, loss, matched)`` (:meth:`RuleRegistry.resolve`; a bare function has no compiled form, so it trains on the torch
@@ -265,21 +265,21 @@ class RuleRegistry(Mapping):
         """A live read-only view of the registered rules that are (``True``) or are not experiments."""
         return RuleView(self, experiment)
 
-    def resolve(self, flow) -> Rule:
-        """The :class:`Rule` of ``flow``: a registered name, a :class:`Rule` (as it is) or a bare flow function
+    def resolve(self, rule) -> Rule:
+        """The :class:`Rule` of ``rule``: a registered name, a :class:`Rule` (as it is) or a bare flow function
         (a :class:`Rule` without compiled form, named after it).
 
         Raises:
-            SDMInputError: an unknown name or anything else (naming the argument ``flow`` and the registered names).
+            SDMInputError: an unknown name or anything else (naming the argument ``rule`` and the registered names).
         """
-        if isinstance(flow, Rule):
-            return flow
-        if isinstance(flow, str) and flow in self._rules:
-            return self._rules[flow]
-        if callable(flow) and not isinstance(flow, str):
-            return Rule(getattr(flow, "__qualname__", type(flow).__name__), flow)
-        raise SDMInputError(f"flow must be a rule of sdm.mapping.rules.RULES {sorted(self._rules)}, a Rule or a "
-                            f"flow function, got {flow!r}")
+        if isinstance(rule, Rule):
+            return rule
+        if isinstance(rule, str) and rule in self._rules:
+            return self._rules[rule]
+        if callable(rule) and not isinstance(rule, str):
+            return Rule(getattr(rule, "__qualname__", type(rule).__name__), rule)
+        raise SDMInputError(f"rule must be a rule of sdm.mapping.rules.RULES {sorted(self._rules)}, a Rule or a "
+                            f"flow function, got {rule!r}")
 
 
 class RuleView(Mapping):
@@ -331,8 +331,8 @@ GROUP_CROSSING = RULES.register(Rule.by_zoom("group_crossing", group_crossing_fl
 FLOW_RULES = RULES.view(experiment=False)
 
 
-def crossing_width_rule(flow, width: float | None) -> Rule:
-    """The rule ``flow`` (:meth:`RuleRegistry.resolve`) with ``group_crossing``'s kernel half-width ``width``
+def crossing_width_rule(rule, width: float | None) -> Rule:
+    """The rule ``rule`` (:meth:`RuleRegistry.resolve`) with ``group_crossing``'s kernel half-width ``width``
     (metres; a refinement pass's, :attr:`sdm.train.Refinement.widths`). ``width=None``, its own width
     :data:`~sdm.mapping.crossing.CROSSING_WIDTH`, and every rule but ``group_crossing`` (which read no width) give
     the rule itself; another width a :class:`Rule` of the same name and compiled form whose torch flow reads it
@@ -340,9 +340,9 @@ def crossing_width_rule(flow, width: float | None) -> Rule:
     :func:`sdm.mapping.native.train_program`).
 
     Raises:
-        SDMInputError: an unknown ``flow`` (naming ``flow``), a ``width`` that is not a positive finite number.
+        SDMInputError: an unknown ``rule`` (naming ``rule``), a ``width`` that is not a positive finite number.
     """
-    rule = RULES.resolve(flow)
+    rule = RULES.resolve(rule)
     if rule is not GROUP_CROSSING or width is None or check_crossing_width(width) == CROSSING_WIDTH:
         return rule
     return Rule.by_zoom(rule.name, functools.partial(group_crossing_flow, width=float(width)), CROSSING_FINEST_COARSE,

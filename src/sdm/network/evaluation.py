@@ -119,7 +119,7 @@ def test_methods(test: ShiftSet, level: int, networks: dict[tuple[str, int], Shi
 
 def refine_settings(refine: dict, seed: int):
     """The :class:`sdm.train.TrainSettings` of the k steps after the network (``research.network.refine``)."""
-    return TrainSettings(lr=float(refine["lr"]), batch_size=int(refine["batch_size"]), flow=str(refine["flow"]),
+    return TrainSettings(lr=float(refine["lr"]), batch_size=int(refine["batch_size"]), rule=str(refine["rule"]),
                          s=int(refine["s"]), n_epoch=int(refine["n_epoch"]), zoom=0, seed=int(seed))
 
 

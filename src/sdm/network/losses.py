@@ -101,7 +101,7 @@ class BatchLoss:
         data = train.data
         self.camera = data.camera
         if kind in SDM_RULES:
-            self.layers = {level: SpatialDomainMapping(data.camera, s=settings.s, zoom=level, flow=SDM_RULES[kind])
+            self.layers = {level: SpatialDomainMapping(data.camera, s=settings.s, zoom=level, rule=SDM_RULES[kind])
                            for level in range(settings.s + 1)}
             self.pyramid = data.pyramid(settings.s)
 

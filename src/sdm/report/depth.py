@@ -97,7 +97,7 @@ def table5_summary(frame: pd.DataFrame) -> str:
 
 def table5_bias_summary(frame: pd.DataFrame, bias: pd.DataFrame) -> str:
     """Why ``c`` is biased, in plain words (Markdown): Table 5's signed mean ``c - c*`` beside what
-    :func:`sdm.experiments.depth_bias` measured at theta* (one row per ``flow``, ``c_true``, ``level``, ``zoom``).
+    :func:`sdm.experiments.depth_bias` measured at theta* (one row per ``rule``, ``c_true``, ``level``, ``zoom``).
 
     Per c* and noisy level: the measured bias, then each measured rule's predicted fixed point of ``c`` and the
     share of its depth flow that comes from the points at the edges of the discs, with how often those land on
@@ -106,7 +106,7 @@ def table5_bias_summary(frame: pd.DataFrame, bias: pd.DataFrame) -> str:
     lines = []
     measured = {(float(row.c_true), int(row.level)): row.bias_c_m for row in frame.itertuples()}
     for (c_true, level), rows in bias[bias["level"] > 0].groupby(["c_true", "level"], sort=True):
-        parts = [f"{row.flow} at zoom {int(row.zoom)}: predicted {1e3 * row.offset_c:+.2f}, "
+        parts = [f"{row.rule} at zoom {int(row.zoom)}: predicted {1e3 * row.offset_c:+.2f}, "
                  f"{100 * row.edge_share:.0f}% of its pull from disc edges (their points on empty blocks "
                  f"{100 * row.unmatched_edge:.1f}%, the others {100 * row.unmatched_inside:.1f}%)"
                  for row in rows.itertuples()]

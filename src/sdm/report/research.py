@@ -22,8 +22,8 @@ from ..train import parse_schedule
 from .io import read_csv
 from .tables import TableFormat, in_millimetres, require_columns, write_table
 
-#: Per-run columns Table 4 needs (``sdm.experiments.rule_noise_runs``; Table 2's runs have no ``flow``).
-RULE_RUN_COLUMNS = ("flow", "level", "run", "distance")
+#: Per-run columns Table 4 needs (``sdm.experiments.rule_noise_runs``; Table 2's runs have no ``rule``).
+RULE_RUN_COLUMNS = ("rule", "level", "run", "distance")
 
 #: Table 4's rows that are not gradient rules: the best black-box search (Table 3's CMA-ES runs) and the
 #: floor (the exact-mismatch minimiser of each run, :mod:`sdm.baselines.floor`), on their own paired runs.
@@ -35,13 +35,13 @@ CMAES_FACTOR = 2.0
 
 def reference_rows(baseline_runs: pd.DataFrame | None, floor_runs: pd.DataFrame | None) -> pd.DataFrame:
     """CMA-ES's runs (``method == "cmaes"`` of Table 3's per-run rows) and the floor's runs as Table 4 rows
-    (``flow`` :data:`CMAES_ROW` / :data:`FLOOR_ROW`, ``level, run, distance``); either may be ``None``."""
+    (``rule`` :data:`CMAES_ROW` / :data:`FLOOR_ROW`, ``level, run, distance``); either may be ``None``."""
     parts = []
     if baseline_runs is not None and "cmaes" in set(baseline_runs.get("method", ())):
         cmaes = baseline_runs[baseline_runs["method"] == "cmaes"]
-        parts.append(cmaes[["level", "run", "distance"]].assign(flow=CMAES_ROW))
+        parts.append(cmaes[["level", "run", "distance"]].assign(rule=CMAES_ROW))
     if floor_runs is not None and len(floor_runs):
-        parts.append(floor_runs[["level", "run", "distance"]].assign(flow=FLOOR_ROW))
+        parts.append(floor_runs[["level", "run", "distance"]].assign(rule=FLOOR_ROW))
     if not parts:
         return pd.DataFrame(columns=list(RULE_RUN_COLUMNS))
     return pd.concat(parts, ignore_index=True)[list(RULE_RUN_COLUMNS)]
@@ -62,7 +62,7 @@ def run_stats(values: np.ndarray) -> dict[str, float]:
 
 def gathered_runs(paths: Sequence[str | Path], keys: Sequence[str], expected: set, what: str) -> pd.DataFrame:
     """The run files at ``paths`` (CSVs, one row per run) concatenated, checked to hold exactly the runs
-    ``expected`` (tuples of the columns ``keys``, e.g. ``(flow, level, run)``); ``what`` names the table in
+    ``expected`` (tuples of the columns ``keys``, e.g. ``(rule, level, run)``); ``what`` names the table in
     the error. The gathering stages of Tables 4 and 5 read their jobs' files with it."""
     frame = pd.concat([read_csv(path) for path in paths], ignore_index=True)
     found = set(zip(*(frame[key] for key in keys)))
@@ -79,13 +79,13 @@ def table4_frame(rule_runs: pd.DataFrame, table2_runs: pd.DataFrame,
     """Table 4: Table 2 again for each gradient rule, with the paper's rule's paired runs beside.
 
     Args:
-        rule_runs: one row per (flow, level, run) with :data:`RULE_RUN_COLUMNS` (distance in metres).
+        rule_runs: one row per (rule, level, run) with :data:`RULE_RUN_COLUMNS` (distance in metres).
         table2_runs: Table 2's runs (``level, run, distance``: the paper's rule on the same noise
             draws); only the (level, run) pairs that ``rule_runs`` has are used, so the
             comparison is paired.
 
     Returns:
-        One row per (flow, level), rules in the order they first appear: ``flow, level, runs``;
+        One row per (rule, level), rules in the order they first appear: ``rule, level, runs``;
         ``mean_m, std_m, median_m`` of the rule's distances; ``paper_rule_mean_m, paper_rule_std_m,
         paper_rule_median_m`` (Table 2's runs of the same (level, run)) and ``paper_rule_runs``;
         ``published_mean_m, published_std_m, published_median_m`` (the paper's Table 2, NaN for a
@@ -100,15 +100,15 @@ def table4_frame(rule_runs: pd.DataFrame, table2_runs: pd.DataFrame,
     reference = table2_runs.set_index(["level", "run"])["distance"]
     search = cmaes_runs.set_index(["level", "run"])["distance"] if cmaes_runs is not None and len(cmaes_runs) else None
     rows = []
-    for flow in pd.unique(rule_runs["flow"]):
-        for level, group in rule_runs[rule_runs["flow"] == flow].groupby("level", sort=True):
+    for rule in pd.unique(rule_runs["rule"]):
+        for level, group in rule_runs[rule_runs["rule"] == rule].groupby("level", sort=True):
             ours = run_stats(group["distance"].to_numpy(dtype=float))
             pairs = pd.MultiIndex.from_arrays([group["level"], group["run"]])
             paired = reference.reindex(pairs).dropna().to_numpy(dtype=float)
             theirs = run_stats(paired) if paired.size else dict.fromkeys(("mean_m", "std_m", "median_m"), math.nan)
             published = paper.TABLE2.get(int(level), {})
             bar = half_paper_mean_m(level)
-            row = {"flow": str(flow), "level": int(level), "runs": int(len(group)), **ours}
+            row = {"rule": str(rule), "level": int(level), "runs": int(len(group)), **ours}
             row |= {f"paper_rule_{key}": value for key, value in theirs.items()} | {"paper_rule_runs": int(paired.size)}
             row |= {f"published_{stat}_m": 1e-3 * published[key] if published else math.nan
                     for stat, key in (("mean", "mean"), ("std", "std"), ("median", "q2"))}
@@ -138,11 +138,11 @@ _TABLE4_DISTANCES = ("mean", "std", "median", "paper_rule_mean", "paper_rule_std
                      "cmaes_mean")
 
 TABLE4_FORMAT = TableFormat(
-    columns=("flow", "level", "runs", "mean", "std", "median", "paper_rule_mean", "paper_rule_std",
+    columns=("rule", "level", "runs", "mean", "std", "median", "paper_rule_mean", "paper_rule_std",
              "paper_rule_median", "published_mean", "published_median", "bar", "meets_bar", "ratio_to_paper_rule",
              "cmaes_runs", "on_cmaes_runs_mean", "cmaes_mean", "ratio_to_cmaes"),
     headers={
-        "flow": "rule", "level": "noise level", "runs": "runs", "mean": "mean", "std": "std", "median": "median",
+        "rule": "rule", "level": "noise level", "runs": "runs", "mean": "mean", "std": "std", "median": "median",
         "paper_rule_mean": "mean (paper's rule)", "paper_rule_std": "std (paper's rule)",
         "paper_rule_median": "median (paper's rule)", "published_mean": "mean (paper)",
         "published_median": "median (paper)", "bar": "bar", "meets_bar": "meets bar",
@@ -177,9 +177,9 @@ def table4_summary(frame: pd.DataFrame) -> str:
     at every level, on the runs both have, and by how much it misses where it does. The floor's and CMA-ES's own
     rows are stated as what the rules are read against, not judged."""
     lines = []
-    rules = [flow for flow in pd.unique(frame["flow"]) if flow not in (CMAES_ROW, FLOOR_ROW)]
-    for flow in rules:
-        rows = frame[frame["flow"] == flow].sort_values("level")
+    rules = [rule for rule in pd.unique(frame["rule"]) if rule not in (CMAES_ROW, FLOOR_ROW)]
+    for rule in rules:
+        rows = frame[frame["rule"] == rule].sort_values("level")
         judged = rows[rows["bar_m"].notna()]
         missed = judged[~judged["meets_bar"]]
         runs = ", ".join(sorted({str(int(r)) for r in rows["runs"]}))
@@ -195,12 +195,12 @@ def table4_summary(frame: pd.DataFrame) -> str:
             verdict = ("misses the bar (half the paper's mean) at level "
                        + ", ".join(str(int(v)) for v in missed["level"])
                        + f" and meets it at {len(judged) - len(missed)} of {len(judged)} levels")
-        lines.append(f"- rule `{flow}` ({runs} runs per level) {verdict}. Mean distance (1e-3 m): {per_level}.")
+        lines.append(f"- rule `{rule}` ({runs} runs per level) {verdict}. Mean distance (1e-3 m): {per_level}.")
         if "ratio_to_cmaes" in rows and (rows["cmaes_runs"] > 0).any():
-            lines.append(_cmaes_verdict(flow, rows))
-            lines += _refinement_reading(flow, rows, frame)
+            lines.append(_cmaes_verdict(rule, rows))
+            lines += _refinement_reading(rule, rows, frame)
     for name in (CMAES_ROW, FLOOR_ROW):
-        rows = frame[frame["flow"] == name].sort_values("level")
+        rows = frame[frame["rule"] == name].sort_values("level")
         if len(rows):
             runs = ", ".join(sorted({str(int(r)) for r in rows["runs"]}))
             means = "; ".join(f"level {int(row.level)}: {1e3 * row.mean_m:.3f}" for row in rows.itertuples())
@@ -232,17 +232,17 @@ def rule_times(rule_runs: pd.DataFrame, sdm_timings: Sequence[dict]) -> str:
         return ""
     paper_rule = sum(float(record["seconds"]) for record in sdm_timings) / runs
     lines = []
-    for flow in pd.unique(rule_runs["flow"]):
-        own = float(rule_runs.loc[rule_runs["flow"] == flow, "seconds"].mean())
+    for rule in pd.unique(rule_runs["rule"]):
+        own = float(rule_runs.loc[rule_runs["rule"] == rule, "seconds"].mean())
         ratio = own / paper_rule
         verdict = "within" if ratio <= TIME_FACTOR else "beyond"
-        lines.append(f"- time per run of rule `{flow}`: {own:.3f} s against {paper_rule:.3f} s for the paper's rule "
+        lines.append(f"- time per run of rule `{rule}`: {own:.3f} s against {paper_rule:.3f} s for the paper's rule "
                      f"(Table 2's {runs} runs, the same measure: wall time of the runs trained together, one thread), "
                      f"{ratio:.2f}x: {verdict} the bar of {TIME_FACTOR:g}x the paper's rule's time.")
     return "\n".join(lines) + "\n"
 
 
-def _cmaes_verdict(flow: str, rows: pd.DataFrame) -> str:
+def _cmaes_verdict(rule: str, rows: pd.DataFrame) -> str:
     """The bar "within 2x of CMA-ES" for one rule's rows of Table 4, in words, every number from the rows."""
     judged = rows[rows["cmaes_runs"] > 0]
     missed = judged[~judged["within_2x_cmaes"]]
@@ -259,13 +259,13 @@ def _cmaes_verdict(flow: str, rows: pd.DataFrame) -> str:
             f"mean ({worst['ratio_to_cmaes'] / CMAES_FACTOR:.1f} times the bar). Mean distance (1e-3 m): {by_level}.")
 
 
-def _refinement_reading(flow: str, rows: pd.DataFrame, frame: pd.DataFrame) -> list[str]:
+def _refinement_reading(rule: str, rows: pd.DataFrame, frame: pd.DataFrame) -> list[str]:
     """Where a schedule ``RULE+REFINE:E`` misses the CMA-ES bar, what the table measures about why (Markdown):
     at each missed level, where its first rule alone ends (that rule's row, on the same runs), where the
     refinement takes it and CMA-ES's mean, so the share of the first rule's gap to CMA-ES that the refinement
     closes. No line where the schedule meets the bar or the table has no row of its first rule alone."""
-    first, plus, refine = flow.partition("+")
-    alone = frame[frame["flow"] == first].set_index("level")
+    first, plus, refine = rule.partition("+")
+    alone = frame[frame["rule"] == first].set_index("level")
     missed = rows[(rows["cmaes_runs"] > 0) & ~rows["within_2x_cmaes"].astype(bool)]
     if not plus or missed.empty or alone.empty or "on_cmaes_runs_mean_m" not in alone:
         return []
@@ -281,7 +281,7 @@ def _refinement_reading(flow: str, rows: pd.DataFrame, frame: pd.DataFrame) -> l
     if not parts:
         return []
 
-    widths = parse_schedule(flow)[1].widths
+    widths = parse_schedule(rule)[1].widths
     return [f"  Why it misses, measured on the same runs (1e-3 m): the refinement (`{refine}`) starts where `{first}` "
             f"ends; per missed level: " + "; ".join(parts) + ". The refinement's rule pulls theta only "
             f"towards the pixel crossings within its kernel's half-width, {1e3 * widths[0]:g}e-3 m of theta on its "
@@ -289,8 +289,8 @@ def _refinement_reading(flow: str, rows: pd.DataFrame, frame: pd.DataFrame) -> l
             "on the real sample\": the steps, rates and widths measured)."]
 
 
-#: Columns of the rules' fixed-point measurement (:func:`sdm.experiments.rule_bias`, plus ``flow``).
-BIAS_COLUMNS = ("flow", "level", "bias_a", "stiffness_a", "offset_a", "bias_b", "stiffness_b", "offset_b",
+#: Columns of the rules' fixed-point measurement (:func:`sdm.experiments.rule_bias`, plus ``rule``).
+BIAS_COLUMNS = ("rule", "level", "bias_a", "stiffness_a", "offset_a", "bias_b", "stiffness_b", "offset_b",
                 "predicted_m")
 
 
@@ -300,15 +300,15 @@ def bias_summary(bias: pd.DataFrame, frame: pd.DataFrame) -> str:
     near theta*), beside the rule's measured mean distance in Table 4 (``frame``; Table 2's for ``paper``)."""
     require_columns(bias, BIAS_COLUMNS, "the rules' bias", runs=True)
     lines = []
-    for flow in pd.unique(bias["flow"]):
-        rows = bias[bias["flow"] == flow].sort_values("level")
-        mine = frame[frame["flow"] == flow].set_index("level")["mean_m"] if flow in set(frame["flow"]) else (
-            frame[~frame["flow"].isin((CMAES_ROW, FLOOR_ROW))].groupby("level")["paper_rule_mean_m"].first())
+    for rule in pd.unique(bias["rule"]):
+        rows = bias[bias["rule"] == rule].sort_values("level")
+        mine = frame[frame["rule"] == rule].set_index("level")["mean_m"] if rule in set(frame["rule"]) else (
+            frame[~frame["rule"].isin((CMAES_ROW, FLOOR_ROW))].groupby("level")["paper_rule_mean_m"].first())
         parts = [f"level {int(row.level)}: bias ({row.bias_a:.2f}, {row.bias_b:.2f}) per configuration, stiffness "
                  f"({row.stiffness_a:.0f}, {row.stiffness_b:.0f}) per metre, fixed point {1e3 * row.predicted_m:.3f} "
                  f"from theta* against {1e3 * float(mine.get(row.level, math.nan)):.3f} measured"
                  for row in rows.itertuples()]
-        lines.append(f"- rule `{flow}`, measured at the last level (zoom 0; run 0's draw; flow per configuration, "
+        lines.append(f"- rule `{rule}`, measured at the last level (zoom 0; run 0's draw; flow per configuration, "
                      f"distances 1e-3 m): " + "; ".join(parts) + ".")
     return ("Where each rule settles, measured: SGD stops on average where the last level's mean flow vanishes, "
             "about -bias / stiffness from theta* per axis (bias: the mean flow at theta* under noise; stiffness: its "
@@ -321,7 +321,7 @@ def rules_against_baselines(rule_runs: pd.DataFrame, baseline_runs: pd.DataFrame
     """Each rule of Table 4 beside Table 3's baselines, paired: the same (level, run), hence the same noisy targets.
 
     Args:
-        rule_runs: per-run rows with ``flow, level, run, distance`` (metres).
+        rule_runs: per-run rows with ``rule, level, run, distance`` (metres).
         baseline_runs: Table 3's per-run rows with ``method, level, run, distance`` (metres).
 
     Returns:
@@ -331,8 +331,8 @@ def rules_against_baselines(rule_runs: pd.DataFrame, baseline_runs: pd.DataFrame
     require_columns(rule_runs, RULE_RUN_COLUMNS, "Table 4's runs", runs=True)
     require_columns(baseline_runs, ("method", "level", "run", "distance"), "Table 3's runs", runs=True)
     lines = []
-    for flow in pd.unique(rule_runs["flow"]):
-        mine = rule_runs[rule_runs["flow"] == flow]
+    for rule in pd.unique(rule_runs["rule"]):
+        mine = rule_runs[rule_runs["rule"] == rule]
         parts, beaten_everywhere = [], True
         for level in sorted(pd.unique(mine["level"])):
             runs = set(mine.loc[mine["level"] == level, "run"])
@@ -353,7 +353,7 @@ def rules_against_baselines(rule_runs: pd.DataFrame, baseline_runs: pd.DataFrame
         if parts:
             verdict = ("beats every baseline at every level" if beaten_everywhere
                        else "does not beat every baseline at every level")
-            lines.append(f"- rule `{flow}` beside Table 3's baselines on the same runs {verdict}. Mean distance "
+            lines.append(f"- rule `{rule}` beside Table 3's baselines on the same runs {verdict}. Mean distance "
                          f"(1e-3 m): " + "; ".join(parts) + ".")
     return "\n".join(lines) + "\n" if lines else ""
 
@@ -403,22 +403,22 @@ def rules_figure(frame: pd.DataFrame):
 
     fig, ax = plt.subplots(figsize=(6.4, 4.4), constrained_layout=True)
     colours = plt.get_cmap("tab10")
-    rules = [flow for flow in pd.unique(frame["flow"]) if flow not in (CMAES_ROW, FLOOR_ROW)]
-    first = frame[frame["flow"] == (rules or list(pd.unique(frame["flow"])))[0]].sort_values("level")
+    rules = [rule for rule in pd.unique(frame["rule"]) if rule not in (CMAES_ROW, FLOOR_ROW)]
+    first = frame[frame["rule"] == (rules or list(pd.unique(frame["rule"])))[0]].sort_values("level")
     ax.plot(first["level"], 1e3 * first["paper_rule_mean_m"], marker="s", color="black",
             label="paper's rule (Table 2's runs)")
     ax.plot(first["level"], 1e3 * first["published_mean_m"], ls=":", color="black", label="paper (published)")
     ax.plot(first["level"], 1e3 * first["bar_m"], ls="--", color="grey", label="half the paper's mean (bar)")
-    for i, flow in enumerate(rules):
-        rows = frame[frame["flow"] == flow].sort_values("level")
+    for i, rule in enumerate(rules):
+        rows = frame[frame["rule"] == rule].sort_values("level")
         ax.errorbar(rows["level"], 1e3 * rows["mean_m"], yerr=1e3 * rows["std_m"].fillna(0.0), marker="o",
-                    capsize=3, color=colours(i), label=f"rule {flow}")
-    search = frame[frame["flow"] == CMAES_ROW].sort_values("level")
+                    capsize=3, color=colours(i), label=f"rule {rule}")
+    search = frame[frame["rule"] == CMAES_ROW].sort_values("level")
     if len(search):
         ax.plot(search["level"], 1e3 * search["mean_m"], marker="^", color="tab:red", label=CMAES_ROW)
         ax.plot(search["level"], CMAES_FACTOR * 1e3 * search["mean_m"], ls="-.", color="tab:red", lw=0.8,
                 label=f"{CMAES_FACTOR:g}x CMA-ES (bar)")
-    floor = frame[frame["flow"] == FLOOR_ROW].sort_values("level")
+    floor = frame[frame["rule"] == FLOOR_ROW].sort_values("level")
     if len(floor):  # a band from the axis' bottom up to the floor's mean: no mismatch minimiser lands below, on average
         mean = 1e3 * floor["mean_m"]
         bottom = 0.3 * 1e3 * float(frame["mean_m"][frame["mean_m"] > 0].min())  # below every mean: a log axis

@@ -35,10 +35,10 @@ def recommended_schedule(table4: pd.DataFrame, rules: Sequence[str]) -> str | No
     """The rule of Table 4 among ``rules`` that meets the bar "half the paper's mean" at the most levels, ties
     broken by the lower mean distance over its levels; None when no rule meets the bar at any level (keep the
     paper's)."""
-    rows = table4[table4["flow"].isin(list(rules))]
+    rows = table4[table4["rule"].isin(list(rules))]
     if rows.empty:
         return None
-    score = rows.groupby("flow", sort=False).agg(met=("meets_bar", "sum"), mean=("mean_m", "mean"))
+    score = rows.groupby("rule", sort=False).agg(met=("meets_bar", "sum"), mean=("mean_m", "mean"))
     score = score.sort_values(["met", "mean"], ascending=[False, True], kind="stable")
     return None if score["met"].iloc[0] == 0 else str(score.index[0])
 
@@ -82,8 +82,8 @@ def search_rows(table3: pd.DataFrame | None, table4: pd.DataFrame | None) -> pd.
     """Per noise level, the black-box search's mean and SDM's (the paper's rule) on the same runs, in metres
     (``level, search_m, sdm_m, runs``): Table 4's CMA-ES row where it has one (all CMA-ES runs, paired with Table
     2's), else Table 3's paired runs; None without CMA-ES."""
-    if table4 is not None and (table4["flow"] == CMAES_ROW).any():
-        rows = table4[table4["flow"] == CMAES_ROW]
+    if table4 is not None and (table4["rule"] == CMAES_ROW).any():
+        rows = table4[table4["rule"] == CMAES_ROW]
         return pd.DataFrame({"level": rows["level"].astype(int), "search_m": rows["mean_m"],
                              "sdm_m": rows["paper_rule_mean_m"], "runs": rows["runs"].astype(int)})
     if table3 is None or not (table3["method"] == SEARCH).any():
@@ -131,7 +131,7 @@ def schedule_facts(table4: pd.DataFrame | None, rules: Sequence[str]) -> dict | 
     rule = recommended_schedule(table4, rules)
     if rule is None:
         return {"name": None}
-    rows = table4[table4["flow"] == rule].sort_values("level")
+    rows = table4[table4["rule"] == rule].sort_values("level")
     judged = rows[rows["bar_m"].notna()]
     noisy = rows.loc[rows["level"] > 0, "ratio_to_paper_rule"]
     facts = {"name": rule, "runs": int(rows["runs"].max()), "meets_bar": int(judged["meets_bar"].sum()),
@@ -152,7 +152,7 @@ def level_rows(table2: pd.DataFrame, search: pd.DataFrame | None, table4: pd.Dat
     """The verdict's table, one row per noise level of Table 2 (millimetres): the paper's mean, ours (the paper's
     rule), the black-box search's and the recommended schedule's (None where the run has none)."""
     by_search = search.set_index("level") if search is not None else None
-    by_rule = table4[table4["flow"] == rule].set_index("level") if rule else None
+    by_rule = table4[table4["rule"] == rule].set_index("level") if rule else None
     out = []
     for _, row in table2.sort_values("level").iterrows():
         level = int(row["level"])

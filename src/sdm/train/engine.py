@@ -123,7 +123,7 @@ def train_runs(
             to train on them: its zoomed-out pyramid is then the set's cached one).
         targets: ``R`` tensors ``(N, H, W)`` bool, run ``r``'s training targets.
         settings: ``R`` settings; all fields but ``seed`` must agree (one learning-rate schedule,
-            one ``flow``, one ``fit_depth``, ``depth_lr_scale`` and ``depth_zoom``).
+            one ``rule``, one ``fit_depth``, ``depth_lr_scale`` and ``depth_zoom``).
         camera: camera and screen; default the set's own.
         device: where to train; default the set's device. The shuffling is drawn on the CPU.
         theta0: ``None`` (every run starts at zero) or ``R`` starts ``(a, b)`` (``(a, b, c)``, or
@@ -227,7 +227,7 @@ def train_steps(train_set, targets, own_targets, settings, camera, method, level
     common = settings[0]
     device = train_set.device
     row_rate = level_row_rates(levels, row_rate, row_level, rows)
-    rule = RULES.resolve(common.flow)
+    rule = RULES.resolve(common.rule)
     windows = rule.kernel_flows(levels)  # None: no compiled form
     if not (method == "fast" and not common.fit_depth and windows is not None and device.type == "cpu"
             and train_set.points.dtype == torch.float64 and native.enabled()

@@ -52,7 +52,7 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
                          row_rate)
     train_set, settings, camera, rows, row_rate = runs.train_set, runs.settings, runs.camera, runs.rows, runs.row_rate
     own_targets, theta = runs.own_targets, runs.starts
-    passes = [replace(one, n_epoch=1, flow=refinement.flow,
+    passes = [replace(one, n_epoch=1, rule=refinement.rule,
                       depth_zoom=one.zoom if refinement.moves_c else one.depth_zoom) for one in settings]
     common = passes[0]
     per_epoch = len(train_set) // common.batch_size

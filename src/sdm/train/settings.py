@@ -36,7 +36,7 @@ class TrainSettings:
         zoom: finest level trained (0 = full resolution).
         lr_decay: factor applied to the learning rate after each level.
         seed: seeds the shuffling.
-        flow: the gradient rule: a name of :data:`sdm.RULES` (default ``"paper"``, eq. 19), a :class:`sdm.Rule`
+        rule: the gradient rule: a name of :data:`sdm.RULES` (default ``"paper"``, eq. 19), a :class:`sdm.Rule`
             (trained by the compiled kernel where it has a compiled form) or a flow function (the torch path).
         fit_depth: train the general shift ``(a, b, c)`` with the depth flow of :mod:`sdm.depth`
             (beyond the paper); theta, its history and ``final_theta`` then have three entries.
@@ -56,7 +56,7 @@ class TrainSettings:
     zoom: int = 0
     lr_decay: float = 0.5
     seed: int = 0
-    flow: str | Rule = "paper"
+    rule: str | Rule = "paper"
     fit_depth: bool = False
     depth_lr_scale: float = 20.0
     depth_zoom: int = 1
@@ -86,7 +86,7 @@ class TrainSettings:
             raise SDMInputError(f"zoom must be an integer in [0, s] = [0, {self.s}], got {self.zoom!r}")
         if not (math.isfinite(self.lr_decay) and self.lr_decay > 0):
             raise SDMInputError(f"lr_decay must be a positive finite number, got {self.lr_decay!r}")
-        RULES.resolve(self.flow)  # SDMInputError naming flow: not a registered name, a Rule or a flow function
+        RULES.resolve(self.rule)  # SDMInputError naming rule: not a registered name, a Rule or a flow function
         if not (math.isfinite(self.depth_lr_scale) and self.depth_lr_scale > 0):
             raise SDMInputError(f"depth_lr_scale must be a positive finite number, got {self.depth_lr_scale!r}")
         if isinstance(self.depth_zoom, bool) or int(self.depth_zoom) != self.depth_zoom or self.depth_zoom < 0:
@@ -190,7 +190,7 @@ class Refinement:
     """A documented extension of the paper's schedule: SGD steps at the finest level with another rule.
 
     After the levels ``s .. zoom`` of :class:`TrainSettings`, ``passes`` passes of ``pass_steps`` SGD steps each
-    at level ``zoom`` with the gradient rule ``flow``; pass ``i`` (from 0) runs at the rate of level
+    at level ``zoom`` with the gradient rule ``rule``; pass ``i`` (from 0) runs at the rate of level
     ``zoom + rate_from`` times ``lr_decay^i`` (by default four times the last level's rate, then halving each
     pass: the paper's halving, continued per pass), with the chain ``s .. zoom`` of the last level
     (:func:`refine_runs`).
@@ -212,7 +212,7 @@ class Refinement:
     refinement on the real sample").
 
     Attributes:
-        flow: a rule name, or a :class:`~sdm.mapping.rules.Rule` (:meth:`sdm.mapping.rules.RuleRegistry.resolve`).
+        rule: a rule name, or a :class:`~sdm.mapping.rules.Rule` (:meth:`sdm.mapping.rules.RuleRegistry.resolve`).
         passes: passes, a positive integer.
         rate_from: the first pass's rate is level ``zoom + rate_from``'s (a non-negative integer; 2 was chosen
             on runs no table holds: docs/method/floor.md, "The schedule that reaches the floor").
@@ -226,7 +226,7 @@ class Refinement:
         last_width: the last pass's kernel half-width, metres (positive; the rule's own, 2e-3 m).
     """
 
-    flow: str | Rule = "group_crossing"
+    rule: str | Rule = "group_crossing"
     passes: int = 4
     rate_from: int = 2
     moves_c: bool = True
@@ -235,7 +235,7 @@ class Refinement:
     last_width: float = CROSSING_WIDTH
 
     def __post_init__(self) -> None:
-        RULES.resolve(self.flow)
+        RULES.resolve(self.rule)
         for name, least in (("passes", 1), ("rate_from", 0), ("pass_steps", 1)):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < least:
@@ -281,21 +281,21 @@ def parse_schedule(name: str) -> tuple[str, Refinement | None]:
     Table 4 (``research.rules.names``) and ``benchmarks/studies/flow_rules.py --rules`` name schedules this way.
 
     Returns:
-        ``(flow, refinement)``: the schedule's rule and its :class:`Refinement`, or ``None``.
+        ``(rule, refinement)``: the schedule's rule and its :class:`Refinement`, or ``None``.
 
     Raises:
-        SDMInputError: naming ``flow`` for an unknown rule, the schedule for a malformed pass count.
+        SDMInputError: naming ``rule`` for an unknown rule, the schedule for a malformed pass count.
     """
     if not isinstance(name, str):
         raise SDMInputError(f"a schedule is a rule name or 'RULE+REFINE:E', got {name!r}")
-    flow, plus, refined = name.partition("+")
-    RULES.resolve(flow)
+    rule, plus, refined = name.partition("+")
+    RULES.resolve(rule)
     if not plus:
-        return flow, None
+        return rule, None
     refine, colon, passes = refined.partition(":")
     if colon and not (passes.isdigit() and passes[0] != "0"):
         raise SDMInputError(f"schedule {name!r}: the passes after ':' must be a positive integer, got {passes!r}")
-    return flow, Refinement(refine, int(passes) if colon else Refinement.passes)
+    return rule, Refinement(refine, int(passes) if colon else Refinement.passes)
 
 
 def refine_seed(seed: int) -> int:

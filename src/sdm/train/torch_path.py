@@ -28,9 +28,9 @@ def train_torch(train_set, pyramids, settings, camera, method, levels, rates, or
     for index, level in enumerate(levels):
         width = None if widths is None else widths[index]
         if (level, width) not in built:
-            rule = crossing_width_rule(common.flow, width)
+            rule = crossing_width_rule(common.rule, width)
             runner = rule if n_runs == 1 else RunByRun(rule, n_runs, batch_size)
-            built[level, width] = (SpatialDomainMapping(camera, s=common.s, zoom=level, method=method, flow=runner,
+            built[level, width] = (SpatialDomainMapping(camera, s=common.s, zoom=level, method=method, rule=runner,
                                                         fit_depth=common.fit_depth), runner)
         layers.append(built[level, width][0])
         runners.append(built[level, width][1])
