@@ -40,7 +40,7 @@ include: "workflow/rules/report.smk"
 wildcard_constraints:
     n_epoch=r"\d+",
     lr=r"[0-9][0-9.e+-]*",
-    level=r"\d+",
+    noise_level=r"\d+",
     chunk=r"\d+",
     method=one_of(BASELINES),
     rule=one_of(RULE_LABELS),

@@ -28,7 +28,7 @@ split = "results/split/split.json"  # input
 tuning_file = "results/baselines/tuning_chamfer.csv"  # input: the method's tuning (its chosen cell)
 runs_files = ["results/baselines/runs_chamfer_level0.csv"]  # output: one per level of `levels`, one row per run
 method = "chamfer"  # the baseline
-levels = [0]  # the noise levels
+noise_levels = [0]  # the noise levels
 runs = 2  # the runs 0..runs-1 (paired with Table 2's runs of the same indices)
 seed = 0  # noise seed (as noise.seed for Table 2): run seeds come from (seed, level, run)
 shift = [0.517, 0.303]
@@ -44,10 +44,10 @@ single_thread(threads)
 train_set, _, camera = load_split(sky, read_json(split))
 chosen = best_settings(method, read_csv(tuning_file))
 print(f"{len(train_set)} training configurations; {method}: {chosen}")
-if len(runs_files) != len(levels):
-    raise ValueError(f"runs_files: one per level expected, got {len(runs_files)} for levels {levels}")
-for level, runs_file in zip(levels, runs_files):
-    results = baseline_noise_runs(method, train_set, level, list(range(runs)), chosen, seed, shift=shift, camera=camera)
+if len(runs_files) != len(noise_levels):
+    raise ValueError(f"runs_files: one per level expected, got {len(runs_files)} for levels {noise_levels}")
+for noise_level, runs_file in zip(noise_levels, runs_files):
+    results = baseline_noise_runs(method, train_set, noise_level, list(range(runs)), chosen, seed, shift=shift, camera=camera)
     write_csv(runs_file, results)
-    print(f"level {level}: mean distance {1000 * results['distance'].mean():.3f}e-3 m, "
+    print(f"level {noise_level}: mean distance {1000 * results['distance'].mean():.3f}e-3 m, "
           f"{results['seconds'].mean():.2f} s per run")

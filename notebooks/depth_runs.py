@@ -32,7 +32,7 @@ runs_file = "results/research/depth/c1.0_level0.csv"  # output: one row per run
 schedule = "closed_centred_r1"  # the gradient rule or schedule of the runs
 c = 1.0  # the true depth shift c*, metres
 depth_lr_scale = 20.0  # learning rate of c relative to the tuned lr
-level = 0  # the noise level
+noise_level = 0  # the noise level
 runs = 2  # the runs 0..runs-1 (Table 2's noise seeds for the same indices)
 s = 4
 batch_size = 16
@@ -60,12 +60,12 @@ run_indices = list(range(runs))
 rule, refine = parse_schedule(schedule)
 depth_settings = replace(settings, rule=rule, depth_lr_scale=depth_lr_scale)
 try:
-    results = depth_noise_runs(train_set, c, level, run_indices, depth_settings, shift=shift, camera=camera,
+    results = depth_noise_runs(train_set, c, noise_level, run_indices, depth_settings, shift=shift, camera=camera,
                                refine=refine)
 except SDMInputError as error:
     if str(error).startswith("c = "):  # the config's c* itself is impossible for these points
         raise SDMInputError(f"config key 'research.depth.shifts_c': {error}") from None
     raise
 write_csv(runs_file, results)
-print(f"level {level}, runs 0..{runs - 1}: mean distance {1000 * results['distance'].mean():.3f}e-3 m")
+print(f"level {noise_level}, runs 0..{runs - 1}: mean distance {1000 * results['distance'].mean():.3f}e-3 m")
 display(results.drop(columns=["seed"]).describe())

@@ -29,7 +29,7 @@ fig3 = "results/figures/fig3_backward.png"
 fig4 = "results/figures/fig4_noise.png"
 example = 0
 noise_seed = 0
-levels = [0, 1, 2, 3, 4]
+noise_levels = [0, 1, 2, 3, 4]
 s = 4
 shift = [0.517, 0.303]
 threads = 1
@@ -80,4 +80,4 @@ point, _, info = figures.pick_point(configuration, (0.0, 0.0), camera, matched=F
 show(figures.figure3(point, info), fig3)
 
 # %%
-show(figures.figure4(configuration.target, levels, seed=noise_seed), fig4)
+show(figures.figure4(configuration.target, noise_levels, seed=noise_seed), fig4)

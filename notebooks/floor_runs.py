@@ -30,7 +30,7 @@
 sky = "results/sky/sky.bin"  # input
 split = "results/split/split.json"  # input
 runs_files = ["results/floor/level0.csv"]  # output: one per level of `levels`, one row per run
-levels = [0]  # the noise levels
+noise_levels = [0]  # the noise levels
 runs = 2  # the runs 0..runs-1 (paired with Table 2's runs of the same indices)
 settings = {}  # sdm.baselines.floor.FloorSettings fields (restarts, budget)
 seed = 0  # noise seed (as noise.seed for Table 2): run seeds come from (seed, level, run)
@@ -46,11 +46,11 @@ single_thread(threads)
 train_set, _, camera = load_split(sky, read_json(split))
 chosen = FloorSettings(**settings)
 print(f"{len(train_set)} training configurations; {chosen}")
-if len(runs_files) != len(levels):
-    raise ValueError(f"runs_files: one per level expected, got {len(runs_files)} for levels {levels}")
+if len(runs_files) != len(noise_levels):
+    raise ValueError(f"runs_files: one per level expected, got {len(runs_files)} for levels {noise_levels}")
 per_level = []
-for level, runs_file in zip(levels, runs_files):
-    results = floor_runs(train_set, level, list(range(runs)), seed, chosen, camera, shift=shift)
+for noise_level, runs_file in zip(noise_levels, runs_files):
+    results = floor_runs(train_set, noise_level, list(range(runs)), seed, chosen, camera, shift=shift)
     write_csv(runs_file, results)
     per_level.append(results)
 
@@ -61,11 +61,11 @@ for level, runs_file in zip(levels, runs_files):
 # %%
 import pandas as pd
 
-for level, results in zip(levels, per_level):
-    print(f"level {level}: mean floor distance {1000 * results['distance'].mean():.3f}e-3 m, half budget "
+for noise_level, results in zip(noise_levels, per_level):
+    print(f"level {noise_level}: mean floor distance {1000 * results['distance'].mean():.3f}e-3 m, half budget "
           f"{1000 * results['half_distance'].mean():.3f}e-3 m, {results['seconds'].mean():.2f} s per run")
 every = pd.concat(per_level, ignore_index=True)
-shown = every[["level", "run", "distance", "search_distance", "half_distance", "extent_a", "extent_b"]].copy()
+shown = every[["noise_level", "run", "distance", "search_distance", "half_distance", "extent_a", "extent_b"]].copy()
 shown[shown.columns[2:]] *= 1000
 shown[["min_mismatch", "mismatch_at_truth", "evaluations", "seconds"]] = every[
     ["min_mismatch", "mismatch_at_truth", "evaluations", "seconds"]]

@@ -24,7 +24,7 @@ sky = "results/sky/sky.bin"  # input
 bias_file = "results/research/network/bias.csv"  # output
 sizes = [3000, 500, 748]
 seed = 0
-levels = [0, 1, 2, 3, 4]
+noise_levels = [0, 1, 2, 3, 4]
 camera_sd = 0.15
 losses = ["sdm_paper", "sdm_closed_centred_r1", "silhouette"]  # research.network.losses: those of BIAS_LOSSES are measured
 train = {"epochs": 16, "per_epoch": 1280, "batch_size": 16, "lr": 3.0e-3, "s": 2, "sigma": 0.5, "max_points": 256}
@@ -41,9 +41,9 @@ from sdm.network import BIAS_LOSSES, loss_bias, network_settings, read_sets
 single_thread(threads)
 settings = network_settings(train, seed)
 rows = []
-for level in levels:
-    test = read_sets(sky, sizes, seed, levels, camera_sd, parts=["test"], test_level=level)["test"]
-    rows += [loss_bias(test, level, loss, settings) for loss in BIAS_LOSSES if loss in losses]
+for noise_level in noise_levels:
+    test = read_sets(sky, sizes, seed, noise_levels, camera_sd, parts=["test"], test_level=noise_level)["test"]
+    rows += [loss_bias(test, noise_level, loss, settings) for loss in BIAS_LOSSES if loss in losses]
 bias = pd.DataFrame(rows)
 write_csv(bias_file, bias)
 display(bias.round(4))

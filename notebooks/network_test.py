@@ -25,9 +25,9 @@ weights = []  # input: network_train's weights, in the order of networks
 test_file = "results/research/network/test_level0.csv"  # output
 sizes = [3000, 500, 748]
 seed = 0
-levels = [0, 1, 2, 3, 4]
+noise_levels = [0, 1, 2, 3, 4]
 camera_sd = 0.15
-level = 0  # this job's noise level
+noise_level = 0  # this job's noise level
 networks = [["sdm_paper", 0]]  # (loss, training run) of each file of weights
 refine = {"s": 3, "n_epoch": 1, "lr": 5.0e-3, "rule": "closed_centred_r1", "batch_size": 4}
 warm = {"lr": 1.0e-4, "n_epoch": 16}  # research.objects: the searches' settings, as Table 6 runs them
@@ -48,15 +48,15 @@ from sdm.network import load_weights, read_sets, refine_settings, test_methods
 from sdm.objects import search_settings
 
 single_thread(threads)
-sets = read_sets(sky, sizes, seed, levels, camera_sd, parts=["train", "test"], test_level=level)
+sets = read_sets(sky, sizes, seed, noise_levels, camera_sd, parts=["train", "test"], test_level=noise_level)
 test = sets["test"]
 screen = test.data.camera.screen_shape
 trained = {(loss, int(run)): load_weights(path, screen) for (loss, run), path in zip(networks, weights)}
 searches = search_settings(warm, rows, schedule, cmaes, s, batch_size, lr_decay)
-print(f"{len(test)} test configurations at noise level {level}; {len(trained)} networks")
+print(f"{len(test)} test configurations at noise level {noise_level}; {len(trained)} networks")
 
 # %%
-results = test_methods(test, level, trained, refine_settings(refine, seed), searches, seed,
+results = test_methods(test, noise_level, trained, refine_settings(refine, seed), searches, seed,
                        train_mean=sets["train"].truth.mean(0))
 write_csv(test_file, results)
 display((1000 * results.groupby("method", sort=False)[["distance", "cpu_s"]].mean()).round(3))

@@ -26,7 +26,7 @@ weights = "results/research/network/sdm_paper_run0.pt"  # output: the trained we
 curve = "results/research/network/sdm_paper_run0_curve.csv"  # output: one row per epoch
 sizes = [3000, 500, 748]  # train, dev, test configurations
 seed = 0  # the split, theta*, the noise levels, the dev and test noise; the training runs' seeds
-levels = [0, 1, 2, 3, 4]  # noise levels mixed over train and dev
+noise_levels = [0, 1, 2, 3, 4]  # noise levels mixed over train and dev
 camera_sd = 0.15  # theta*'s spread per axis around the paper's shift, metres
 loss = "sdm_paper"  # the training loss (sdm.network.LOSSES)
 run = 0  # the training run: its weights, shuffles and training noise (sdm.network.training_seed)
@@ -43,7 +43,7 @@ from sdm.sharing import TruthDistribution
 
 single_thread(threads)
 run_seed = training_seed(seed, run)
-sets = read_sets(sky, sizes, seed, levels, camera_sd, train_noise=run_seed)
+sets = read_sets(sky, sizes, seed, noise_levels, camera_sd, train_noise=run_seed)
 settings = network_settings(train, run_seed)
 print(f"{len(sets['train'])} training and {len(sets['dev'])} dev configurations; run {run}, seed {run_seed}")
 

@@ -29,7 +29,7 @@ split = "results/split/split.json"  # input
 best = "results/tuning/best.json"  # input: the tuned settings
 chunk_file = "results/noise/level0_chunk0.csv"  # output: one row per run
 timing_file = "results/noise/level0_chunk0_seconds.json"  # output: wall seconds of the chunk's runs
-level = 0
+noise_level = 0
 first_run = 0  # the chunk's runs: first_run .. first_run + runs - 1
 runs = 2
 s = 4
@@ -48,14 +48,14 @@ from sdm.report.io import read_json, write_csv, write_json
 single_thread(threads)
 run_indices = list(range(first_run, first_run + runs))
 train_set, camera, settings = tuned_training(sky, read_json(split), read_json(best), s, batch_size, lr_decay, seed)
-print(f"level {level}, runs {run_indices[0]}..{run_indices[-1]}, n_epoch {settings.n_epoch}, lr {settings.lr:g}")
+print(f"level {noise_level}, runs {run_indices[0]}..{run_indices[-1]}, n_epoch {settings.n_epoch}, lr {settings.lr:g}")
 started = time.perf_counter()
-results = noise_runs(train_set, level, run_indices, settings, shift=shift, camera=camera)
+results = noise_runs(train_set, noise_level, run_indices, settings, shift=shift, camera=camera)
 seconds = time.perf_counter() - started
 write_csv(chunk_file, results)
 # The runs are trained together as one program (sdm.experiments.noise_runs), so a run's share is
 # the chunk's wall time over its runs.
-write_json(timing_file, {"level": level, "runs": len(run_indices), "seconds": seconds,
+write_json(timing_file, {"noise_level": noise_level, "runs": len(run_indices), "seconds": seconds,
                          "seconds_per_run": seconds / len(run_indices), "threads": threads})
 print(f"{len(run_indices)} runs in {seconds:.2f} s ({seconds / len(run_indices):.3f} s per run, {threads} thread(s))")
 

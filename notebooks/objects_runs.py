@@ -27,8 +27,8 @@
 sky = "results/sky/sky.bin"  # input
 split = "results/split/split.json"  # input
 runs_file = "results/research/objects/configuration_level0.csv"  # output: one row per (run, method, unit)
-sharing = "configuration"  # the sharing level (sdm.sharing.ROW_LEVELS)
-level = 0  # the noise level
+sharing = "configuration"  # the sharing level (sdm.sharing.ROW_SHARINGS)
+noise_level = 0  # the noise level
 runs = 2  # runs 0..runs-1
 configurations = 8  # the first configurations of the training split
 truth = {"camera_sd": 0.15, "car_sd": 0.15, "residual_sd": 0.05}
@@ -75,7 +75,7 @@ print(f"{len(data)} configurations, {data.points.shape[0]} points, {int(n_cars.s
 # %%
 scale = int(screen["scale"])
 scan = (float(identifiability["reach"]) / scale, float(identifiability["step"]) / scale)
-results = objects_runs(data, sharing, level, list(range(runs)), seed, settings, n_cars=n_cars, methods=methods,
+results = objects_runs(data, sharing, noise_level, list(range(runs)), seed, settings, n_cars=n_cars, methods=methods,
                        progress=True, scan=scan)
 results.insert(0, "scale", scale)
 write_csv(runs_file, results)

@@ -23,7 +23,7 @@
 # %% tags=["parameters"]
 scaling_file = "results/research/objects/scaling_2.csv"  # output: one row per (run, method, budget)
 cars = 2  # K, cars per image
-scaling = {"n_images": 4, "seed": 0, "runs": 1, "level": 0, "epochs": [1, 2], "budgets": [10, 30]}
+scaling = {"n_images": 4, "seed": 0, "runs": 1, "noise_level": 0, "epochs": [1, 2], "budgets": [10, 30]}
 truth = {"camera_sd": 0.15, "car_sd": 0.15, "residual_sd": 0.05}
 warm = {"lr": 1.0e-4, "n_epoch": 16}
 rows = {"lr": 5.0e-3, "n_epoch": 4, "s": 3}
@@ -62,7 +62,7 @@ print(f"{len(data)} images with {cars} cars each, {data.points.shape[0]} points"
 
 # %%
 scale = int(screen["scale"])
-results = scaling_runs(data, cars, int(scaling["level"]), list(range(int(scaling["runs"]))), seed, settings,
+results = scaling_runs(data, cars, int(scaling["noise_level"]), list(range(int(scaling["runs"]))), seed, settings,
                        scaling["epochs"], scaling["budgets"], progress=True,
                        scan=(float(identifiability["reach"]) / scale, float(identifiability["step"]) / scale))
 results.insert(0, "scale", scale)

@@ -101,5 +101,5 @@ display(Markdown(text))
 answer = facts(read_csv(table1), read_csv(table2), read_csv(table3_csv) if table3_csv else None, methods,
                read_csv(table4_csv) if table4_csv else None, rules, data=data_facts(config, read_json(summary)))
 write_json(verdict, answer)
-display(pd.DataFrame(answer["levels"]).set_index("level"))
+display(pd.DataFrame(answer["levels"]).set_index("noise_level"))
 answer["reproduction"], answer["search"], answer["schedule"]

@@ -27,7 +27,7 @@ sky = "results/sky/sky.bin"  # input: the training set
 split = "results/split/split.json"  # input
 table4_bias = "results/tables/table4_bias.csv"  # output: one row per (rule, level)
 names = ["closed"]  # Table 4's rules or schedules (research.rules.names); the paper's rule is measured too
-levels = [0, 1, 2, 3, 4]  # the noise levels
+noise_levels = [0, 1, 2, 3, 4]  # the noise levels
 s = 4  # zoom levels (train.s)
 seed = 0  # noise seed (noise.seed): run 0's draw of each level
 shift = [0.517, 0.303]  # (a*, b*), metres
@@ -42,7 +42,7 @@ from sdm.report.io import read_json, write_csv
 
 single_thread(threads)
 train_set, _, camera = load_split(sky, read_json(split))
-bias = pd.concat([rule_bias(train_set, rule, levels, seed, s=s, shift=shift, camera=camera).assign(rule=rule)
+bias = pd.concat([rule_bias(train_set, rule, noise_levels, seed, s=s, shift=shift, camera=camera).assign(rule=rule)
                   for rule in ["paper", *names]], ignore_index=True)
 bias = bias[["rule", *bias.columns.drop("rule")]]
 write_csv(table4_bias, bias)

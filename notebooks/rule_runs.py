@@ -30,7 +30,7 @@ split = "results/split/split.json"  # input
 best = "results/tuning/best.json"  # input: the tuned settings (Table 1)
 runs_files = ["results/research/rules/closed_level0.csv"]  # output: one per level of `levels`, one row per run
 rule = "closed"  # the gradient rule or schedule of the runs
-levels = [0]  # the noise levels
+noise_levels = [0]  # the noise levels
 runs = 2  # the runs 0..runs-1 (Table 2's runs with the same indices)
 s = 4
 batch_size = 16
@@ -53,14 +53,14 @@ print(f"{len(train_set)} training configurations; n_epoch {settings.n_epoch}, lr
 
 # %%
 run_indices = list(range(runs))
-if len(runs_files) != len(levels):
-    raise ValueError(f"runs_files: one per level expected, got {len(runs_files)} for levels {levels}")
-for level, runs_file in zip(levels, runs_files):
+if len(runs_files) != len(noise_levels):
+    raise ValueError(f"runs_files: one per level expected, got {len(runs_files)} for levels {noise_levels}")
+for noise_level, runs_file in zip(noise_levels, runs_files):
     started = time.perf_counter()
-    results = rule_noise_runs(train_set, rule, level, run_indices, settings, shift=shift, camera=camera)
+    results = rule_noise_runs(train_set, rule, noise_level, run_indices, settings, shift=shift, camera=camera)
     # trained together (as Table 2's noise chunks): a run's share is the level's wall time over its runs,
     # measured as notebooks/noise.py measures the paper's rule (Table 4 sets the two side by side)
     results["seconds"] = (time.perf_counter() - started) / len(run_indices)
     write_csv(runs_file, results)
-    print(f"level {level}, runs 0..{runs - 1}: mean distance {1000 * results['distance'].mean():.3f}e-3 m")
+    print(f"level {noise_level}, runs 0..{runs - 1}: mean distance {1000 * results['distance'].mean():.3f}e-3 m")
     display(results.drop(columns=["seed"]).describe())

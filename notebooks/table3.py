@@ -46,7 +46,7 @@ sdm_timings = []  # input: the noise jobs' timing files (SDM's seconds per run; 
 floor_files = []  # optional input: the floor_runs files (the floor's rows; none: no floor)
 floor_settings = {}  # the floor's search settings (floor.settings), stated in the summary
 methods = ["silhouette", "chamfer", "sinkhorn", "cmaes"]  # the baselines (SDM's rows are Table 2's)
-levels = [0, 1, 2, 3, 4]
+noise_levels = [0, 1, 2, 3, 4]
 runs = 2  # the runs 0..runs-1 of each level
 shift = [0.517, 0.303]
 table3_csv = "results/tables/table3.csv"  # output
@@ -89,14 +89,14 @@ baseline_runs = pd.concat([read_csv(path) for path in run_files], ignore_index=T
 baseline_runs = baseline_runs[baseline_runs["run"] < runs].reset_index(drop=True)
 # SDM's rows: Table 2's runs with the same (level, run), i.e. the same noisy targets, and the noise
 # stage's own time per run (see the top of this notebook).
-sdm_runs = table2_runs(read_csv(table2_distances), [read_json(path) for path in sdm_timings], levels,
+sdm_runs = table2_runs(read_csv(table2_distances), [read_json(path) for path in sdm_timings], noise_levels,
                        list(range(runs)))
-unpaired = set(zip(baseline_runs["level"], baseline_runs["run"])) - set(zip(sdm_runs["level"], sdm_runs["run"]))
+unpaired = set(zip(baseline_runs["noise_level"], baseline_runs["run"])) - set(zip(sdm_runs["noise_level"], sdm_runs["run"]))
 if unpaired:
     raise SDMInputError(f"baseline runs without an SDM run to pair with: {sorted(unpaired)[:5]} (parameters "
                         f"'levels' and 'runs' must cover every run file)")
 print(f"SDM rows from Table 2: {len(sdm_runs)} runs; seconds per run by level: "
-      + ", ".join(f"{level}: {value:.3f}" for level, value in sdm_runs.groupby("level")["seconds"].first().items()))
+      + ", ".join(f"{noise_level}: {value:.3f}" for noise_level, value in sdm_runs.groupby("noise_level")["seconds"].first().items()))
 # The floor's rows: each run's exact-mismatch minimiser (the stage floor_runs), read against, not ranked.
 floor_runs = pd.concat([read_csv(path) for path in floor_files], ignore_index=True) if floor_files else None
 floor_rows = [floor_runs.assign(method=FLOOR)[list(RUN_COLUMNS)]] if floor_files else []
@@ -116,7 +116,7 @@ show_figure(baselines_figure(table3, all_runs, shift), figure)
 # ## The answer, in plain words (every number from Table 3)
 
 # %%
-answer = table3_summary(table3, table2_runs=int(read_csv(table2_distances).groupby("level").size().min()))
+answer = table3_summary(table3, table2_runs=int(read_csv(table2_distances).groupby("noise_level").size().min()))
 if floor_files:
     answer += floor_summary(floor_frame(floor_runs), floor_settings)
 write_text(summary, answer)

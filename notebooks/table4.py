@@ -26,7 +26,7 @@ baseline_run_files = []  # optional input: Table 3's per-run files (the rules be
 sdm_timings = []  # input: Table 2's noise jobs' timing records (the paper's rule's time per run)
 floor_files = []  # optional input: the floor_runs files (the floor's rows)
 names = ["closed"]  # the rules expected
-levels = [0, 1, 2, 3, 4]  # the levels expected
+noise_levels = [0, 1, 2, 3, 4]  # the levels expected
 runs = 2  # the runs 0..runs-1 each (rule, level) must hold
 table4_csv = "results/tables/table4.csv"  # output
 table4_md = "results/tables/table4.md"  # output: written beside table4_csv, same stem
@@ -53,8 +53,8 @@ from sdm.report.research import (
 from sdm.report.tables import to_markdown
 
 single_thread(threads)
-expected = {(name, level, run) for name in names for level in levels for run in range(runs)}
-rule_runs = gathered_runs(rule_files, ("rule", "level", "run"), expected, "Table 4")
+expected = {(name, noise_level, run) for name in names for noise_level in noise_levels for run in range(runs)}
+rule_runs = gathered_runs(rule_files, ("rule", "noise_level", "run"), expected, "Table 4")
 # Beside the rules: CMA-ES (Table 3's runs) and the floor (each run's exact-mismatch minimiser), on their own
 # paired runs; every row is compared with CMA-ES on the runs both have (the bar "within 2x of CMA-ES":
 # at most 2x its mean).

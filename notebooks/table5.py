@@ -28,7 +28,7 @@ seed = 0  # noise seed (noise.seed): the measurement takes run 0's draw of each 
 shift = [0.517, 0.303]  # (a*, b*), metres
 table5_bias = "results/tables/table5_bias.csv"  # output: the depth flow at theta*, per c*, level and zoom
 shifts_c = [1.0]  # the c* expected
-levels = [0, 1, 2, 3, 4]  # the levels expected
+noise_levels = [0, 1, 2, 3, 4]  # the levels expected
 runs = 2  # the runs 0..runs-1 each (c*, level) must hold
 table5_csv = "results/tables/table5.csv"  # output
 table5_md = "results/tables/table5.md"  # output: written beside table5_csv, same stem
@@ -57,8 +57,8 @@ from sdm.report.tables import to_markdown
 from sdm.train import TrainSettings, parse_schedule
 
 single_thread(threads)
-expected = {(float(value), level, run) for value in shifts_c for level in levels for run in range(runs)}
-depth_runs = gathered_runs(depth_files, ("c_true", "level", "run"), expected, "Table 5")
+expected = {(float(value), noise_level, run) for value in shifts_c for noise_level in noise_levels for run in range(runs)}
+depth_runs = gathered_runs(depth_files, ("c_true", "noise_level", "run"), expected, "Table 5")
 table5 = table5_frame(depth_runs)
 written = write_table5(table5, Path(table5_csv).with_suffix(""))
 assert {str(path) for path in written} == {table5_csv, table5_md, table5_tex, table5_html}, written
@@ -85,7 +85,7 @@ display(Markdown(summary_of_table5(table5)))
 train_set, _, _ = load_split(sky, read_json(split))
 rule, refine = parse_schedule(schedule)
 measured = [(rule, min(TrainSettings.depth_zoom, s))] + ([(refine.rule, 0)] if refine and refine.moves_c else [])
-bias = pd.concat([depth_bias(train_set, value, levels, seed, schedule=name, s=s, zooms=[zoom], shift=shift)
+bias = pd.concat([depth_bias(train_set, value, noise_levels, seed, schedule=name, s=s, zooms=[zoom], shift=shift)
                   .assign(rule=name) for value in shifts_c for name, zoom in measured], ignore_index=True)
 write_csv(table5_bias, bias)
 display(bias)

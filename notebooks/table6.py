@@ -47,9 +47,9 @@ from sdm.report import scaling as scaling_report
 from sdm.report.io import read_csv
 
 frames = [read_csv(path) for path in runs_files]
-levels = sorted({int(level) for frame in frames for level in frame["level"]})
+noise_levels = sorted({int(noise_level) for frame in frames for noise_level in frame["noise_level"]})
 shared = read_csv(table2_distances)
-table = report.table6(frames, shared[shared["level"].isin(levels)])
+table = report.table6(frames, shared[shared["noise_level"].isin(noise_levels)])
 report.write_table6(table, Path(table6_csv).with_suffix(""))
 display(Markdown(Path(table6_md).read_text()))
 

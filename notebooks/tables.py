@@ -33,7 +33,7 @@ table2_csv = "results/tables/table2.csv"
 table2_md = "results/tables/table2.md"
 table2_tex = "results/tables/table2.tex"
 table2_html = "results/tables/table2.html"
-levels = [0, 1, 2, 3, 4]
+noise_levels = [0, 1, 2, 3, 4]
 runs = 60
 threads = 1
 
@@ -47,9 +47,9 @@ from sdm.data.stats import avg_dist_mm
 from sdm.report.io import read_csv, read_json, write_csv
 from sdm.report.tables import TABLE1_FORMAT, TABLE2_FORMAT, table1_frame, table2_frame, to_markdown, write_table
 
-all_runs = pd.concat([read_csv(path) for path in chunks]).sort_values(["level", "run"]).reset_index(drop=True)
-expected = {(level, run) for level in levels for run in range(runs)}
-found = set(zip(all_runs["level"], all_runs["run"]))
+all_runs = pd.concat([read_csv(path) for path in chunks]).sort_values(["noise_level", "run"]).reset_index(drop=True)
+expected = {(noise_level, run) for noise_level in noise_levels for run in range(runs)}
+found = set(zip(all_runs["noise_level"], all_runs["run"]))
 assert found == expected, f"missing runs: {sorted(expected - found)[:10]}, unexpected: {sorted(found - expected)[:10]}"
 write_csv(distances, all_runs)
 
@@ -61,7 +61,7 @@ display(Markdown(to_markdown(table1, TABLE1_FORMAT)))
 
 # %%
 depth = read_json(stats)["target_mean_depth"]
-table2 = table2_frame(all_runs, avg_dist_mm(depth, levels=[level for level in levels if level > 0]))
+table2 = table2_frame(all_runs, avg_dist_mm(depth, noise_levels=[noise_level for noise_level in noise_levels if noise_level > 0]))
 written = write_table(table2, Path(table2_csv).with_suffix(""), TABLE2_FORMAT)
 assert {str(path) for path in written} == {table2_csv, table2_md, table2_tex, table2_html}, written
 print(f"mean target depth {depth:.2f} m")

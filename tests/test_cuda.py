@@ -102,13 +102,13 @@ def test_every_rule_flows_alike_on_cuda_and_cpu():
 def test_every_network_loss_trains_on_cuda(loss):
     """Table 7's training runs on the GPU under its deterministic mode: twice the same weights, and shifts near
     the CPU's (float32 convolutions round otherwise on the GPU, so not to the bit)."""
-    from sdm.network import NetworkSettings, mixed_levels, predict, shift_set, train_network
+    from sdm.network import NetworkSettings, mixed_noise_levels, predict, shift_set, train_network
 
     data = configuration_set(48, seed=6)
     settings = NetworkSettings(epochs=2, batch_size=16, s=1, max_points=64)
     predictions = {}
     for device in ("cpu", "cuda", "cuda"):
-        whole = shift_set(data.to(device), 0, mixed_levels(48, (0, 2), seed=1))
+        whole = shift_set(data.to(device), 0, mixed_noise_levels(48, (0, 2), seed=1))
         trained = train_network(loss, whole, whole, settings)
         predictions.setdefault(device, []).append(predict(trained.net, whole.data).cpu())
     first, second = predictions["cuda"]

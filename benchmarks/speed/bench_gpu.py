@@ -41,7 +41,7 @@ from sdm.batch import ConfigurationSet
 from sdm.data import build_sky_dataset
 from sdm.data.synthetic import synthetic_images
 from sdm.experiments import noise_runs
-from sdm.network import LOSSES, NetworkSettings, mixed_levels, shift_set, train_network
+from sdm.network import LOSSES, NetworkSettings, mixed_noise_levels, shift_set, train_network
 
 #: Table 7's training: the default config's research.network.train (16 epochs there; one here) and sizes.
 NETWORK_SETTINGS = NetworkSettings(epochs=1, batch_size=16, lr=(("default", 1e-3),), s=2, sigma=0.5, max_points=256)
@@ -124,22 +124,22 @@ def steps_section(data: ConfigurationSet, author_path: str | None, repeats: int)
 
 
 def table2_section(data: ConfigurationSet, runs_per_level: int, group_sizes: list[int],
-                   levels: list[int] = TABLE2_LEVELS) -> dict:
+                   noise_levels: list[int] = TABLE2_LEVELS) -> dict:
     """Table 2's runs at ``levels`` on the GPU at each group size; their theta against the CPU's (the compiled
     kernel, default groups)."""
-    out = {"runs": len(levels) * runs_per_level, "levels": list(levels), "groups": []}
+    out = {"runs": len(noise_levels) * runs_per_level, "levels": list(noise_levels), "groups": []}
     theta_gpu = None
     for group_size in group_sizes:
         with Clock("cuda") as clock:
-            frames = [noise_runs(data, level, range(runs_per_level), TABLE2_SETTINGS, group_size=group_size)
-                      for level in levels]
+            frames = [noise_runs(data, noise_level, range(runs_per_level), TABLE2_SETTINGS, group_size=group_size)
+                      for noise_level in noise_levels]
         theta_gpu = np.concatenate([frame[["a", "b"]].to_numpy() for frame in frames])
         out["groups"].append({"group_size": group_size, "wall_s": clock.wall, "cpu_s": clock.cpu})
-        print(f"{out['runs']} Table 2 runs (levels {list(levels)}) on the GPU, groups of {group_size}: "
+        print(f"{out['runs']} Table 2 runs (levels {list(noise_levels)}) on the GPU, groups of {group_size}: "
               f"{clock.wall:.2f} s wall, {1000 * clock.wall / out['runs']:.0f} ms a run (all 300: target at most 5 s)")
     cpu = data.to("cpu")
     with Clock() as clock:
-        frames = [noise_runs(cpu, level, range(runs_per_level), TABLE2_SETTINGS) for level in levels]
+        frames = [noise_runs(cpu, noise_level, range(runs_per_level), TABLE2_SETTINGS) for noise_level in noise_levels]
     theta_cpu = np.concatenate([frame[["a", "b"]].to_numpy() for frame in frames])
     out |= {"cpu_wall_s": clock.wall, "cpu_s": clock.cpu, "max_abs_diff_m": float(np.abs(theta_gpu - theta_cpu).max())}
     print(f"the same runs on the CPU (compiled kernel, 1 thread): {clock.wall:.2f} s wall; largest |theta GPU - "
@@ -149,10 +149,10 @@ def table2_section(data: ConfigurationSet, runs_per_level: int, group_sizes: lis
 
 def network_section(data: ConfigurationSet) -> list[dict]:
     """One epoch of Table 7's training per loss, on the GPU and on the CPU (one thread)."""
-    levels = mixed_levels(NETWORK_TRAIN + 16, (0, 1, 2, 3, 4), seed=1)
+    noise_levels = mixed_noise_levels(NETWORK_TRAIN + 16, (0, 1, 2, 3, 4), seed=1)
     sets = {}
     for device in ("cuda", "cpu"):
-        whole = shift_set(data.subset(range(NETWORK_TRAIN + 16)).to(device), 0, levels)
+        whole = shift_set(data.subset(range(NETWORK_TRAIN + 16)).to(device), 0, noise_levels)
         sets[device] = (whole.subset(range(NETWORK_TRAIN)), whole.subset(range(NETWORK_TRAIN, NETWORK_TRAIN + 16)))
     warm_up = sets["cuda"][0].subset(range(32))
     for loss in LOSSES:  # the device's first calls (cuDNN's set-up, kernels loaded) are not any loss's epoch

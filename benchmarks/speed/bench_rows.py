@@ -45,16 +45,16 @@ def default_set(n_images: int):
 
 
 def measure(name: str, data, cars, n_cars, floor: bool) -> None:
-    level = sharing.per_car(data, cars, n_cars)
-    truth = sharing.draw_truth(level, 0)
-    shifted = sharing.shifted_set(data, truth, level.param_index)
-    units = sharing.units(shifted, level.param_index, level.n_rows)
+    layout = sharing.per_car(data, cars, n_cars)
+    truth = sharing.draw_truth(layout, 0)
+    shifted = sharing.shifted_set(data, truth, layout.param_index)
+    units = sharing.units(shifted, layout.param_index, layout.n_rows)
     totals = sharing.unit_totals(truth, units)
     start = time.process_time()
     result = rows.fit_configurations(shifted, units, seed=0)
     total = time.process_time() - start
     summary = sharing.summarise_distances(sharing.row_distances(result.totals, totals),
-                                          hidden_without_row=len(level.hidden))
+                                          hidden_without_row=len(layout.hidden))
     per_config = units.offsets[1:] - units.offsets[:-1]
     print(f"{name:>10}  unknowns {2 * float(per_config.double().mean()):5.1f}  "
           f"CPU s/config {float(result.seconds.mean()):.3f} (max {float(result.seconds.max()):.3f}, "
@@ -86,8 +86,8 @@ def main() -> None:
 
 def _warm():
     data, cars, n_cars = car_grid_scene(1, 1, seed=1)
-    level = sharing.per_car(data, cars, n_cars)
-    return data, sharing.units(data, level.param_index, level.n_rows)
+    layout = sharing.per_car(data, cars, n_cars)
+    return data, sharing.units(data, layout.param_index, layout.n_rows)
 
 
 if __name__ == "__main__":

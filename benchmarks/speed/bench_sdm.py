@@ -105,13 +105,13 @@ def table2(data: ConfigurationSet, runs_per_level: int, device: str, sample_runs
     data = data.to(device)
     n_runs = len(TABLE2_LEVELS) * runs_per_level
     with Clock(device) as clock:
-        for level in TABLE2_LEVELS:
-            noise_runs(data, level, range(runs_per_level), TABLE2_SETTINGS)
+        for noise_level in TABLE2_LEVELS:
+            noise_runs(data, noise_level, range(runs_per_level), TABLE2_SETTINGS)
     out = {"device": device, "runs": n_runs, "wall_s": clock.wall, "cpu_s": clock.cpu}
     if device == "cpu":
         with native.disabled(), Clock(device) as sample:
-            for level in TABLE2_LEVELS:
-                noise_runs(data, level, range(sample_runs), TABLE2_SETTINGS)
+            for noise_level in TABLE2_LEVELS:
+                noise_runs(data, noise_level, range(sample_runs), TABLE2_SETTINGS)
         scale = n_runs / (len(TABLE2_LEVELS) * sample_runs)
         out |= {"torch_path_sample_runs": len(TABLE2_LEVELS) * sample_runs,
                 "torch_path_wall_s_extrapolated": sample.wall * scale,

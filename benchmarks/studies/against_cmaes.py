@@ -41,15 +41,15 @@ def main(argv=None) -> int:
         print(f"no files match {args.rule_files!r}", file=sys.stderr)
         return 2
     rows, frames = [], []
-    for level, own in rule.groupby("level", sort=True):
+    for noise_level, own in rule.groupby("noise_level", sort=True):
         start = time.process_time()
-        search = baseline_noise_runs("cmaes", train_set, int(level), sorted(own["run"]), chosen, args.seed,
+        search = baseline_noise_runs("cmaes", train_set, int(noise_level), sorted(own["run"]), chosen, args.seed,
                                      camera=camera)
         cpu = (time.process_time() - start) / len(own)
         # run r of both is the paired run (level, r): its noise and seeds come from run_seed(seed, level, r)
         paired = own.set_index("run")["distance"].reindex(search["run"])
         ratio = paired.mean() / search["distance"].mean()
-        rows.append({"level": int(level), "runs": len(search), "rule_mean_mm": 1e3 * paired.mean(),
+        rows.append({"noise_level": int(noise_level), "runs": len(search), "rule_mean_mm": 1e3 * paired.mean(),
                      "cmaes_mean_mm": 1e3 * search["distance"].mean(), "ratio": ratio,
                      "within_2x": bool(ratio <= CMAES_FACTOR), "cmaes_cpu_s_per_run": cpu})
         frames.append(search)

@@ -241,8 +241,8 @@ checks = pd.DataFrame(
     [
         ("cars per image", synthetic_summary["cars_per_image"], stats.PAPER_CARS_PER_IMAGE, 0.10),
         *[
-            (f"Avg. Dist. level {level} (mm)", synthetic_summary[f"avg_dist_{level}_mm"], paper, 0.05)
-            for level, paper in stats.PAPER_AVG_DIST_MM.items()
+            (f"Avg. Dist. level {noise_level} (mm)", synthetic_summary[f"avg_dist_{noise_level}_mm"], paper, 0.05)
+            for noise_level, paper in stats.PAPER_AVG_DIST_MM.items()
         ],
     ],
     columns=["statistic", "synthetic", "target", "tolerance"],

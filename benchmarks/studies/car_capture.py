@@ -49,7 +49,7 @@ def main() -> int:
     configs = [rescaled_configuration(c, camera, SCALE, "pixels") for c in configs]
     camera = scaled_camera(camera, SCALE)
     points = [c.points(camera) for c in configs]
-    for level, frame in rows.groupby("level"):
+    for noise_level, frame in rows.groupby("noise_level"):
         records = []
         for (run, config), cars in frame.groupby(["run", "config"]):
             cfg, pts = configs[int(config)], points[int(config)]
@@ -74,7 +74,7 @@ def main() -> int:
                 records.append(record)
         table = pd.DataFrame(records)
         far, near = table[table["far"]], table[~table["far"]]
-        print(f"noise level {level}: {len(table)} car runs, {len(far)} far (> {FAR_M} m)")
+        print(f"noise level {noise_level}: {len(table)} car runs, {len(far)} far (> {FAR_M} m)")
         for name, part in (("far", far), ("near", near)):
             print(f"  {name}: on a neighbour at the final shift {100 * (part['final'] > 0.5).mean():.0f} %, "
                   f"at theta* {100 * (part['truth'] > 0.5).mean():.0f} %; share of pixels on others, mean "

@@ -49,12 +49,12 @@ def main(argv=None) -> int:
         settings = replace(settings, n_epoch=args.epochs)
     frames = []
     for c in (float(v) for v in args.depths.split(",")):
-        for level in (int(v) for v in args.levels.split(",")):
+        for noise_level in (int(v) for v in args.levels.split(",")):
             # Table 5's runs (sdm.experiments.depth_noise_runs), --group at a time (each as train() alone, to 1e-12 m).
-            runs = depth_noise_runs(train_set, c, level, range(args.runs), settings, shift=(0.517, 0.303),
+            runs = depth_noise_runs(train_set, c, noise_level, range(args.runs), settings, shift=(0.517, 0.303),
                                     group_size=args.group)
-            frames.append(runs[["c_true", "level", "run", "a", "b", "c"]])
-            print(f"# c {c} level {level} done", file=sys.stderr, flush=True)
+            frames.append(runs[["c_true", "noise_level", "run", "a", "b", "c"]])
+            print(f"# c {c} level {noise_level} done", file=sys.stderr, flush=True)
     frame = pd.concat(frames, ignore_index=True)
     frame["err_a_mm"] = 1e3 * (frame.a - 0.517).abs()
     frame["err_b_mm"] = 1e3 * (frame.b - 0.303).abs()
@@ -65,8 +65,8 @@ def main(argv=None) -> int:
     frame["bias_b_mm"] = 1e3 * (frame.b - 0.303)
     frame["bias_c_cm"] = 1e2 * (frame.c - frame.c_true)
     columns = ["err_a_mm", "err_b_mm", "err_c_cm", "dist_ab_mm", "bias_a_mm", "bias_b_mm", "bias_c_cm"]
-    table = frame.groupby(["c_true", "level"])[columns].mean()
-    table["runs"] = frame.groupby(["c_true", "level"]).size()
+    table = frame.groupby(["c_true", "noise_level"])[columns].mean()
+    table["runs"] = frame.groupby(["c_true", "noise_level"]).size()
     print("Depth: mean absolute errors (a, b in 1e-3 m; c in 1e-2 m)")
     print(table.round(3).to_string())
     if args.csv:

@@ -48,19 +48,19 @@ def main(argv=None) -> int:
     print(f"{len(train_set)} configurations, {train_set.points.shape[0]} points; {settings}; runs 0..{args.runs - 1}; "
           "1 thread", flush=True)
     frames, cpu = [], {}
-    for level in args.levels:
+    for noise_level in args.levels:
         start = time.process_time()
-        frames.append(floor_runs(train_set, level, range(args.runs), args.seed, settings))
-        cpu[level] = (time.process_time() - start) / args.runs
-        print(f"level {level} done: {cpu[level]:.2f} CPU s per run", flush=True)
+        frames.append(floor_runs(train_set, noise_level, range(args.runs), args.seed, settings))
+        cpu[noise_level] = (time.process_time() - start) / args.runs
+        print(f"level {noise_level} done: {cpu[noise_level]:.2f} CPU s per run", flush=True)
     rows = pd.concat(frames, ignore_index=True)
     if args.csv:
         rows.to_csv(args.csv, index=False)
     summary = []
-    for level, group in rows.groupby("level"):
+    for noise_level, group in rows.groupby("noise_level"):
         full, half = group["distance"].mean(), group["half_distance"].mean()
         summary.append({
-            "level": level,
+            "noise_level": noise_level,
             "floor": full * 1e3, "search point": group["search_distance"].mean() * 1e3, "half budget": half * 1e3,
             "doubling moves %": 100 * (full - half) / half if half else 0.0,
             "runs moved": int((group["distance"] != group["half_distance"]).sum()),
@@ -68,8 +68,8 @@ def main(argv=None) -> int:
             "theta* minimal": f"{int((group['mismatch_at_truth'] == group['min_mismatch']).sum())}/{len(group)}",
             "excess at theta*": (group["mismatch_at_truth"] - group["min_mismatch"]).mean(),
             "evaluations": group["evaluations"].mean(),
-            "CPU s / run": cpu[level], "wall s / run": group["seconds"].mean(),
-            "CMA-ES 240 (Table 3)": CMAES_TABLE3.get(int(level), float("nan")),
+            "CPU s / run": cpu[noise_level], "wall s / run": group["seconds"].mean(),
+            "CMA-ES 240 (Table 3)": CMAES_TABLE3.get(int(noise_level), float("nan")),
         })
     print("distances and extents in 1e-3 m (means over the runs); counts in pixels")
     print(pd.DataFrame(summary).to_string(index=False, float_format=lambda v: f"{v:.4g}"))

@@ -72,7 +72,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     torch.set_num_threads(args.threads)
     train_set, _, camera = load_split(args.sky, json.load(open(args.split)))
-    levels = [int(v) for v in args.levels.split(",")]
+    noise_levels = [int(v) for v in args.levels.split(",")]
     best = json.load(open(args.best)) if args.best else {}
     settings = settings_for(**(TUNED | {key: best[key] for key in ("n_epoch", "lr") if key in best}))
     print(f"# {len(train_set)} training configurations; n_epoch {settings.n_epoch}, lr {settings.lr:g}",
@@ -94,40 +94,40 @@ def main(argv=None) -> int:
             rates = [f"{rate / refine.rates(settings)[0]:.3g}" for rate in refine.rates(settings)]
             print(f"# {rule}: kernel half-widths per pass {refine.widths} m, rates over the first pass's {rates}",
                   file=sys.stderr)
-        for level in levels:
-            frame = noise_runs(train_set, level, range(args.first_run, args.first_run + args.runs),
+        for noise_level in noise_levels:
+            frame = noise_runs(train_set, noise_level, range(args.first_run, args.first_run + args.runs),
                                replace(settings, rule=base), camera=camera, refine=refine)
             frame.insert(0, "rule", rule)
             rows.append(frame)
-            table.append({"rule": rule, "level": level, "mean_mm": 1e3 * frame.distance.mean(),
+            table.append({"rule": rule, "noise_level": noise_level, "mean_mm": 1e3 * frame.distance.mean(),
                           "std_mm": 1e3 * frame.distance.std(), "runs": len(frame),
-                          "bar_mm": 0.68 if level == 0 else 0.5e3 * PAPER_TABLE2.get(level, float("nan"))})
+                          "bar_mm": 0.68 if noise_level == 0 else 0.5e3 * PAPER_TABLE2.get(noise_level, float("nan"))})
         if not args.no_flow:
-            flow = flow_at_true_shift(train_set, levels, seed=0, rule=refine.rule if refine else base)
+            flow = flow_at_true_shift(train_set, noise_levels, seed=0, rule=refine.rule if refine else base)
             flow = flow[flow.zoom == 0].drop(columns="zoom")
             flow.insert(0, "rule", rule)
             flows.append(flow)
         print(f"# {rule}: {time.time() - start:.0f} s wall, "
-              f"{(time.process_time() - cpu) / max(len(levels) * args.runs, 1):.3f} CPU s per run (with the flow at theta*"
+              f"{(time.process_time() - cpu) / max(len(noise_levels) * args.runs, 1):.3f} CPU s per run (with the flow at theta*"
               f" unless --no-flow)", file=sys.stderr, flush=True)
     if args.cmaes:
         from sdm.baselines import baseline_noise_runs as baseline_runs, best_settings
 
         chosen = best_settings("cmaes", pd.read_csv(args.cmaes))
-        for level in levels:
-            frame = baseline_runs("cmaes", train_set, level, range(args.first_run, args.first_run + args.runs), chosen,
+        for noise_level in noise_levels:
+            frame = baseline_runs("cmaes", train_set, noise_level, range(args.first_run, args.first_run + args.runs), chosen,
                                   settings.seed, camera=camera)
-            table.append({"rule": "CMA-ES", "level": level, "mean_mm": 1e3 * frame.distance.mean(),
+            table.append({"rule": "CMA-ES", "noise_level": noise_level, "mean_mm": 1e3 * frame.distance.mean(),
                           "std_mm": 1e3 * frame.distance.std(), "runs": len(frame),
-                          "bar_mm": 0.68 if level == 0 else 0.5e3 * PAPER_TABLE2.get(level, float("nan"))})
+                          "bar_mm": 0.68 if noise_level == 0 else 0.5e3 * PAPER_TABLE2.get(noise_level, float("nan"))})
     pd.set_option("display.width", 200)
     table = pd.DataFrame(table)
     table["meets_bar"] = table.mean_mm <= table.bar_mm
     print("Table 2 per rule: distance of final theta to theta*, 1e-3 m")
-    print(table.pivot(index="rule", columns="level", values="mean_mm").round(2).to_string())
+    print(table.pivot(index="rule", columns="noise_level", values="mean_mm").round(2).to_string())
     print(table.round(3).to_string(index=False))
     if args.cmaes:
-        means = table.pivot(index="rule", columns="level", values="mean_mm")
+        means = table.pivot(index="rule", columns="noise_level", values="mean_mm")
         print("\nMean distance / CMA-ES's on the same runs")
         print((means / means.loc["CMA-ES"]).drop(index="CMA-ES").round(2).to_string())
     if flows:

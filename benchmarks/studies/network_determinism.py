@@ -38,7 +38,7 @@ import sys, torch
 from sdm.batch import ConfigurationSet
 from sdm.data import build_sky_dataset
 from sdm.data.synthetic import synthetic_images
-from sdm.network import NetworkSettings, mixed_levels, predict, shift_set, train_network
+from sdm.network import NetworkSettings, mixed_noise_levels, predict, shift_set, train_network
 
 out, configs, epochs, threads, mkldnn, *losses = sys.argv[1:]
 configs, epochs = int(configs), int(epochs)
@@ -46,7 +46,7 @@ torch.backends.mkldnn.enabled = mkldnn == "on"
 torch.set_num_threads(int(threads))
 built = build_sky_dataset(synthetic_images(2 * configs, seed=0), n_sample=configs + 80, seed=0, progress=False)
 data = ConfigurationSet.from_configurations([c for c in built if c.num_points][: configs + 64])
-whole = shift_set(data, 0, mixed_levels(len(data), (0, 1, 2, 3, 4), seed=1))
+whole = shift_set(data, 0, mixed_noise_levels(len(data), (0, 1, 2, 3, 4), seed=1))
 train, dev = whole.subset(range(configs)), whole.subset(range(configs, len(data)))
 settings = NetworkSettings(epochs=epochs, batch_size=16, s=2, max_points=256)
 saved = {"capability": torch.backends.cpu.get_cpu_capability()}
@@ -69,7 +69,7 @@ network = yaml.safe_load(open("config.yaml"))["research"]["network"]
 data = [network[key] for key in ("sizes", "seed", "levels", "camera_sd")]
 seed = training_seed(network["seed"], 0)
 sets = read_sets(sky, *data, train_noise=seed)
-tests = {level: read_sets(sky, *data, parts=["test"], test_level=level)["test"] for level in network["levels"]}
+tests = {level: read_sets(sky, *data, parts=["test"], test_level=level)["test"] for level in network["noise_levels"]}
 saved = {"capability": torch.backends.cpu.get_cpu_capability()}
 for loss in losses:
     trained = train_network(loss, sets["train"], sets["dev"], network_settings(network["train"], seed),
@@ -131,13 +131,13 @@ def table7_moves(sky: str, losses: list[str]) -> None:
         results = [run(Path(folder) / f"{i}.pt", 0, 0, threads, losses, capability, isa, True, table7=sky)
                    for i, (_, capability, isa, threads) in enumerate(settings)]
     reference = results[0]
-    levels = [key for key in reference[losses[0]] if key != "cpu_s"]
-    print(f"Table 7's networks (config.yaml, training run 0): test-set mean distance per noise level {levels}, "
+    noise_levels = [key for key in reference[losses[0]] if key != "cpu_s"]
+    print(f"Table 7's networks (config.yaml, training run 0): test-set mean distance per noise level {noise_levels}, "
           f"1e-3 m; in brackets the difference from the first setting's")
     for loss in losses:
         for (label, *_), result in zip(settings, results):
-            cells = ", ".join(f"{1e3 * result[loss][level]:.1f} "
-                              f"({1e3 * (result[loss][level] - reference[loss][level]):+.1f})" for level in levels)
+            cells = ", ".join(f"{1e3 * result[loss][noise_level]:.1f} "
+                              f"({1e3 * (result[loss][noise_level] - reference[loss][noise_level]):+.1f})" for noise_level in noise_levels)
             print(f"  {loss:>16}  {label:<36} (runs {result['capability']:>7}, {result[loss]['cpu_s']:.0f} CPU s): "
                   f"{cells}")
 

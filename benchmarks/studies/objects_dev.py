@@ -46,7 +46,7 @@ def main(argv=None) -> int:
     parser.add_argument("--config", default="config.yaml")
     parser.add_argument("--scale", type=int, default=1)
     parser.add_argument("--disc", default="pixels")
-    parser.add_argument("--sharing", default="car", choices=S.ROW_LEVELS)
+    parser.add_argument("--sharing", default="car", choices=S.ROW_SHARINGS)
     parser.add_argument("--levels", type=int, nargs="+", default=[0, 2])
     parser.add_argument("--runs", type=int, default=3)
     parser.add_argument("--first", type=int, default=8)
@@ -85,11 +85,11 @@ def main(argv=None) -> int:
     data = ConfigurationSet.from_configurations(configs, scaled_camera(camera, args.scale))
     n_cars = torch.tensor([int(config.centres.shape[0]) for config in configs], dtype=torch.int64)
     frames = []
-    for level in args.levels:
+    for noise_level in args.levels:
         began, wall = time.process_time(), time.perf_counter()
-        frames.append(objects.objects_runs(data, args.sharing, level, list(range(args.runs)), args.seed, settings,
+        frames.append(objects.objects_runs(data, args.sharing, noise_level, list(range(args.runs)), args.seed, settings,
                                            n_cars=n_cars, methods=args.methods))
-        print(f"level {level}: {time.process_time() - began:.1f} CPU s, {time.perf_counter() - wall:.1f} s wall",
+        print(f"level {noise_level}: {time.process_time() - began:.1f} CPU s, {time.perf_counter() - wall:.1f} s wall",
               file=sys.stderr, flush=True)
     table = table6(frames)
     shown = table.assign(mean=1e3 * table["mean_m"], start=1e3 * table["start_m"], gated=1e3 * table["gated_m"])
@@ -97,7 +97,7 @@ def main(argv=None) -> int:
           f"sigma0 {settings.cmaes.sigma0}, penalty {settings.cmaes.penalty}, rows {settings.rows.lr} "
           f"x {settings.rows.n_epoch} epochs, s {settings.rows.s}, first level {settings.first_level}, "
           f"gate {settings.gate}")
-    print(shown[["level", "method", "units", "mean", "start", "of_start", "closer", "gated", "gated_of_start",
+    print(shown[["noise_level", "method", "units", "mean", "start", "of_start", "closer", "gated", "gated_of_start",
                  "cpu_ms"]]
           .to_string(index=False, float_format=lambda v: f"{v:.3f}"))
     if args.tails:
@@ -112,9 +112,9 @@ def tails(records: pd.DataFrame) -> pd.DataFrame:
     distance the farther units carry)."""
     rows = []
     scored = records[~records["method"].isin(["hidden", "start", "prior"])]
-    for (level, method), own in scored.groupby(["level", "method"], sort=False):
+    for (noise_level, method), own in scored.groupby(["noise_level", "method"], sort=False):
         far = own["distance"] > own["start"]
-        rows.append({"level": level, "method": method, "units": len(own),
+        rows.append({"noise_level": noise_level, "method": method, "units": len(own),
                      "median_of_start": own["distance"].median() / own["start"].median(),
                      "farther": far.mean(), "rest_of_start": own.loc[~far, "distance"].mean() / own["start"].mean(),
                      "farther_share": own.loc[far, "distance"].sum() / own["distance"].sum()})

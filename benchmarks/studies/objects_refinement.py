@@ -43,7 +43,7 @@ def main(argv=None) -> int:
     parser.add_argument("sky")
     parser.add_argument("split")
     parser.add_argument("--config", default="config.yaml")
-    parser.add_argument("--sharing", default="configuration", choices=S.ROW_LEVELS)
+    parser.add_argument("--sharing", default="configuration", choices=S.ROW_SHARINGS)
     args = parser.parse_args(argv)
     single_thread(1)
     config = yaml.safe_load(open(args.config))
@@ -62,8 +62,8 @@ def main(argv=None) -> int:
     for name, refinement in VARIANTS.items():
         objects.parse_schedule = lambda _name, refinement=refinement: (flow, refinement)
         means = []
-        for level in section["levels"]:
-            runs = objects.objects_runs(data, args.sharing, level, list(range(section["runs"])), seed, settings,
+        for noise_level in section["noise_levels"]:
+            runs = objects.objects_runs(data, args.sharing, noise_level, list(range(section["runs"])), seed, settings,
                                         n_cars=n_cars, methods=["sdm_schedule"])
             means.append(1e3 * runs[runs["method"] == "sdm_schedule"]["distance"].mean())
         print(f"{name:34s}" + " / ".join(f"{mean:.2f}" for mean in means), flush=True)

@@ -18,14 +18,14 @@ def prior_sd(sharing: S.Sharing, truth: S.TruthDistribution) -> torch.Tensor:
     Returns:
         ``(K,)`` float64 on the CPU.
     """
-    if sharing.level == "configuration":
+    if sharing.name == "configuration":
         return torch.full((sharing.n_rows,), float(truth.camera_sd), dtype=torch.float64)
-    if sharing.level == "car":
+    if sharing.name == "car":
         return torch.full((sharing.n_rows,), float(truth.car_sd), dtype=torch.float64)
-    if sharing.level == "camera+car":
+    if sharing.name == "camera+car":
         is_car = sharing.rows[:, 1].cpu() != S.NO_INDEX
         return torch.where(is_car, float(truth.residual_sd), float(truth.camera_sd)).to(torch.float64)
-    raise SDMInputError(f"sharing level must be one of {', '.join(S.ROW_LEVELS)}, got {sharing.level!r}")
+    raise SDMInputError(f"sharing level must be one of {', '.join(S.ROW_SHARINGS)}, got {sharing.name!r}")
 
 
 def prior_gate(theta: torch.Tensor, start: torch.Tensor, sd: torch.Tensor, gate: float

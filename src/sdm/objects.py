@@ -173,7 +173,7 @@ def search_units(method: str, data: ConfigurationSet, units: S.Units, settings: 
 def _start_table(sharing: S.Sharing, shared: torch.Tensor) -> torch.Tensor:
     """``(K, 2)`` rows starting from the shared estimate: every row at it, a camera's residuals at 0."""
     start = shared.to(torch.float64).expand(sharing.n_rows, 2).clone()
-    if sharing.level == "camera+car":
+    if sharing.name == "camera+car":
         start[sharing.rows[:, 1].cpu() != S.NO_INDEX] = 0.0  # residual rows: the camera row carries the shift
     return start
 
@@ -187,37 +187,37 @@ def prior_totals(truth: S.TruthDistribution, n_units: int) -> torch.Tensor:
     return torch.tensor([float(v) for v in truth.centre], dtype=torch.float64).expand(n_units, 2).clone()
 
 
-def paired_targets(data: ConfigurationSet, sharing: S.Sharing, units: S.Units, noise: int, run: int, seed: int,
+def paired_targets(data: ConfigurationSet, sharing: S.Sharing, units: S.Units, noise_level: int, run: int, seed: int,
                    truth: S.TruthDistribution) -> tuple[int, torch.Tensor, torch.Tensor]:
     """Run ``run``'s seed ``run_seed(seed, noise, run)``, its targets ``(N, H, W)`` bool (theta* drawn from ``truth``
     with that seed, rendered, then Table 2's noise of that seed) and theta*'s unit totals ``(U, 2)`` metres."""
-    own_seed = run_seed(seed, noise, run)
+    own_seed = run_seed(seed, noise_level, run)
     theta = S.draw_truth(sharing, own_seed, truth)
     clean = S.render_targets(data, theta, sharing.param_index)
-    targets = clean if noise == 0 else noisy_targets(clean, noise, own_seed)
+    targets = clean if noise_level == 0 else noisy_targets(clean, noise_level, own_seed)
     return own_seed, targets, S.unit_totals(theta, units)
 
 
-def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[int], seed: int,
+def objects_runs(data: ConfigurationSet, sharing: str, noise_level: int, runs: Sequence[int], seed: int,
                  settings: ObjectsSettings, n_cars: torch.Tensor | None = None,
                  methods: Sequence[str] = METHODS, progress: bool = False,
                  scan: tuple[float, float] | None = None) -> pd.DataFrame:
-    """Table 6's runs of one sharing ``level`` at one ``noise`` level: one record per (run, method, unit).
+    """Table 6's runs of one ``sharing`` at one ``noise_level``: one record per (run, method, unit).
 
-    Run ``r`` takes ``run_seed(seed, noise, r)``: it draws theta* (:func:`sdm.sharing.draw_truth`), the noise
+    Run ``r`` takes ``run_seed(seed, noise_level, r)``: it draws theta* (:func:`sdm.sharing.draw_truth`), the noise
     of the targets, SDM's shuffling and the baselines' seeds, so every method of the run sees the same targets.
 
     Args:
-        data: the configurations (with their points' cars for the car levels).
-        level: one of :data:`sdm.sharing.ROW_LEVELS` (the shared level is Table 2's runs, quoted).
-        noise: the noise level of the targets (Table 2's).
+        data: the configurations (with their points' cars for the car sharings).
+        sharing: one of :data:`sdm.sharing.ROW_SHARINGS` (the shared one is Table 2's runs, quoted).
+        noise_level: the noise level of the targets (Table 2's), screen pixels.
         n_cars: ``(N,)`` cars per configuration (on screen, hidden or not), to count the hidden ones.
         methods: a subset of :data:`METHODS`; the :data:`REFERENCES` are always scored.
         scan: ``(reach, step)`` metres: score :data:`EXACT_SET` on the first run's units (:func:`exact_set_records`);
             ``None``: not.
 
     Returns:
-        A DataFrame with columns ``sharing, level, run, seed, method, config, car, unit, a, b, a_true, b_true,
+        A DataFrame with columns ``sharing, noise_level, run, seed, method, config, car, unit, a, b, a_true, b_true,
         distance, gated, start, cpu_s, extent_a, extent_b`` (``car`` -1 for a configuration's unit; ``gated`` the
         distance after the prior gate (:func:`prior_gate`; NaN for the floor, the exact-match sets and at the
         camera+car level, where a unit is two rows); ``start`` the distance
@@ -228,22 +228,22 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
     """
 
 
-    if level not in S.ROW_LEVELS:
-        raise SDMInputError(f"level must be one of {', '.join(S.ROW_LEVELS)}, got {level!r}")
+    if sharing not in S.ROW_SHARINGS:
+        raise SDMInputError(f"sharing must be one of {', '.join(S.ROW_SHARINGS)}, got {sharing!r}")
     unknown = sorted(set(methods) - set(METHODS))
     if unknown:
         raise SDMInputError(f"methods must be of {', '.join(METHODS)}, got {unknown}")
-    sharing = S.sharing(level, data, n_cars=n_cars)
-    units = S.units(data, sharing.param_index, sharing.n_rows)
-    unit_car = _unit_cars(sharing, units)
+    layout = S.sharing(sharing, data, n_cars=n_cars)
+    units = S.units(data, layout.param_index, layout.n_rows)
+    unit_car = _unit_cars(layout, units)
     owners = max(int((units.offsets[1:] > units.offsets[:-1]).sum()), 1)
     # the gate's spread per unit, where a unit is one row (not a camera + residual total)
-    unit_sd = prior_sd(sharing, settings.truth)[units.rows[:, -1].cpu()] if units.rows.shape[1] == 1 else None
+    unit_sd = prior_sd(layout, settings.truth)[units.rows[:, -1].cpu()] if units.rows.shape[1] == 1 else None
     nan = float("nan")
     records = []
-    for index, run in enumerate(tqdm(list(runs), desc=f"{level}, noise {noise}", unit="run", disable=not progress,
+    for index, run in enumerate(tqdm(list(runs), desc=f"{sharing}, noise {noise_level}", unit="run", disable=not progress,
                                      leave=False)):
-        own_seed, targets, true_totals = paired_targets(data, sharing, units, noise, run, seed, settings.truth)
+        own_seed, targets, true_totals = paired_targets(data, layout, units, noise_level, run, seed, settings.truth)
         noisy = data.with_targets(targets)
         estimates = {}
         # the paper's rule's shared start: SDM's paper-rule rows and the per-configuration baselines start there
@@ -251,21 +251,21 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
         for method in methods:
             if method in ("sdm_paper", "sdm_schedule"):
                 paper = method == "sdm_paper"
-                theta, shared, seconds, _ = sdm_rows(data, targets, sharing, own_seed, settings,
+                theta, shared, seconds, _ = sdm_rows(data, targets, layout, own_seed, settings,
                                                      None if paper else settings.schedule,
                                                      paper_start if paper else None)
                 estimates[method] = (S.unit_totals(theta, units), seconds,
-                                     S.unit_totals(_start_table(sharing, shared), units))
+                                     S.unit_totals(_start_table(layout, shared), units))
             elif method in ("cmaes", "cmaes_car", "cmaes_reg", "silhouette"):
                 start, shared_seconds = paper_start
-                table = _start_table(sharing, start)
+                table = _start_table(layout, start)
                 began = _cpu()
                 if method in ("cmaes", "cmaes_car", "cmaes_reg"):
                     fit = search_units(method, noisy, units, settings, own_seed, S.unit_totals(table, units))
                     totals = fit.totals
                 else:
                     result = silhouette.fit(noisy, settings.silhouette, own_seed, theta0=table,
-                                            param_index=sharing.param_index)
+                                            param_index=layout.param_index)
                     totals = S.unit_totals(torch.as_tensor(result.theta, dtype=torch.float64), units)
                 estimates[method] = (totals, _cpu() - began + shared_seconds, S.unit_totals(table, units))
             elif method == "floor":
@@ -273,7 +273,7 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
                 floor = floor_configurations(noisy, units, true_totals, settings.floor, own_seed,
                                              configs=_missed_by_truth(noisy, units, true_totals))
                 estimates[method] = (floor.totals, _cpu() - began, None)
-        start_totals = S.unit_totals(_start_table(sharing, paper_start[0]), units)
+        start_totals = S.unit_totals(_start_table(layout, paper_start[0]), units)
         estimates["start"] = (start_totals, paper_start[1], start_totals)
         estimates["prior"] = (prior_totals(settings.truth, len(units)), 0.0, start_totals)
         for method, (totals, seconds, given) in estimates.items():
@@ -283,7 +283,7 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
             gated = (torch.full_like(distance, nan) if unit_sd is None or given is None else
                      (prior_gate(totals, given, unit_sd, settings.gate)[0] - true_totals).norm(dim=1))
             for u in range(len(units)):
-                records.append({"sharing": level, "level": noise, "run": run, "seed": own_seed, "method": method,
+                records.append({"sharing": sharing, "noise_level": noise_level, "run": run, "seed": own_seed, "method": method,
                                 "config": int(units.config[u]), "car": int(unit_car[u]), "unit": u,
                                 "a": float(totals[u, 0]), "b": float(totals[u, 1]),
                                 "a_true": float(true_totals[u, 0]), "b_true": float(true_totals[u, 1]),
@@ -291,24 +291,24 @@ def objects_runs(data: ConfigurationSet, level: str, noise: int, runs: Sequence[
                                 "start": float(start_distance[u]), "cpu_s": seconds / owners, "extent_a": nan,
                                 "extent_b": nan})
         if scan is not None and index == 0:
-            sets, seconds = exact_set_records(data, sharing, units, own_seed, settings.truth, scan)
+            sets, seconds = exact_set_records(data, layout, units, own_seed, settings.truth, scan)
             start_distance = (start_totals - true_totals).norm(dim=1)
             for u in range(len(units)):
-                records.append({"sharing": level, "level": noise, "run": run, "seed": own_seed, "method": EXACT_SET,
+                records.append({"sharing": sharing, "noise_level": noise_level, "run": run, "seed": own_seed, "method": EXACT_SET,
                                 "config": int(units.config[u]), "car": int(unit_car[u]), "unit": u,
                                 "a": nan, "b": nan, "a_true": float(true_totals[u, 0]),
                                 "b_true": float(true_totals[u, 1]), "distance": float(sets.distance[u]),
                                 "gated": nan, "start": float(start_distance[u]), "cpu_s": seconds / owners,
                                 "extent_a": float(sets.extent[u, 0]), "extent_b": float(sets.extent[u, 1])})
-        records.append({"sharing": level, "level": noise, "run": run, "seed": own_seed, "method": "hidden",
-                        "config": -1, "car": -1, "unit": int(sharing.hidden.shape[0]), "a": 0.0, "b": 0.0,
+        records.append({"sharing": sharing, "noise_level": noise_level, "run": run, "seed": own_seed, "method": "hidden",
+                        "config": -1, "car": -1, "unit": int(layout.hidden.shape[0]), "a": 0.0, "b": 0.0,
                         "a_true": 0.0, "b_true": 0.0, "distance": 0.0, "gated": nan, "start": 0.0, "cpu_s": 0.0,
                         "extent_a": nan, "extent_b": nan})
     return pd.DataFrame.from_records(records, columns=RUN_COLUMNS)
 
 
 #: The columns of :func:`objects_runs`' records.
-RUN_COLUMNS = ["sharing", "level", "run", "seed", "method", "config", "car", "unit", "a", "b", "a_true", "b_true",
+RUN_COLUMNS = ["sharing", "noise_level", "run", "seed", "method", "config", "car", "unit", "a", "b", "a_true", "b_true",
                "distance", "gated", "start", "cpu_s", "extent_a", "extent_b"]
 
 
@@ -349,7 +349,7 @@ def _unit_cars(sharing: S.Sharing, units: S.Units) -> torch.Tensor:
     return sharing.rows[last_row, 1].cpu()
 
 
-def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence[int], seed: int,
+def scaling_runs(data: ConfigurationSet, n_cars: int, noise_level: int, runs: Sequence[int], seed: int,
                  settings: ObjectsSettings, epochs: Sequence[int], budgets: Sequence[int],
                  progress: bool = False, scan: tuple[float, float] | None = None) -> pd.DataFrame:
     """Error against CPU time per configuration, one row per car, for SDM and CMA-ES at several budgets.
@@ -364,7 +364,7 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
     start).
 
     Returns:
-        A DataFrame with columns ``cars, level, run, method, budget, mean, median, start, closer, cpu_s, extent_a,
+        A DataFrame with columns ``cars, noise_level, run, method, budget, mean, median, start, closer, cpu_s, extent_a,
         extent_b, gated_mean, gated_closer`` (distances in metres over the run's cars; ``start`` the mean distance
         of the method's start over the same cars, ``closer`` the share of cars that end closer than it; ``cpu_s``
         per configuration; ``extent_a``, ``extent_b`` the median over the cars of the exact-match set's extent per
@@ -377,21 +377,21 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
     records = []
     for index, run in enumerate(tqdm(list(runs), desc=f"{n_cars} cars", unit="run", disable=not progress,
                                      leave=False)):
-        own_seed, targets, true_totals = paired_targets(data, sharing, units, noise, run, seed, settings.truth)
+        own_seed, targets, true_totals = paired_targets(data, sharing, units, noise_level, run, seed, settings.truth)
         start, shared_seconds = paper_start = shared_start(data, targets, own_seed, settings)
         start_totals = S.unit_totals(_start_table(sharing, start), units)
         start_error = start_totals - true_totals
 
         def record(method, budget, totals, seconds, given=start_totals):
             gated = prior_gate(totals, given, sd, settings.gate)[0]
-            records.append(_scaling_record(n_cars, noise, run, method, budget, totals - true_totals,
+            records.append(_scaling_record(n_cars, noise_level, run, method, budget, totals - true_totals,
                                            given - true_totals, seconds / len(data), gated - true_totals))
 
         record("start", 0, start_totals, shared_seconds)
         record("prior", 0, prior_totals(settings.truth, len(units)), 0.0)
         if scan is not None and index == 0:
             sets, seconds = exact_set_records(data, sharing, units, own_seed, settings.truth, scan)
-            set_record = _scaling_record(n_cars, noise, run, EXACT_SET, 0, torch.zeros_like(start_error),
+            set_record = _scaling_record(n_cars, noise_level, run, EXACT_SET, 0, torch.zeros_like(start_error),
                                          start_error, seconds / len(data), None)
             set_record |= {"mean": float(sets.distance.mean()), "median": float(sets.distance.median()),
                            "closer": float((sets.distance < start_error.norm(dim=1)).to(torch.float64).mean()),
@@ -415,16 +415,16 @@ def scaling_runs(data: ConfigurationSet, n_cars: int, noise: int, runs: Sequence
 
 
 #: The columns of :func:`scaling_runs`' records.
-SCALING_COLUMNS = ["cars", "level", "run", "method", "budget", "mean", "median", "start", "closer", "cpu_s",
+SCALING_COLUMNS = ["cars", "noise_level", "run", "method", "budget", "mean", "median", "start", "closer", "cpu_s",
                    "extent_a", "extent_b", "gated_mean", "gated_closer"]
 
 
-def _scaling_record(n_cars, noise, run, method, budget, error, start_error, cpu_s, gated_error) -> dict:
+def _scaling_record(n_cars, noise_level, run, method, budget, error, start_error, cpu_s, gated_error) -> dict:
     """One record of the scaling: ``error``, ``start_error`` and ``gated_error`` (``(U, 2)`` metres, the last after
     the prior gate, or None) over the run's cars."""
     distance, start = error.norm(dim=1), start_error.norm(dim=1)
     gated = gated_error.norm(dim=1) if gated_error is not None else None
-    return {"cars": int(n_cars), "level": int(noise), "run": int(run), "method": method, "budget": int(budget),
+    return {"cars": int(n_cars), "noise_level": int(noise_level), "run": int(run), "method": method, "budget": int(budget),
             "mean": float(distance.mean()), "median": float(distance.median()), "start": float(start.mean()),
             "closer": float((distance < start).to(torch.float64).mean()), "cpu_s": float(cpu_s),
             "extent_a": float("nan"), "extent_b": float("nan"),

@@ -283,7 +283,7 @@ def rescaled_configuration(config: SkyConfiguration, camera: Camera, scale: int,
     return build_configuration(centres, shift, scaled, config.image_id, radius)
 
 
-def add_target_noise(target: torch.Tensor, level: int, generator: torch.Generator | None = None,
+def add_target_noise(target: torch.Tensor, noise_level: int, generator: torch.Generator | None = None,
                      active: torch.Tensor | None = None, out: "NoiseBuffer | None" = None) -> torch.Tensor:
     """Move every active pixel of a target by independent integers uniform on ``[-level, level]``.
 
@@ -305,18 +305,18 @@ def add_target_noise(target: torch.Tensor, level: int, generator: torch.Generato
         ``(..., H, W)`` bool occupancy of the moved pixels (``out.targets`` where given); off-screen ones
         are dropped.
     """
-    if int(level) != level or level < 0:
-        raise SDMInputError(f"noise level must be a non-negative integer, got {level!r}")
+    if int(noise_level) != noise_level or noise_level < 0:
+        raise SDMInputError(f"noise level must be a non-negative integer, got {noise_level!r}")
     if out is not None and (out.targets.shape != target.shape or out.targets.device != target.device):
         raise SDMInputError(f"out must be a NoiseBuffer of shape {tuple(target.shape)} on {target.device}, "
                             f"got {tuple(out.targets.shape)} on {out.targets.device}")
-    if level == 0:
+    if noise_level == 0:
         return target.clone() if out is None else out.copy(target)
     if active is None:
         active = target.nonzero()  # (K, ndim): leading indices, then (row, col)
     # Drawn on the generator's device (CPU by default): the same seed gives the same moves wherever the target lives.
     draw_device = generator.device if generator is not None else target.device
-    moves = torch.randint(-level, level + 1, (active.shape[0], 2), generator=generator, dtype=torch.int64,
+    moves = torch.randint(-noise_level, noise_level + 1, (active.shape[0], 2), generator=generator, dtype=torch.int64,
                           device=draw_device)
     buffer = NoiseBuffer(target) if out is None else out
     return buffer.fill(active, moves.to(target.device))
@@ -371,7 +371,7 @@ class NoiseBuffer:
         return targets
 
 
-def noise_displacement(level: int, mean_depth: float, camera: Camera = APOLLO_CAMERA_5) -> float:
+def noise_displacement(noise_level: int, mean_depth: float, camera: Camera = APOLLO_CAMERA_5) -> float:
     """Table 2's "Avg. Dist.": the expected 3D displacement, metres, that pixel noise ``level`` stands for.
 
     ``mean_depth * E[sqrt((X * dx)^2 + (Y * dy)^2)]`` with ``X, Y`` independent
@@ -379,7 +379,7 @@ def noise_displacement(level: int, mean_depth: float, camera: Camera = APOLLO_CA
     screen column and row at unit depth (docs/method/paper.md, Experiments).
     """
     dy, dx = camera.metres_per_screen_pixel(1.0)
-    steps = range(-level, level + 1)
+    steps = range(-noise_level, noise_level + 1)
     mean = sum(math.hypot(i * dx, j * dy) for i in steps for j in steps) / len(steps) ** 2
     return mean_depth * mean
 

@@ -117,14 +117,14 @@ def test_pixel_mismatch_is_zero_at_the_true_shift_and_counts_pixels(small):
     assert objective(theta) == expected > 0
 
 
-def _silhouette_gradient(train_set, theta, level, sigma=0.5):
-    """Full-batch gradient of the soft-IoU loss at ``theta`` and zoom ``level``."""
+def _silhouette_gradient(train_set, theta, zoom, sigma=0.5):
+    """Full-batch gradient of the soft-IoU loss at ``theta`` and zoom ``zoom``."""
     theta = torch.tensor(theta, dtype=torch.float64, requires_grad=True)
     configs = torch.arange(len(train_set))
     rows, local = train_set.rows(configs)
     screen = common.project_shifted(train_set.points[rows], theta, train_set.camera)
-    soft = silhouette_module.soft_silhouette(screen, local, len(configs), level, sigma, train_set.camera.screen_shape)
-    silhouette_module.image_loss(soft, train_set.pyramid(level)[level]).backward()
+    soft = silhouette_module.soft_silhouette(screen, local, len(configs), zoom, sigma, train_set.camera.screen_shape)
+    silhouette_module.image_loss(soft, train_set.pyramid(zoom)[zoom]).backward()
     return theta.grad
 
 
@@ -138,9 +138,9 @@ def test_silhouette_and_chamfer_gradients_point_back_to_the_true_shift(small, di
     camera = train_set.camera
     start = (SKY_SHIFT[0] + displacement[0], SKY_SHIFT[1] + displacement[1])
     d = torch.tensor(displacement, dtype=torch.float64)
-    for level in (1, 0):
-        grad = _silhouette_gradient(train_set, start, level)
-        assert float(grad @ d) > 0, (level, grad)
+    for zoom in (1, 0):
+        grad = _silhouette_gradient(train_set, start, zoom)
+        assert float(grad @ d) > 0, (zoom, grad)
 
     theta = torch.tensor(start, dtype=torch.float64, requires_grad=True)
     padded = baseline_reference.pad_set(train_set)
@@ -163,14 +163,14 @@ def test_coarse_silhouette_level_brings_theta_near_but_is_biased(small):
     towards = torch.tensor(SKY_SHIFT, dtype=torch.float64)
     assert float(_silhouette_gradient(train_set, (0.0, 0.0), 3) @ towards) < 0
 
-    def optimum_b(level):
+    def optimum_b(zoom):
         """Where d(loss)/db changes sign on the line a = a*, by bisection on [0, 0.6] m."""
         low, high = 0.0, 0.6
-        assert _silhouette_gradient(train_set, (SKY_SHIFT[0], low), level)[1] < 0
-        assert _silhouette_gradient(train_set, (SKY_SHIFT[0], high), level)[1] > 0
+        assert _silhouette_gradient(train_set, (SKY_SHIFT[0], low), zoom)[1] < 0
+        assert _silhouette_gradient(train_set, (SKY_SHIFT[0], high), zoom)[1] > 0
         for _ in range(12):
             middle = 0.5 * (low + high)
-            if _silhouette_gradient(train_set, (SKY_SHIFT[0], middle), level)[1] < 0:
+            if _silhouette_gradient(train_set, (SKY_SHIFT[0], middle), zoom)[1] < 0:
                 low = middle
             else:
                 high = middle
@@ -280,11 +280,11 @@ def _runs():
     rng = np.random.default_rng(0)
     rows = []
     for method, scale in (("sdm", 1e-3), ("chamfer", 3e-3)):
-        for level in (0, 2):
+        for noise_level in (0, 2):
             for run in range(6):
-                a = SKY_SHIFT[0] + scale * (level + 1) * (0.5 + rng.standard_normal())
-                b = SKY_SHIFT[1] + scale * (level + 1) * rng.standard_normal()
-                rows.append({"method": method, "level": level, "run": run, "a": a, "b": b,
+                a = SKY_SHIFT[0] + scale * (noise_level + 1) * (0.5 + rng.standard_normal())
+                b = SKY_SHIFT[1] + scale * (noise_level + 1) * rng.standard_normal()
+                rows.append({"method": method, "noise_level": noise_level, "run": run, "a": a, "b": b,
                              "distance": distance((a, b)), "seconds": 0.1 if method == "sdm" else 0.3})
     return pd.DataFrame(rows)
 
@@ -297,14 +297,14 @@ def test_table3_statistics(tmp_path):
     table = table3_frame(runs)
     assert list(table["method"]) == ["sdm", "sdm", "chamfer", "chamfer"]
     for _, row in table.iterrows():
-        group = runs[(runs["method"] == row["method"]) & (runs["level"] == row["level"])]
+        group = runs[(runs["method"] == row["method"]) & (runs["noise_level"] == row["noise_level"])]
         mean_squared = (group["distance"] ** 2).mean()
         assert math.isclose(row["bias_m"] ** 2 + row["spread_m"] ** 2, mean_squared, rel_tol=1e-9)
         assert math.isclose(row["median_m"], group["distance"].median())
-        sdm = runs[(runs["method"] == "sdm") & (runs["level"] == row["level"])]
+        sdm = runs[(runs["method"] == "sdm") & (runs["noise_level"] == row["noise_level"])]
         wins = (group["distance"].to_numpy() < sdm["distance"].to_numpy()).mean()
         assert math.isclose(row["wins_vs_sdm"], wins if row["method"] != "sdm" else 0.5)
-    sdm0 = table[(table["method"] == "sdm") & (table["level"] == 0)].iloc[0]
+    sdm0 = table[(table["method"] == "sdm") & (table["noise_level"] == 0)].iloc[0]
     assert math.isclose(sdm0["paper_mean_m"], 0.682e-3)
     assert table.loc[table["method"] == "chamfer", "paper_mean_m"].isna().all()
 
@@ -315,8 +315,8 @@ def test_table3_statistics(tmp_path):
     assert figure.stat().st_size > 1000
 
     summary = table3_summary(table)
-    chamfer2 = table[(table["method"] == "chamfer") & (table["level"] == 2)].iloc[0]
-    sdm2 = table[(table["method"] == "sdm") & (table["level"] == 2)].iloc[0]
+    chamfer2 = table[(table["method"] == "chamfer") & (table["noise_level"] == 2)].iloc[0]
+    sdm2 = table[(table["method"] == "sdm") & (table["noise_level"] == 2)].iloc[0]
     verdict = "SDM wins" if sdm2["mean_m"] < chamfer2["mean_m"] else "SDM loses"
     assert f"noise level 2 (6 paired runs): {verdict}" in summary
     assert "2D Chamfer 0.30 s (3.0x)" in summary

@@ -41,7 +41,7 @@ def runs():
     """Three runs on 48 configurations: different noisy targets (levels 1, 3, 2) and seeds."""
     data = configuration_set(48, seed=23)
     draws = [(1, 101), (3, 202), (2, 303)]
-    return [data.with_targets(noisy_targets(data.targets, level, seed)) for level, seed in draws], [s for _, s in draws]
+    return [data.with_targets(noisy_targets(data.targets, noise_level, seed)) for noise_level, seed in draws], [s for _, s in draws]
 
 
 def largest_difference(one, other) -> float:

@@ -60,21 +60,21 @@ def random_thetas(count: int, seed: int, spread: float):
 
 
 @pytest.mark.parametrize("path", PATHS)
-@pytest.mark.parametrize("level", [0, 3])
-def test_fast_count_is_the_straightforward_count(small, level, path):
+@pytest.mark.parametrize("noise_level", [0, 3])
+def test_fast_count_is_the_straightforward_count(small, noise_level, path):
     """Random thetas around and far from theta* (whole cars off screen: clamped groups), clean and noisy targets."""
-    train_set = small.with_targets(noisy_targets(small.targets, level, seed=17)) if level else small
+    train_set = small.with_targets(noisy_targets(small.targets, noise_level, seed=17)) if noise_level else small
     with counting(path):
         objective = PixelMismatch(train_set)
     assert objective.native == (path == "compiled")
-    thetas = random_thetas(12, seed=level, spread=0.3) + random_thetas(6, seed=10 + level, spread=3.0)
+    thetas = random_thetas(12, seed=noise_level, spread=0.3) + random_thetas(6, seed=10 + noise_level, spread=3.0)
     thetas += [(0.0, 0.0), SKY_SHIFT, (40.0, -25.0)]
     expected = [straightforward_count(train_set, theta) for theta in thetas]
     assert [objective(theta) for theta in thetas] == expected
     assert objective.many(thetas) == expected  # all at once (one pass of the compiled count)
     assert objective.fallbacks == 0  # the fast path was taken every time, not the reference
     assert objective.evaluations == 2 * len(thetas)
-    if level == 0:
+    if noise_level == 0:
         assert objective(SKY_SHIFT) == 0
 
 

@@ -8,9 +8,9 @@ import torch
 from sdm.baselines import chamfer, silhouette
 
 
-def window_splat(screen, config, n_configs, level, sigma, shape):
+def window_splat(screen, config, n_configs, noise_level, sigma, shape):
     """The soft silhouette as it was written before: every window cell's row and column as ``(P, n, 2)``."""
-    block = 1 << level
+    block = 1 << noise_level
     height, width = shape[0] // block, shape[1] // block
     position = screen / block
     nearest = torch.floor(position.detach()).to(torch.int64)
@@ -30,17 +30,17 @@ def window_splat(screen, config, n_configs, level, sigma, shape):
 
 
 @pytest.mark.parametrize("dtype", [torch.float32, torch.float64])
-@pytest.mark.parametrize("level,sigma", [(0, 0.5), (2, 1.0), (3, 0.3)])
-def test_soft_silhouette_is_the_window_formulation_to_the_bit(dtype, level, sigma):
+@pytest.mark.parametrize("zoom,sigma", [(0, 0.5), (2, 1.0), (3, 0.3)])
+def test_soft_silhouette_is_the_window_formulation_to_the_bit(dtype, zoom, sigma):
     """Points all over a 64 x 96 screen and beyond its edges (clamped windows), three configurations."""
-    generator = torch.Generator().manual_seed(level)
+    generator = torch.Generator().manual_seed(zoom)
     screen = (torch.rand(300, 2, generator=generator, dtype=torch.float64) * torch.tensor([80.0, 120.0]) - 8.0)
     screen = screen.to(dtype).requires_grad_(True)
     config = torch.randint(0, 3, (300,), generator=generator)
-    weights = torch.rand(3, 64 >> level, 96 >> level, generator=generator, dtype=dtype)
-    ours = silhouette.soft_silhouette(screen, config, 3, level, sigma, (64, 96))
+    weights = torch.rand(3, 64 >> zoom, 96 >> zoom, generator=generator, dtype=dtype)
+    ours = silhouette.soft_silhouette(screen, config, 3, zoom, sigma, (64, 96))
     (grad_ours,) = torch.autograd.grad((ours * weights).sum(), screen)
-    theirs = window_splat(screen, config, 3, level, sigma, (64, 96))
+    theirs = window_splat(screen, config, 3, zoom, sigma, (64, 96))
     (grad_theirs,) = torch.autograd.grad((theirs * weights).sum(), screen)
     assert torch.equal(ours, theirs) and torch.equal(grad_ours, grad_theirs)
     assert 0 < float(ours.detach().max()) < 1

@@ -25,8 +25,8 @@ def tiny():
     return configuration_set(4, seed=2)
 
 
-def noisy(train_set, level, draw):
-    return train_set.with_targets(noisy_targets(train_set.targets, level, seed=draw)) if level else train_set
+def noisy(train_set, noise_level, draw):
+    return train_set.with_targets(noisy_targets(train_set.targets, noise_level, seed=draw)) if noise_level else train_set
 
 
 def test_noise_free_floor_holds_the_truth(tiny):
@@ -39,9 +39,9 @@ def test_noise_free_floor_holds_the_truth(tiny):
     assert result.distance < 0.01 and result.extent[0] > 0 and result.extent[1] > 0
 
 
-@pytest.mark.parametrize("level, draw", [(2, 7), (4, 3)])
-def test_minimum_is_the_reference_count(tiny, level, draw):
-    train_set = noisy(tiny, level, draw)
+@pytest.mark.parametrize("noise_level, draw", [(2, 7), (4, 3)])
+def test_minimum_is_the_reference_count(tiny, noise_level, draw):
+    train_set = noisy(tiny, noise_level, draw)
     result = floor_search(PixelMismatch(train_set), seed=1, settings=SMALL)
     reference = PixelMismatch(train_set).reference
     assert reference(result.theta) == result.min_mismatch
@@ -50,10 +50,10 @@ def test_minimum_is_the_reference_count(tiny, level, draw):
     assert reference(SKY_SHIFT) == result.mismatch_at_truth >= result.min_mismatch
 
 
-@pytest.mark.parametrize("level, draw", [(0, 0), (2, 7), (4, 3)])
-def test_extent_is_tight(tiny, level, draw):
+@pytest.mark.parametrize("noise_level, draw", [(0, 0), (2, 7), (4, 3)])
+def test_extent_is_tight(tiny, noise_level, draw):
     """Along each measured line: the minimum everywhere inside the interval, more just past either end."""
-    train_set = noisy(tiny, level, draw)
+    train_set = noisy(tiny, noise_level, draw)
     result = floor_search(PixelMismatch(train_set), seed=2, settings=SMALL)
     region, reference, eps = result.region, PixelMismatch(train_set).reference, 2 * SMALL.extent_tol
     lines = [(region.interval_a, lambda a: (a, region.search_theta[1])),
@@ -68,10 +68,10 @@ def test_extent_is_tight(tiny, level, draw):
     assert region.interval_a[0] < region.theta[0] < region.interval_a[1]
 
 
-@pytest.mark.parametrize("level, draw", [(0, 0), (1, 4), (2, 7), (2, 8)])
-def test_no_cell_counts_lower(tiny, level, draw):
+@pytest.mark.parametrize("noise_level, draw", [(0, 0), (1, 4), (2, 7), (2, 8)])
+def test_no_cell_counts_lower(tiny, noise_level, draw):
     """Every cell of the step function within 0.1 m of theta* and a 3 mm grid over +-0.3 m: none lower."""
-    train_set = noisy(tiny, level, draw)
+    train_set = noisy(tiny, noise_level, draw)
     objective = PixelMismatch(train_set)
     result = floor_search(objective, seed=3, settings=SMALL)
     exact, _ = cell_minimum(objective, SKY_SHIFT, 0.1)

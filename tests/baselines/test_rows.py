@@ -24,10 +24,10 @@ def reference_mismatch(points, unit, target, candidate, camera) -> int:
 @pytest.fixture(scope="module")
 def scene():
     data, cars, n_cars = road_set(5, seed=9)
-    level = S.camera_and_car(data, cars, n_cars)
-    truth = S.draw_truth(level, 11)
-    shifted = S.shifted_set(data, truth, level.param_index)
-    units = S.units(shifted, level.param_index, level.n_rows)
+    noise_level = S.camera_and_car(data, cars, n_cars)
+    truth = S.draw_truth(noise_level, 11)
+    shifted = S.shifted_set(data, truth, noise_level.param_index)
+    units = S.units(shifted, noise_level.param_index, noise_level.n_rows)
     return shifted, units, S.unit_totals(truth, units)
 
 
@@ -67,20 +67,20 @@ def test_count_one_at_a_time_equals_generation(scene):
 def _separate_cars():
     """Two configurations of three cars far apart, a shift per car: the set, the cars' rows, theta* and the units."""
     data, cars, n_cars = car_grid_scene(3, n_configs=2, seed=1, far=40.0)
-    level = S.per_car(data, cars, n_cars)
-    truth = S.draw_truth(level, 3)
-    shifted = S.shifted_set(data, truth, level.param_index)
-    return shifted, level, truth, S.units(shifted, level.param_index, level.n_rows)
+    noise_level = S.per_car(data, cars, n_cars)
+    truth = S.draw_truth(noise_level, 3)
+    shifted = S.shifted_set(data, truth, noise_level.param_index)
+    return shifted, noise_level, truth, S.units(shifted, noise_level.param_index, noise_level.n_rows)
 
 
 def test_cmaes_per_configuration_recovers_separate_cars():
-    shifted, level, truth, units = _separate_cars()
+    shifted, noise_level, truth, units = _separate_cars()
     result = rows.fit_configurations(shifted, units, rows.RowsCMAESSettings(), seed=2)
     again = rows.fit_configurations(shifted, units, rows.RowsCMAESSettings(), seed=2)
     assert torch.equal(result.totals, again.totals) and torch.equal(result.evaluations, again.evaluations)
     assert result.mismatch.tolist() == [0, 0]  # every car in its pixel cell
     assert bool((result.evaluations <= 150 * 6 + 20).all()) and bool((result.seconds > 0).all())
-    theta = S.theta_from_totals(result.totals, units, level.n_rows)
+    theta = S.theta_from_totals(result.totals, units, noise_level.n_rows)
     distances = S.row_distances(theta, truth)
     # a car's exact count is flat over its pixel cell: z / f' metres across (at most about 0.25 m here)
     assert float(distances.max()) < 0.3

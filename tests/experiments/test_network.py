@@ -21,7 +21,7 @@ TINY = N.NetworkSettings(epochs=3, batch_size=8, lr=(("default", 3e-3),), s=2, s
 def sets():
     """48 training and 16 dev configurations of synthetic scenes, each with its own shift and mixed noise."""
     data = ConfigurationSet.from_configurations(configurations(64, seed=43, mean_cars=3))
-    train = N.shift_set(data.subset(range(48)), 1, N.mixed_levels(48, [0, 1], 2))
+    train = N.shift_set(data.subset(range(48)), 1, N.mixed_noise_levels(48, [0, 1], 2))
     dev = N.shift_set(data.subset(range(48, 64)), 3, torch.zeros(16, dtype=torch.int64))
     return train, dev
 
@@ -34,15 +34,15 @@ def test_the_weights_gradient_is_the_networks_vjp_of_the_layers_flow(sets, kind)
     torch.manual_seed(0)
     net = N.ShiftNet(train.data.camera.screen_shape).double()
     indices = torch.arange(8)
-    level = 1
+    noise_level = 1
     loss = N.BatchLoss(kind, train, TINY, torch.Generator().manual_seed(0))
     theta = net(N.network_images(train.data, indices).double())
     net.zero_grad()
-    loss(theta, indices, level).backward()
+    loss(theta, indices, noise_level).backward()
     through_autograd = [p.grad.clone() for p in net.parameters()]
 
     batch = train.data.batch(indices)
-    layer = SpatialDomainMapping(train.data.camera, s=TINY.s, zoom=level, rule=N.SDM_RULES[kind])
+    layer = SpatialDomainMapping(train.data.camera, s=TINY.s, zoom=noise_level, rule=N.SDM_RULES[kind])
     points = batch.points + shift_vector(theta.detach().index_select(0, batch.config), batch.points)
     out = layer(points, batch.pixels, batch.targets, batch.config, batch.rank)
     flow = torch.zeros(len(indices), 2, dtype=torch.float64).index_add(0, batch.config, out.result.flow)
@@ -64,7 +64,7 @@ def test_training_through_sdm_moves_the_dev_distance_down(sets):
     assert float(start) > 0.4
     trained = N.train_network("sdm_paper", train, dev, TINY, prior=FAR)
     assert float(trained.curve["dev_mean_m"].iloc[-1]) < 0.5 * float(start)
-    assert list(trained.curve["level"]) == N.epoch_levels(TINY.epochs, TINY.s) == [2, 1, 0]
+    assert list(trained.curve["zoom"]) == N.epoch_zooms(TINY.epochs, TINY.s) == [2, 1, 0]
 
 
 def test_a_fresh_network_starts_at_the_priors_mean(sets):
@@ -167,12 +167,12 @@ def test_split_is_seeded_and_disjoint():
 
 
 def test_epoch_levels_go_coarse_to_fine():
-    assert N.epoch_levels(8, 2) == [2, 1, 0, 0, 0, 0, 0, 0]
-    assert N.epoch_levels(2, 4) == [1, 0]
-    assert N.epoch_levels(5, 0) == [0] * 5
+    assert N.epoch_zooms(8, 2) == [2, 1, 0, 0, 0, 0, 0, 0]
+    assert N.epoch_zooms(2, 4) == [1, 0]
+    assert N.epoch_zooms(5, 0) == [0] * 5
 
 
-def _frame(means: dict, level: int, cpu: dict[str, float]) -> "pd.DataFrame":
+def _frame(means: dict, noise_level: int, cpu: dict[str, float]) -> "pd.DataFrame":
     """test_methods' rows at one level: ``means`` maps a method to its mean distance, one per run (a list) for a
     network, one value for the others; each configuration's error lies along a."""
     import pandas as pd
@@ -181,7 +181,7 @@ def _frame(means: dict, level: int, cpu: dict[str, float]) -> "pd.DataFrame":
     for method, values in means.items():
         runs = list(enumerate(values)) if isinstance(values, list) else [(N.NO_RUN, values)]
         for run, mean in runs:
-            frames.append(pd.DataFrame({"level": level, "method": method, "run": run, "config": range(4),
+            frames.append(pd.DataFrame({"noise_level": noise_level, "method": method, "run": run, "config": range(4),
                                         "distance": [mean] * 4, "error_a": [mean] * 4, "error_b": 0.0,
                                         "cpu_s": cpu.get(method, 1e-4)}))
     return pd.concat(frames, ignore_index=True)
@@ -222,7 +222,7 @@ def test_table7_gives_each_network_its_runs_mean_spread_and_paired_difference():
 
 @pytest.mark.parametrize("silhouette, word, moonshot", [
     ([0.052, 0.063, 0.094], "closer at level 0", "met"),  # every run's silhouette network farther
-    ([0.052, 0.058, 0.094], "level at level 0", "missed"),  # run 1 the other way: level
+    ([0.052, 0.058, 0.094], "even at level 0", "missed"),  # run 1 the other way: level
     ([0.048, 0.058, 0.080], "farther at level 0", "missed"),
 ])
 def test_table7_words_rank_only_beyond_the_runs_spread(silhouette, word, moonshot):
@@ -276,10 +276,10 @@ def test_table7_words_follow_the_numbers():
 
 def test_a_shift_set_subset_keeps_each_configuration_with_its_shift_and_level():
     whole = N.shift_set(ConfigurationSet.from_configurations(configurations(20, seed=1)), 0,
-                        N.mixed_levels(20, (0, 2), seed=1))
+                        N.mixed_noise_levels(20, (0, 2), seed=1))
     part = whole.subset([3, 1, 7])
     chosen = torch.tensor([3, 1, 7])
-    assert torch.equal(part.truth, whole.truth[chosen]) and torch.equal(part.levels, whole.levels[chosen])
+    assert torch.equal(part.truth, whole.truth[chosen]) and torch.equal(part.noise_levels, whole.noise_levels[chosen])
     assert torch.equal(part.data.targets, whole.data.targets[chosen])
     with pytest.raises(SDMInputError, match="indices"):
         whole.subset([20])
@@ -301,13 +301,13 @@ def test_training_runs_share_the_split_and_the_shifts_and_draw_their_own_trainin
     """A training run's seed draws the training set's noise; theta*, the levels and the dev set stay the run's
     split's, so that runs pair across losses."""
     data = ConfigurationSet.from_configurations(configurations(24, seed=7, mean_cars=3))
-    levels = N.mixed_levels(24, [2, 3], 1)
+    noise_levels = N.mixed_noise_levels(24, [2, 3], 1)
     seeds = [N.training_seed(0, run) for run in range(3)]
     assert len(set(seeds)) == 3 and seeds == [N.training_seed(0, run) for run in range(3)]
-    sets = [N.shift_set(data, 5, levels, noise_seed=seed) for seed in seeds]
-    assert all(torch.equal(one.truth, sets[0].truth) and torch.equal(one.levels, sets[0].levels) for one in sets)
+    sets = [N.shift_set(data, 5, noise_levels, noise_seed=seed) for seed in seeds]
+    assert all(torch.equal(one.truth, sets[0].truth) and torch.equal(one.noise_levels, sets[0].noise_levels) for one in sets)
     assert not torch.equal(sets[0].data.targets, sets[1].data.targets)
-    assert torch.equal(N.shift_set(data, 5, levels).data.targets, N.shift_set(data, 5, levels, noise_seed=5).data.targets)
+    assert torch.equal(N.shift_set(data, 5, noise_levels).data.targets, N.shift_set(data, 5, noise_levels, noise_seed=5).data.targets)
 
 
 @pytest.mark.parametrize("kind", N.BIAS_LOSSES)

@@ -71,19 +71,19 @@ def test_sdm_moves_every_configuration_towards_its_own_shift(data):
 
 @pytest.mark.slow
 def test_table6_and_its_words(data):
-    frames = [objects_runs(data, level, noise, [0], seed=5, settings=SETTINGS)
-              for level in ("configuration", "camera+car") for noise in (0, 1)]
-    table = table6(frames, pd.DataFrame({"level": [0, 0, 1], "run": [0, 1, 0], "distance": [1e-3, 3e-3, 2e-2]}))
-    shared = table[table["sharing"] == "shared"].set_index("level")
+    frames = [objects_runs(data, noise_level, noise, [0], seed=5, settings=SETTINGS)
+              for noise_level in ("configuration", "camera+car") for noise in (0, 1)]
+    table = table6(frames, pd.DataFrame({"noise_level": [0, 0, 1], "run": [0, 1, 0], "distance": [1e-3, 3e-3, 2e-2]}))
+    shared = table[table["sharing"] == "shared"].set_index("noise_level")
     assert shared.loc[0, "mean_m"] == pytest.approx(2e-3) and shared.loc[0, "units"] == 2
-    rows = table[(table["sharing"] == "configuration") & (table["level"] == 1)].set_index("method")
+    rows = table[(table["sharing"] == "configuration") & (table["noise_level"] == 1)].set_index("method")
     assert list(rows.index) == list(REFERENCES) + list(METHODS)
     own = frames[1][frames[1]["method"] == "cmaes"]["distance"]
     assert rows.loc["cmaes", "mean_m"] == pytest.approx(own.mean())
     words = table6_summary(table)
     assert "A configuration's shift" in words and "of its start's error" in words
     found = verdict_facts(table)
-    assert [(row["sharing"], row["level"]) for row in found["rows"]] == [
+    assert [(row["sharing"], row["noise_level"]) for row in found["rows"]] == [
         ("configuration", 0), ("configuration", 1), ("camera+car", 0), ("camera+car", 1)]
     row = found["rows"][1]
     by = rows  # the configuration level at noise 1
@@ -118,8 +118,8 @@ def test_scaling_gives_one_point_per_budget(data):
     assert "doing nothing" in "\n".join(scaling_words(scaling_table([frame])))
 
 
-def test_bad_level_and_method_are_named(data):
-    with pytest.raises(SDMInputError, match="level must be one of"):
+def test_bad_sharing_and_method_are_named(data):
+    with pytest.raises(SDMInputError, match="sharing must be one of"):
         objects_runs(data, "shared", 0, [0], seed=0, settings=SETTINGS)
     with pytest.raises(SDMInputError, match="methods must be of"):
         objects_runs(data, "car", 0, [0], seed=0, settings=SETTINGS, methods=["adam"])
@@ -154,7 +154,7 @@ def test_the_floor_is_theta_star_where_theta_star_reproduces_the_target(data):
 def test_two_screens_give_two_blocks_each_naming_its_scale(data):
     fine = objects_runs(data, "car", 0, [0], seed=8, settings=SETTINGS, methods=["sdm_paper", "cmaes_car"])
     table = table6([fine.assign(scale=4), fine.assign(scale=1)],
-                   pd.DataFrame({"level": [0], "run": [0], "distance": [1e-3]}))
+                   pd.DataFrame({"noise_level": [0], "run": [0], "distance": [1e-3]}))
     assert list(dict.fromkeys(table["scale"])) == [4, 1]  # the first screen first
     assert table.loc[table["sharing"] == "shared", "scale"].tolist() == [1]  # Table 2's runs: the Sky screen
     assert len(table[(table["scale"] == 4) & (table["method"] == "sdm_paper")]) == 1
@@ -210,7 +210,7 @@ def test_tail_words_say_which_cars_make_the_mean():
     returned (those whose gated distance is not their distance) and their share."""
     def records(scale, method="sdm_schedule", sharing="car"):
         distance = [0.5, 0.01, 0.02, 0.3, 0.01, 0.2]
-        return pd.DataFrame({"scale": scale, "sharing": sharing, "level": 0, "run": [0, 0, 0, 1, 1, 1],
+        return pd.DataFrame({"scale": scale, "sharing": sharing, "noise_level": 0, "run": [0, 0, 0, 1, 1, 1],
                              "method": method, "config": 0, "car": [0, 1, 2, 0, 1, 2], "distance": distance,
                              "gated": [0.2, *distance[1:]]})  # run 0's car 0 returned to its start: 0.5 -> 0.2
     frames = [records(12), records(1, "cmaes"), records(12, "sdm_paper"), records(12, sharing="configuration"),
@@ -249,15 +249,15 @@ def test_each_row_is_gated_with_the_spread_its_theta_star_is_drawn_with(data):
     from sdm import sharing as S
 
     truth = S.TruthDistribution(camera_sd=0.2, car_sd=0.15, residual_sd=0.05)
-    for level in ("configuration", "car", "camera+car"):
-        sharing = S.sharing(level, data)
+    for noise_level in ("configuration", "car", "camera+car"):
+        sharing = S.sharing(noise_level, data)
         sd = prior_sd(sharing, truth)
         drawn = S.draw_truth(sharing, 5, truth) - torch.tensor(truth.centre, dtype=torch.float64)
         is_car = sharing.rows[:, 1] != S.NO_INDEX
         expected = {"configuration": torch.full_like(sd, 0.2), "car": torch.full_like(sd, 0.15),
-                    "camera+car": torch.where(is_car, 0.05, 0.2).to(torch.float64)}[level]
+                    "camera+car": torch.where(is_car, 0.05, 0.2).to(torch.float64)}[noise_level]
         assert torch.equal(sd, expected)
-        if level == "camera+car":  # the residual rows are drawn around zero, not around the centre
+        if noise_level == "camera+car":  # the residual rows are drawn around zero, not around the centre
             drawn[is_car] += torch.tensor(truth.centre, dtype=torch.float64)
         assert (drawn.abs() <= 6 * sd.unsqueeze(1)).all()  # the spread it names is the one drawn with
 

@@ -65,19 +65,19 @@ def test_depth_noise_runs_equal_the_runs_trained_alone(small_set):
     """Run r: targets of (a*, b*, c*), Table 2's noise draw of (seed, level, r), fit_depth trained with that
     seed (tests/run_reference.py), batched (two groups: 2 runs, then 1): the depth flow is a float sum,
     so a packed run may round it otherwise, held to 1e-12 m (as test_depth.py holds train_runs)."""
-    c, level = 0.5, 1
-    table = depth_noise_runs(small_set, c, level, [2, 0, 1], SETTINGS, shift=SHIFT, group_size=2)
+    c, noise_level = 0.5, 1
+    table = depth_noise_runs(small_set, c, noise_level, [2, 0, 1], SETTINGS, shift=SHIFT, group_size=2)
     assert list(table.columns) == DEPTH_RUN_COLUMNS and table["run"].tolist() == [2, 0, 1]
     for row in table.to_dict("records"):
-        alone = depth_noise_run(small_set, c, level, row["run"], SETTINGS, shift=SHIFT)
-        assert {key: row[key] for key in ("c_true", "level", "run", "seed")} == {
-            key: alone[key] for key in ("c_true", "level", "run", "seed")}
-        assert row["seed"] == run_seed(SETTINGS.seed, level, row["run"])
+        alone = depth_noise_run(small_set, c, noise_level, row["run"], SETTINGS, shift=SHIFT)
+        assert {key: row[key] for key in ("c_true", "noise_level", "run", "seed")} == {
+            key: alone[key] for key in ("c_true", "noise_level", "run", "seed")}
+        assert row["seed"] == run_seed(SETTINGS.seed, noise_level, row["run"])
         for key in DEPTH_RUN_COLUMNS[4:]:
             assert abs(row[key] - alone[key]) <= 1e-12, key
         assert abs(alone["c"]) > 1e-3  # c moved: the comparison is not between two zeros
     assert table["c"].nunique() == 3  # each run its own
-    again = depth_noise_runs(small_set, c, level, [2, 0, 1], SETTINGS, shift=SHIFT, group_size=2)
+    again = depth_noise_runs(small_set, c, noise_level, [2, 0, 1], SETTINGS, shift=SHIFT, group_size=2)
     pd.testing.assert_frame_equal(table, again)  # deterministic from the seed
 
 
@@ -101,10 +101,10 @@ def test_depth_noise_runs_refuse_bad_shifts(small_set):
 # -- Table 4 ----------------------------------------------------------------------------------------------
 
 
-def _runs(levels, runs, scale, rule=None, seed=0):
+def _runs(noise_levels, runs, scale, rule=None, seed=0):
     generator = np.random.default_rng(seed)
-    rows = [{"level": level, "run": run, "distance": scale * (level + 1) * generator.uniform(0.5, 1.5)}
-            for level in levels for run in runs]
+    rows = [{"noise_level": noise_level, "run": run, "distance": scale * (noise_level + 1) * generator.uniform(0.5, 1.5)}
+            for noise_level in noise_levels for run in runs]
     frame = pd.DataFrame(rows)
     if rule:
         frame.insert(0, "rule", rule)
@@ -123,12 +123,12 @@ def test_rules_beside_the_baselines_are_compared_on_the_same_runs_only():
     partial = _runs([0, 1], range(2), 1e-6, seed=6)  # lacks run 2: not paired, left out
     partial.insert(0, "method", "sinkhorn")
     words = rules_against_baselines(rules, pd.concat([good, slow, partial], ignore_index=True))
-    for level in (0, 1):
-        own = rules.loc[rules["level"] == level, "distance"].mean()
-        best = good.loc[(good["level"] == level) & (good["run"] < 3), "distance"].mean()
-        assert f"level {level}: {1e3 * own:.3f} against {1e3 * best:.3f} for `cmaes`, the best baseline (beats 1 of 2)" in words
+    for noise_level in (0, 1):
+        own = rules.loc[rules["noise_level"] == noise_level, "distance"].mean()
+        best = good.loc[(good["noise_level"] == noise_level) & (good["run"] < 3), "distance"].mean()
+        assert f"level {noise_level}: {1e3 * own:.3f} against {1e3 * best:.3f} for `cmaes`, the best baseline (beats 1 of 2)" in words
     assert "sinkhorn" not in words and "does not beat every baseline" in words
-    assert rules_against_baselines(rules, good.assign(level=5)) == ""  # no level in common: nothing to say
+    assert rules_against_baselines(rules, good.assign(noise_level=5)) == ""  # no level in common: nothing to say
 
 
 def test_table4_pairs_each_rule_with_table2_runs_of_the_same_draws():
@@ -136,18 +136,18 @@ def test_table4_pairs_each_rule_with_table2_runs_of_the_same_draws():
     rules = pd.concat([_runs([0, 1, 2], range(4), 2e-3, "closed", seed=2),
                        _runs([0, 1, 2], range(4), 5e-2, "nearest", seed=3)])
     table = table4_frame(rules, table2)
-    assert table[["rule", "level"]].values.tolist() == [[f, lv] for f in ("closed", "nearest") for lv in (0, 1, 2)]
+    assert table[["rule", "noise_level"]].values.tolist() == [[f, lv] for f in ("closed", "nearest") for lv in (0, 1, 2)]
     for row in table.itertuples():
-        ours = rules[(rules["rule"] == row.rule) & (rules["level"] == row.level)]["distance"]
-        theirs = table2[(table2["level"] == row.level) & (table2["run"] < 4)]["distance"]  # runs 4, 5 unpaired
+        ours = rules[(rules["rule"] == row.rule) & (rules["noise_level"] == row.noise_level)]["distance"]
+        theirs = table2[(table2["noise_level"] == row.noise_level) & (table2["run"] < 4)]["distance"]  # runs 4, 5 unpaired
         assert row.runs == 4 and row.paper_rule_runs == 4
         assert row.mean_m == pytest.approx(ours.mean()) and row.std_m == pytest.approx(ours.std())
         assert row.median_m == pytest.approx(ours.median())
         assert row.paper_rule_mean_m == pytest.approx(theirs.mean())
         assert row.ratio_to_paper_rule == pytest.approx(ours.mean() / theirs.mean())
-        published = paper.TABLE2[row.level]["mean"] * 1e-3
+        published = paper.TABLE2[row.noise_level]["mean"] * 1e-3
         assert row.published_mean_m == pytest.approx(published)
-        assert row.bar_m == pytest.approx(published if row.level == 0 else published / 2)
+        assert row.bar_m == pytest.approx(published if row.noise_level == 0 else published / 2)
         assert row.meets_bar == (ours.mean() <= row.bar_m)
     assert half_paper_mean_m(1) == pytest.approx(8.17e-3) and math.isnan(half_paper_mean_m(9))
 
@@ -160,7 +160,7 @@ def test_table4_summary_names_misses_and_numbers():
     words = table4_summary(table)
     assert "`closed` (3 runs per level) meets the bar (half the paper's mean) at every level run (2 of 2)" in words
     assert "`nearest` (3 runs per level) misses the bar (half the paper's mean) at level 0, 1" in words
-    row = table[(table["rule"] == "closed") & (table["level"] == 1)].iloc[0]
+    row = table[(table["rule"] == "closed") & (table["noise_level"] == 1)].iloc[0]
     assert f"{1e3 * row.mean_m:.3f}" in words and f"{1e3 * row.paper_rule_mean_m:.3f}" in words
 
 
@@ -174,10 +174,10 @@ def test_table4_refuses_runs_without_the_columns():
 
 def _depth_runs(errors_by_cell):
     rows = []
-    for (c_true, level), (ea, eb, ec) in errors_by_cell.items():
+    for (c_true, noise_level), (ea, eb, ec) in errors_by_cell.items():
         for run, factor in enumerate((0.5, 1.5)):
             a, b, c = ea * factor, eb * factor, ec * factor
-            rows.append({"c_true": c_true, "level": level, "run": run, "c": c_true - c, "error_a": a, "error_b": b,
+            rows.append({"c_true": c_true, "noise_level": noise_level, "run": run, "c": c_true - c, "error_a": a, "error_b": b,
                          "error_c": c,
                          "distance_ab": math.hypot(a, b), "distance": math.sqrt(a * a + b * b + c * c)})
     return pd.DataFrame(rows)
@@ -186,15 +186,15 @@ def _depth_runs(errors_by_cell):
 def test_table5_means_and_the_noise_free_bar():
     runs = _depth_runs({(-1.0, 0): (1e-3, 3e-3, 1e-2), (1.0, 0): (1e-3, 1e-3, 1e-2), (1.0, 2): (1e-4, 1e-4, 1e-4)})
     table = table5_frame(runs)
-    assert table[["c_true", "level"]].values.tolist() == [[-1.0, 0], [1.0, 0], [1.0, 2]]
+    assert table[["c_true", "noise_level"]].values.tolist() == [[-1.0, 0], [1.0, 0], [1.0, 2]]
     for row in table.itertuples():
-        cell = runs[(runs["c_true"] == row.c_true) & (runs["level"] == row.level)]
+        cell = runs[(runs["c_true"] == row.c_true) & (runs["noise_level"] == row.noise_level)]
         for axis in "abc":
             assert getattr(row, f"error_{axis}_m") == pytest.approx(cell[f"error_{axis}"].mean())
         assert row.distance_m == pytest.approx(cell["distance"].mean()) and row.runs == 2
         assert row.bias_c_m == pytest.approx(-cell["error_c"].mean())  # every run's c is too near here
         within = all(getattr(row, f"error_{axis}_m") <= DEPTH_BAR_M[axis] for axis in "abc")
-        assert row.meets_bar == (row.level == 0 and within)
+        assert row.meets_bar == (row.noise_level == 0 and within)
     assert table["meets_bar"].tolist() == [False, True, False]  # b misses at c* = -1; level 2 has no bar
     words = table5_summary(table)
     assert "c* = -1 m (2 runs per level)" in words and "misses the bar" in words and "meets the bar" in words
@@ -295,7 +295,7 @@ def test_the_schema_defaults_are_the_rules_config_yaml_names():
         ({"rules": {"runs": 0}}, "research.rules.runs"),
         ({"depth": {"enabled": True, "shifts_c": [1.0, float("inf")]}}, "research.depth.shifts_c[1]"),
         ({"depth": {"enabled": True, "shifts_c": []}}, "research.depth.shifts_c"),
-        ({"depth": {"enabled": True, "levels": [-1]}}, "research.depth.levels[0]"),
+        ({"depth": {"enabled": True, "noise_levels": [-1]}}, "research.depth.noise_levels[0]"),
         ({"depth": {"enabled": True, "schedule": "smooth"}}, "research.depth.schedule"),
         ({"depth": {"enabled": True, "schedule": "closed_centred_r1+smooth:4"}}, "research.depth.schedule"),
     ],
@@ -318,7 +318,7 @@ def test_a_config_without_the_research_section_is_valid_with_both_off():
 
 
 def test_rule_times_set_each_rule_beside_the_paper_rule_with_the_bar():
-    runs = pd.DataFrame({"rule": ["fast"] * 2 + ["slow"] * 2, "level": [0, 1, 0, 1], "run": [0, 0, 0, 0],
+    runs = pd.DataFrame({"rule": ["fast"] * 2 + ["slow"] * 2, "noise_level": [0, 1, 0, 1], "run": [0, 0, 0, 0],
                          "distance": [1e-3] * 4, "seconds": [0.10, 0.14, 0.30, 0.34]})
     text = rule_times(runs, [{"runs": 60, "seconds": 6.0}, {"runs": 40, "seconds": 4.0}])
     fast, slow = text.strip().splitlines()

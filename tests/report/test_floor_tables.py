@@ -23,16 +23,16 @@ sys.path.insert(0, str(ROOT / "workflow" / "scripts"))
 from config_check import ConfigError, check_config, validate_schema  # noqa: E402
 
 
-def _runs(levels, runs, scale, seed=0, **columns):
+def _runs(noise_levels, runs, scale, seed=0, **columns):
     generator = np.random.default_rng(seed)
-    rows = [{"level": level, "run": run, "distance": scale * (level + 1) * generator.uniform(0.5, 1.5)}
-            for level in levels for run in runs]
+    rows = [{"noise_level": noise_level, "run": run, "distance": scale * (noise_level + 1) * generator.uniform(0.5, 1.5)}
+            for noise_level in noise_levels for run in runs]
     return pd.DataFrame(rows).assign(**columns)
 
 
-def _floor_runs(levels, runs, seed=0):
+def _floor_runs(noise_levels, runs, seed=0):
     generator = np.random.default_rng(seed)
-    frame = _runs(levels, runs, 1e-4, seed)
+    frame = _runs(noise_levels, runs, 1e-4, seed)
     n = len(frame)
     return frame.assign(a=0.517 + frame["distance"], b=0.303, search_distance=frame["distance"] * 1.1,
                         half_distance=frame["distance"] * generator.uniform(0.9, 1.1, n),
@@ -46,10 +46,10 @@ def test_table4_compares_every_row_with_cmaes_on_the_runs_both_have():
     2x CMA-ES's; a rule at exactly 2x meets it, above it misses it, and the summary names the level and the factor."""
     table2 = _runs([1, 2], range(6), 1e-2, seed=1)
     cmaes = _runs([1, 2], range(3), 1e-3, seed=2, rule=CMAES_ROW)
-    rule = cmaes[["level", "run"]].assign(rule="closed", distance=cmaes["distance"] * [2.0, 2.0, 2.0, 2.0, 2.0, 2.5])
+    rule = cmaes[["noise_level", "run"]].assign(rule="closed", distance=cmaes["distance"] * [2.0, 2.0, 2.0, 2.0, 2.0, 2.5])
     rule = pd.concat([rule, _runs([1, 2], range(3, 6), 1.0, rule="closed")], ignore_index=True)  # runs CMA-ES lacks
     table = table4_frame(pd.concat([rule, cmaes], ignore_index=True), table2, cmaes)
-    closed = table[table["rule"] == "closed"].set_index("level")
+    closed = table[table["rule"] == "closed"].set_index("noise_level")
     assert closed.loc[1, "cmaes_runs"] == 3 and closed.loc[1, "runs"] == 6  # compared on 3 of its 6 runs
     assert closed.loc[1, "ratio_to_cmaes"] == pytest.approx(2.0) and closed.loc[1, "within_2x_cmaes"]
     expected = (2 * cmaes["distance"].iloc[3] + 2 * cmaes["distance"].iloc[4] + 2.5 * cmaes["distance"].iloc[5]) / \
@@ -70,11 +70,11 @@ def test_a_schedule_that_misses_cmaes_is_read_against_its_first_rule_alone():
     alone = cmaes.assign(rule="closed_centred_r1", distance=cmaes["distance"] * 10)
     schedule = cmaes.assign(rule="closed_centred_r1+group_crossing:4",
                             distance=cmaes["distance"] * 8.0)
-    schedule.loc[schedule["level"] == 2, "distance"] = cmaes.loc[cmaes["level"] == 2, "distance"] * 1.5
+    schedule.loc[schedule["noise_level"] == 2, "distance"] = cmaes.loc[cmaes["noise_level"] == 2, "distance"] * 1.5
     table = table4_frame(pd.concat([alone, schedule, cmaes], ignore_index=True), table2, cmaes)
     words = table4_summary(table)
     line = next(line for line in words.splitlines() if line.startswith("  Why it misses"))
-    at = table.set_index(["rule", "level"])
+    at = table.set_index(["rule", "noise_level"])
     start = at.loc[("closed_centred_r1", 1), "mean_m"]
     end = at.loc[("closed_centred_r1+group_crossing:4", 1), "mean_m"]
     target = at.loc[(CMAES_ROW, 1), "mean_m"]
@@ -95,14 +95,14 @@ def test_reference_rows_take_cmaes_from_table3_and_the_floor_as_is():
 
 def test_the_floor_per_level_and_in_words():
     runs = _floor_runs([0, 3], range(4), seed=5)
-    frame = floor_frame(runs).set_index("level")
-    for level in (0, 3):
-        mine = runs[runs["level"] == level]
+    frame = floor_frame(runs).set_index("noise_level")
+    for noise_level in (0, 3):
+        mine = runs[runs["noise_level"] == noise_level]
         mean, half = mine["distance"].mean(), mine["half_distance"].mean()
-        assert frame.loc[level, "mean_m"] == pytest.approx(mean)
-        assert frame.loc[level, "budget_change"] == pytest.approx(abs(mean - half) / mean)
-        assert frame.loc[level, "extent_a_m"] == pytest.approx(mine["extent_a"].mean())
-        assert frame.loc[level, "truth_minimal"] == pytest.approx((mine["mismatch_at_truth"] == mine["min_mismatch"]).mean())
+        assert frame.loc[noise_level, "mean_m"] == pytest.approx(mean)
+        assert frame.loc[noise_level, "budget_change"] == pytest.approx(abs(mean - half) / mean)
+        assert frame.loc[noise_level, "extent_a_m"] == pytest.approx(mine["extent_a"].mean())
+        assert frame.loc[noise_level, "truth_minimal"] == pytest.approx((mine["mismatch_at_truth"] == mine["min_mismatch"]).mean())
     words = floor_summary(floor_frame(runs), {"restarts": 4, "budget": 2400})
     worst = frame["budget_change"].idxmax()
     assert "search: budget 2400, restarts 4" in words and "4 runs per level" in words
@@ -125,7 +125,7 @@ def test_rule_bias_is_zero_without_noise_and_measured_under_it():
     """rule_bias: noise-free, theta* is an exact fixed point (bias 0, predicted offset 0) while the stiffness is
     positive (the flow restores theta*); under noise the paper's rule has a bias, and the offset is -bias/stiffness."""
     train_set = configuration_set(12, seed=3)
-    bias = rule_bias(train_set, "paper", [0, 3], seed=0).set_index("level")
+    bias = rule_bias(train_set, "paper", [0, 3], seed=0).set_index("noise_level")
     assert bias.loc[0, "bias_a"] == 0 and bias.loc[0, "bias_b"] == 0 and bias.loc[0, "predicted_m"] == 0
     assert bias.loc[0, "stiffness_a"] > 0 and bias.loc[0, "stiffness_b"] > 0
     assert bias.loc[3, "bias_b"] != 0

@@ -44,10 +44,10 @@ def grid(losses=None) -> pd.DataFrame:
 
 def distances(means_mm=(0.5, 20.0, 30.0, 40.0, 50.0), runs=6) -> pd.DataFrame:
     rows = []
-    for level, mean in enumerate(means_mm):
+    for noise_level, mean in enumerate(means_mm):
         for run in range(runs):
             d = 1e-3 * mean * (0.8 + 0.4 * run / (runs - 1))
-            rows.append({"level": level, "run": run, "seed": run, "a": SKY_SHIFT[0] + d, "b": SKY_SHIFT[1], "distance": d})
+            rows.append({"noise_level": noise_level, "run": run, "seed": run, "a": SKY_SHIFT[0] + d, "b": SKY_SHIFT[1], "distance": d})
     return pd.DataFrame(rows)
 
 
@@ -82,9 +82,9 @@ def test_table1_rejects_a_grid_without_dev_loss():
 def test_table2_statistics_in_millimetres_beside_the_paper():
     runs = distances()
     table = table2_frame(runs, {1: 283.0, 2: 494.0, 3: 700.0, 4: 905.0})
-    assert table["level"].tolist() == [0, 1, 2, 3, 4] and set(table["runs"]) == {6}
-    level1 = 1000 * runs.loc[runs["level"] == 1, "distance"]
-    row = table.set_index("level").loc[1]
+    assert table["noise_level"].tolist() == [0, 1, 2, 3, 4] and set(table["runs"]) == {6}
+    level1 = 1000 * runs.loc[runs["noise_level"] == 1, "distance"]
+    row = table.set_index("noise_level").loc[1]
     assert row["mean"] == pytest.approx(level1.mean())
     assert row["std"] == pytest.approx(level1.std(ddof=1))
     assert row[["q1", "q2", "q3"]].tolist() == pytest.approx(level1.quantile([0.25, 0.5, 0.75]).tolist())
@@ -202,10 +202,10 @@ def test_a_phrase_split_across_literals_is_caught_in_the_rendered_text_only(tmp_
 
 
 def test_run_seeds_are_deterministic_and_distinct():
-    seeds = {run_seed(0, level, run) for level in range(5) for run in range(60)}
+    seeds = {run_seed(0, noise_level, run) for noise_level in range(5) for run in range(60)}
     assert len(seeds) == 300
     assert run_seed(0, 2, 7) == run_seed(0, 2, 7) != run_seed(1, 2, 7)
-    with pytest.raises(SDMInputError, match="level"):
+    with pytest.raises(SDMInputError, match="noise_level"):
         run_seed(0, -1, 0)
 
 
@@ -262,11 +262,11 @@ def test_importing_figures_leaves_the_backend_alone():
 def test_show_figure_saves_and_closes_outside_a_notebook(tmp_path):
     import matplotlib.pyplot as plt
 
-    figure = figures.figure4(configurations(1, seed=2)[0].target, levels=(0, 1))
+    figure = figures.figure4(configurations(1, seed=2)[0].target, noise_levels=(0, 1))
     assert figures.show_figure(figure, tmp_path / "fig4.png", pdf=True) == tmp_path / "fig4.png"
     assert (tmp_path / "fig4.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and (tmp_path / "fig4.pdf").stat().st_size
     assert not plt.fignum_exists(figure.number)
-    other = figures.figure4(configurations(1, seed=2)[0].target, levels=(0,))
+    other = figures.figure4(configurations(1, seed=2)[0].target, noise_levels=(0,))
     assert figures.show_figure(other) is None and not plt.fignum_exists(other.number)
 
 
@@ -303,10 +303,10 @@ def test_flow_at_the_true_shift_vanishes_without_noise_and_is_reported():
 
     train_set = configuration_set(48, seed=9)
     flow = flow_at_true_shift(train_set, [0, 2], seed=0, s=4)
-    assert list(flow["zoom"][flow["level"] == 0]) == [4, 3, 2, 1, 0]
-    noise_free = flow[flow["level"] == 0]
+    assert list(flow["zoom"][flow["noise_level"] == 0]) == [4, 3, 2, 1, 0]
+    noise_free = flow[flow["noise_level"] == 0]
     assert not noise_free[["flow_a", "flow_b", "unmatched"]].to_numpy().any()  # theta* is a fixed point
-    noisy_finest = flow[(flow["level"] == 2) & (flow["zoom"] == 0)].iloc[0]
+    noisy_finest = flow[(flow["noise_level"] == 2) & (flow["zoom"] == 0)].iloc[0]
     assert noisy_finest["unmatched"] > 0.05 and (noisy_finest["flow_a"], noisy_finest["flow_b"]) != (0, 0)
 
     runs = distances((0.77, 41.0, 25.0, 35.0, 40.0))
@@ -324,16 +324,16 @@ def test_table3_sdm_rows_are_table2_runs_with_the_noise_jobs_seconds():
     """Table 3's SDM rows: the wanted (level, run) of Table 2 as they are, seconds = level's chunk seconds / runs."""
     from sdm.report.baselines import RUN_COLUMNS, table2_runs
 
-    table2 = pd.DataFrame({"level": [0, 0, 0, 1, 1, 1], "run": [0, 1, 2, 0, 1, 2], "seed": [10, 11, 12, 13, 14, 15],
+    table2 = pd.DataFrame({"noise_level": [0, 0, 0, 1, 1, 1], "run": [0, 1, 2, 0, 1, 2], "seed": [10, 11, 12, 13, 14, 15],
                            "a": [0.5, 0.51, 0.52, 0.6, 0.61, 0.62], "b": [0.3] * 6,
                            "distance": [0.01, 0.02, 0.03, 0.04, 0.05, 0.06]})
-    timings = [{"level": 0, "runs": 2, "seconds": 3.0}, {"level": 0, "runs": 1, "seconds": 3.0},
-               {"level": 1, "runs": 3, "seconds": 1.5}]
-    rows = table2_runs(table2, timings, levels=[0, 1], runs=[0, 1])
+    timings = [{"noise_level": 0, "runs": 2, "seconds": 3.0}, {"noise_level": 0, "runs": 1, "seconds": 3.0},
+               {"noise_level": 1, "runs": 3, "seconds": 1.5}]
+    rows = table2_runs(table2, timings, noise_levels=[0, 1], runs=[0, 1])
     assert set(RUN_COLUMNS) <= set(rows.columns) and set(rows["method"]) == {"sdm"}
-    assert list(zip(rows["level"], rows["run"])) == [(0, 0), (0, 1), (1, 0), (1, 1)]
+    assert list(zip(rows["noise_level"], rows["run"])) == [(0, 0), (0, 1), (1, 0), (1, 1)]
     assert list(rows["distance"]) == [0.01, 0.02, 0.04, 0.05] and list(rows["a"]) == [0.5, 0.51, 0.6, 0.61]
     assert list(rows["seconds"]) == [2.0, 2.0, 0.5, 0.5]  # (3 + 3) s / 3 runs; 1.5 s / 3 runs
     assert table2_runs(table2, [], [1], [2])["seconds"].isna().all()  # no timing: no seconds, not zero
     with pytest.raises(SDMInputError, match="baselines.runs"):
-        table2_runs(table2, timings, levels=[0], runs=[0, 3])
+        table2_runs(table2, timings, noise_levels=[0], runs=[0, 3])

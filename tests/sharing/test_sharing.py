@@ -87,7 +87,7 @@ def test_levels_rows_and_tables(road):
     assert both.param_index.shape == (data.points.shape[0], 2)
     assert torch.equal(both.param_index[:, 0], per_config.param_index)
     assert torch.equal(both.param_index[:, 1] - per_config.n_rows, per_car.param_index)
-    for level in S.LEVELS:  # every row of every level has points
+    for level in S.SHARINGS:  # every row of every level has points
         built = S.sharing(level, data, cars, n_cars)
         S.check_param_index(built.param_index, data, built.n_rows)
 
@@ -131,7 +131,7 @@ def test_cars_checked(road):
     bare.cars = None  # a set packed without its points' cars
     with pytest.raises(SDMInputError, match="cars"):
         S.sharing("car", bare)
-    with pytest.raises(SDMInputError, match="level"):
+    with pytest.raises(SDMInputError, match="sharing must be one of"):
         S.sharing("camera", data)
 
 
@@ -139,7 +139,7 @@ def test_truth_draws_are_seeded_and_sized(road):
     data, cars, n_cars = road
     assert torch.equal(S.draw_truth(S.shared(data), 5), torch.tensor([SKY_SHIFT], dtype=torch.float64))
     distribution = S.TruthDistribution()
-    for level in S.LEVELS[1:]:
+    for level in S.SHARINGS[1:]:
         built = S.sharing(level, data, cars, n_cars)
         first, again, other = (S.draw_truth(built, seed) for seed in (5, 5, 6))
         assert torch.equal(first, again) and not torch.equal(first, other)

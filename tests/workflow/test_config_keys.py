@@ -99,11 +99,11 @@ def test_config_yaml_runs_table6_on_two_screens_the_scaling_on_the_first():
     assert objects["scaling"]["scale"] == 12
     assert screens[0]["rows"] == {"lr": 2.5e-3, "n_epoch": 16, "s": 6, "first_level": "prior"}
     assert screens[0]["cmaes"]["car_step"] == 0.1 and screens[0]["cmaes"]["step"] == 0.03
-    assert 0 in objects["levels"] and 2 in objects["levels"] and objects["runs"] >= 20
+    assert 0 in objects["noise_levels"] and 2 in objects["noise_levels"] and objects["runs"] >= 20
 
 
 def test_a_good_screen_list_passes():
-    config = _set(_config(), "research.objects.screens", [{"scale": 2, "disc": "metres", "levels": [1],
+    config = _set(_config(), "research.objects.screens", [{"scale": 2, "disc": "metres", "noise_levels": [1],
                                                             "sharings": ["car"], "methods": ["floor"],
                                                             "rows": {"lr": 1e-3, "n_epoch": 2, "s": 1},
                                                             "cmaes": {"evaluations_per_unknown": 5}}])

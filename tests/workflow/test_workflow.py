@@ -271,16 +271,16 @@ def _research_jobs(config: dict) -> dict[str, int]:
     if rules["enabled"]:
         jobs |= {"rule_runs": len(rules["names"]), "rule_bias": 1, "table4": 1}
     if depth["enabled"]:
-        jobs |= {"depth_runs": len(depth["shifts_c"]) * len(depth["levels"]), "table5": 1}
+        jobs |= {"depth_runs": len(depth["shifts_c"]) * len(depth["noise_levels"]), "table5": 1}
     objects = config["research"].get("objects", {})
     if objects.get("enabled"):
         screens = objects.get("screens") or [{"scale": 1}]
         jobs |= {"objects_runs": sum(len(screen.get("sharings", objects["sharings"]))
-                                     * len(screen.get("levels", objects["levels"])) for screen in screens),
+                                     * len(screen.get("noise_levels", objects["noise_levels"])) for screen in screens),
                  "objects_scaling": len(objects["scaling"]["cars"]), "table6": 1}
     network = config["research"].get("network", {})
     if network.get("enabled"):
-        jobs |= {"network_train": len(network["losses"]) * network["runs"], "network_test": len(network["levels"]),
+        jobs |= {"network_train": len(network["losses"]) * network["runs"], "network_test": len(network["noise_levels"]),
                  "table7": 1, "network_bias": int(any(loss in ("sdm_paper", "sdm_closed_centred_r1", "silhouette")  # BIAS_LOSSES
                                                       for loss in network["losses"]))}
     return jobs
@@ -533,13 +533,13 @@ def test_completed_run_has_the_research_tables_and_the_report_section(completed_
     levels = dot_test_config()["noise"]["levels"]
     # the rules, then Table 3's CMA-ES and the floor beside them, each compared with CMA-ES
     rows = [*config["rules"]["names"], "CMA-ES (Table 3)", "floor (exact-mismatch minimiser)"]
-    assert sorted(set(zip(table4["rule"], table4["level"]))) == sorted((name, level) for name in rows for level in levels)
+    assert sorted(set(zip(table4["rule"], table4["noise_level"]))) == sorted((name, level) for name in rows for level in levels)
     rules = table4[table4["rule"].isin(config["rules"]["names"])]
     assert (rules["runs"] == config["rules"]["runs"]).all() and (rules["paper_rule_runs"] == rules["runs"]).all()
     assert (table4["cmaes_runs"] == dot_test_config()["baselines"]["runs"]).all()
     table5 = pd_read_csv(tables / "table5.csv")
-    assert sorted(set(zip(table5["c_true"], table5["level"]))) == sorted(
-        (c, level) for c in config["depth"]["shifts_c"] for level in config["depth"]["levels"])
+    assert sorted(set(zip(table5["c_true"], table5["noise_level"]))) == sorted(
+        (c, level) for c in config["depth"]["shifts_c"] for level in config["depth"]["noise_levels"])
     report = (completed_run / "results" / "report" / "reproduction.md").read_text()
     section = report[report.index("## Beyond the paper"):]
     assert "(Table 4)" in section and "(Table 5)" in section
@@ -642,22 +642,22 @@ def test_table3_takes_sdm_from_table2_and_its_time_from_the_noise_jobs(completed
     results = completed_run / "results"
     paired = config["baselines"]["runs"]
     table3 = pd.read_csv(results / "tables" / "table3.csv")
-    sdm_rows = table3[table3["method"] == "sdm"].set_index("level")
+    sdm_rows = table3[table3["method"] == "sdm"].set_index("noise_level")
     distances = pd.read_csv(results / "noise" / "distances.csv")
     timings = [json.loads(path.read_text()) for path in sorted((results / "noise").glob("level*_chunk*_seconds.json"))]
     assert len(timings) == len(config["noise"]["levels"]) * -(-config["noise"]["runs"] // config["noise"]["chunk_size"])
     assert sorted(sdm_rows.index) == sorted(config["noise"]["levels"])
     for level in config["noise"]["levels"]:
-        runs = distances[(distances["level"] == level) & (distances["run"] < paired)]
+        runs = distances[(distances["noise_level"] == level) & (distances["run"] < paired)]
         assert sdm_rows.loc[level, "runs"] == paired == len(runs)
         assert sdm_rows.loc[level, "mean_m"] == pytest.approx(runs["distance"].mean(), rel=1e-12)
-        recorded = [timing for timing in timings if timing["level"] == level]
+        recorded = [timing for timing in timings if timing["noise_level"] == level]
         seconds = sum(timing["seconds"] for timing in recorded) / sum(timing["runs"] for timing in recorded)
         assert sdm_rows.loc[level, "seconds_per_run"] == pytest.approx(seconds, rel=1e-12)
     for method in config["baselines"]["methods"]:
         for level in config["noise"]["levels"]:
             runs = pd.read_csv(results / "baselines" / f"runs_{method}_level{level}.csv")
-            assert sorted(runs["run"]) == list(range(paired)) and set(runs["level"]) == {level}, (method, level)
+            assert sorted(runs["run"]) == list(range(paired)) and set(runs["noise_level"]) == {level}, (method, level)
     assert not list((results / "baselines").glob("runs_sdm*"))
 
 
@@ -705,7 +705,7 @@ def _key_cases() -> dict[str, tuple[dict, str | None]]:
         "research.rules.runs": ({"research": {"rules": {"runs": 1}}}, "rule_runs"),
         "research.depth.enabled": ({"research": {"depth": {"enabled": False}}}, "report"),
         "research.depth.shifts_c": ({"research": {"depth": {"shifts_c": [-1.0, 0.5, 1.0]}}}, "depth_runs"),
-        "research.depth.levels": ({"research": {"depth": {"levels": [0, 1, 2]}}}, "depth_runs"),
+        "research.depth.noise_levels": ({"research": {"depth": {"noise_levels": [0, 1, 2]}}}, "depth_runs"),
         "research.depth.runs": ({"research": {"depth": {"runs": 1}}}, "depth_runs"),
         "research.depth.schedule": ({"research": {"depth": {"schedule": "paper"}}}, "depth_runs"),
         "research.depth.lr_scale": ({"research": {"depth": {"lr_scale": 3}}}, "depth_runs"),
@@ -732,7 +732,7 @@ def _network_cases() -> dict[str, tuple[dict, str | None]]:
         "sizes": ([40, 16, 16], "network_train"),
         "seed": (1, "network_train"),
         "runs": (3, "network_train"),  # run 2's networks are new; runs 0 and 1 stay
-        "levels": ([0, 1], "network_train"),
+        "noise_levels": ([0, 1], "network_train"),
         "camera_sd": (0.1, "network_train"),
         "losses": (["supervised"], "network_test"),  # the trained networks stay; every test job reads fewer
         "train.epochs": (1, "network_train"),
@@ -756,11 +756,11 @@ def _objects_cases() -> dict[str, tuple[dict, str | None]]:
     cases = {
         "enabled": (False, None),  # Table 6's stages go; no other stage reads them
         "sharings": (["camera+car"], "objects_runs"),
-        "levels": ([0, 1], "objects_runs"),
+        "noise_levels": ([0, 1], "objects_runs"),
         "runs": (2, "objects_runs"),
         "configurations": (32, "objects_runs"),
         "batch_size": (4, "objects_runs"),
-        "screens": ([{"scale": 1}, {"scale": 3, "sharings": ["car"], "levels": [0]}], "objects_runs"),
+        "screens": ([{"scale": 1}, {"scale": 3, "sharings": ["car"], "noise_levels": [0]}], "objects_runs"),
         "methods": (["sdm_paper", "floor"], "objects_runs"),
         "gate": (2.5, "objects_runs"),
         "identifiability.reach": (0.3, "objects_runs"),
@@ -790,7 +790,7 @@ def _objects_cases() -> dict[str, tuple[dict, str | None]]:
         "scaling.n_images": (17, "objects_scaling"),
         "scaling.seed": (1, "objects_scaling"),
         "scaling.runs": (2, "objects_scaling"),
-        "scaling.level": (1, "objects_scaling"),
+        "scaling.noise_level": (1, "objects_scaling"),
         "scaling.epochs": ([2], "objects_scaling"),
         "scaling.budgets": ([7], "objects_scaling"),
     }

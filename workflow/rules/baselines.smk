@@ -27,15 +27,15 @@ notebook_stage(
     jobs=[{"method": method} for method in BASELINES],
     job="baselines_{method}",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE, tuning_file=result("baselines/tuning_{method}.csv")),
-    output=dict(runs_files=[result(f"baselines/runs_{{method}}_level{level}.csv") for level in LEVELS]),
+    output=dict(runs_files=[result(f"baselines/runs_{{method}}_level{noise_level}.csv") for noise_level in NOISE_LEVELS]),
     params=dict(
         method=wildcard("method"),
-        levels=LEVELS,
+        noise_levels=NOISE_LEVELS,
         runs=lambda wildcards: METHOD_RUNS[wildcards.method],
         seed=config["noise"]["seed"],
         shift=config["sky"]["shift"],
     ),
-    runtime=15 * len(LEVELS),
+    runtime=15 * len(NOISE_LEVELS),
 )
 
 notebook_stage(
@@ -45,15 +45,15 @@ notebook_stage(
     jobs=[{}] if FLOOR["enabled"] else [],
     job="floor",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE),
-    output=dict(runs_files=[result(f"floor/level{level}.csv") for level in LEVELS]),
+    output=dict(runs_files=[result(f"floor/level{noise_level}.csv") for noise_level in NOISE_LEVELS]),
     params=dict(
-        levels=LEVELS,
+        noise_levels=NOISE_LEVELS,
         runs=FLOOR_RUNS,
         settings=FLOOR_SETTINGS,
         seed=config["noise"]["seed"],
         shift=config["sky"]["shift"],
     ),
-    runtime=20 * len(LEVELS),
+    runtime=20 * len(NOISE_LEVELS),
 )
 
 notebook_stage(
@@ -77,7 +77,7 @@ notebook_stage(
     params=dict(
         methods=[*BASELINES],
         floor_settings=FLOOR_SETTINGS,
-        levels=config["noise"]["levels"],
+        noise_levels=config["noise"]["levels"],
         runs=BASELINE_RUNS,
         shift=config["sky"]["shift"],
     ),

@@ -139,7 +139,7 @@ TUNING_CELLS = {
 }
 # Table 2: noise.runs runs per level in chunks of noise.chunk_size, one job per (level, chunk).
 N_RUNS, CHUNK_SIZE = int(config["noise"]["runs"]), int(config["noise"]["chunk_size"])
-LEVELS = [int(level) for level in config["noise"]["levels"]]
+NOISE_LEVELS = [int(level) for level in config["noise"]["levels"]]
 
 # Table 3: the baselines beside SDM (config section baselines), each with its settings grid. Per
 # baseline one tuning job, then one job per noise level (its paired runs 0..baselines.runs-1). SDM is
@@ -169,7 +169,7 @@ RULE_NAMES = list(RESEARCH_RULES["names"]) if RESEARCH_RULES["enabled"] else []
 RULE_LABELS = {name.replace("+", "_then_").replace(":", "_x"): name for name in RULE_NAMES}
 RULE_RUNS = int(RESEARCH_RULES.get("runs", 1))  # counts, as BASELINE_RUNS
 DEPTH_SHIFTS = {c_label(c): float(c) for c in RESEARCH_DEPTH["shifts_c"]} if RESEARCH_DEPTH["enabled"] else {}
-DEPTH_LEVELS = [int(level) for level in RESEARCH_DEPTH.get("levels", [])]
+DEPTH_NOISE_LEVELS = [int(level) for level in RESEARCH_DEPTH.get("noise_levels", [])]
 DEPTH_RUNS = int(RESEARCH_DEPTH.get("runs", 1))
 
 

@@ -6,7 +6,7 @@
 NETWORK = RESEARCH.get("network", {"enabled": False})
 NETWORK_ON = bool(NETWORK.get("enabled", False))
 NETWORK_LOSSES = list(NETWORK.get("losses", [])) if NETWORK_ON else []
-NETWORK_LEVELS = [int(level) for level in NETWORK.get("levels", [])] if NETWORK_ON else []
+NETWORK_NOISE_LEVELS = [int(level) for level in NETWORK.get("noise_levels", [])] if NETWORK_ON else []
 NETWORK_RUNS = list(range(int(NETWORK.get("runs", 1)))) if NETWORK_ON else []
 # every trained network, in network_train's job order (each("network_train", ...) lists its files so)
 NETWORK_JOBS = [{"loss": loss, "run": str(run)} for loss in NETWORK_LOSSES for run in NETWORK_RUNS]
@@ -14,7 +14,7 @@ NETWORK_JOBS = [{"loss": loss, "run": str(run)} for loss in NETWORK_LOSSES for r
 
 def network_data():
     """What every Table 7 stage reads to rebuild its configurations (the split sizes, seed, levels, theta*'s spread)."""
-    return {key: NETWORK[key] for key in ("sizes", "seed", "levels", "camera_sd")}
+    return {key: NETWORK[key] for key in ("sizes", "seed", "noise_levels", "camera_sd")}
 
 
 notebook_stage(
@@ -34,14 +34,14 @@ notebook_stage(
 notebook_stage(
     "network_test",
     "Table 7: every trained network, alone and with k SDM steps, CMA-ES and SDM from zero, on the test set at one noise level.",
-    jobs=[{"level": level} for level in NETWORK_LEVELS],
-    job="network_test_level{level}",
+    jobs=[{"noise_level": level} for level in NETWORK_NOISE_LEVELS],
+    job="network_test_level{noise_level}",
     input=dict(sky=SKY_FILE, weights=each("network_train", "weights")),
-    output=dict(test_file=result("research/network/test_level{level}.csv")),
+    output=dict(test_file=result("research/network/test_level{noise_level}.csv")),
     params=dict(
         **network_data(),
         **{key: OBJECTS.get(key) for key in ("warm", "rows", "schedule", "cmaes", "batch_size")},
-        level=wildcard("level", int),
+        noise_level=wildcard("noise_level", int),
         networks=[[job["loss"], int(job["run"])] for job in NETWORK_JOBS],
         refine=NETWORK.get("refine"),
         s=config["train"]["s"],

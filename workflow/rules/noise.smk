@@ -5,13 +5,13 @@
 notebook_stage(
     "noise",
     "One chunk of noise runs at one level: noisy train targets, train, distance to theta*.",
-    jobs=[{"level": level, "chunk": chunk} for level in LEVELS for chunk in range(-(-N_RUNS // CHUNK_SIZE))],
-    job="noise_level{level}_chunk{chunk}",
+    jobs=[{"noise_level": level, "chunk": chunk} for level in NOISE_LEVELS for chunk in range(-(-N_RUNS // CHUNK_SIZE))],
+    job="noise_level{noise_level}_chunk{chunk}",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE, best=BEST_FILE),
     output=dict(
-        chunk_file=result("noise/level{level}_chunk{chunk}.csv"),
-        timing_file=result("noise/level{level}_chunk{chunk}_seconds.json"),
+        chunk_file=result("noise/level{noise_level}_chunk{chunk}.csv"),
+        timing_file=result("noise/level{noise_level}_chunk{chunk}_seconds.json"),
     ),
-    params=dict(**training(seed=config["noise"]["seed"]), level=wildcard("level", int), **chunk_runs()),
+    params=dict(**training(seed=config["noise"]["seed"]), noise_level=wildcard("noise_level", int), **chunk_runs()),
     runtime=15,
 )

@@ -9,7 +9,7 @@ OBJECT_CARS = [int(k) for k in OBJECTS.get("scaling", {}).get("cars", [])] if OB
 #: The sharing levels by file label ("camera+car" is "camera_and_car" in a file name).
 SHARING_LABELS = {"configuration": "configuration", "car": "car", "camera_and_car": "camera+car"}
 #: Table 6's keys a screen may give for its own rows (each replaces the section's whole key).
-SCREEN_KEYS = ("disc", "configurations", "sharings", "levels", "methods", "rows", "cmaes")
+SCREEN_KEYS = ("disc", "configurations", "sharings", "noise_levels", "methods", "rows", "cmaes")
 
 
 def objects_screen(scale):
@@ -24,11 +24,11 @@ def objects_screen(scale):
 
 
 OBJECT_JOBS = [
-    {"scale": int(screen["scale"]), "sharing": label, "level": int(level)}
+    {"scale": int(screen["scale"]), "sharing": label, "noise_level": int(level)}
     for screen in (OBJECTS.get("screens", []) if OBJECTS_ON else [])
     for label, name in SHARING_LABELS.items()
     if name in objects_screen(screen["scale"])["sharings"]
-    for level in objects_screen(screen["scale"])["levels"]
+    for level in objects_screen(screen["scale"])["noise_levels"]
 ]
 
 
@@ -75,15 +75,15 @@ notebook_stage(
     "Table 6's paired runs of one sharing level at one noise level on one screen: SDM (two rules), the searches, "
     "silhouette, floor, the exact-match sets.",
     jobs=OBJECT_JOBS,
-    job="objects_scale{scale}_{sharing}_level{level}",
+    job="objects_scale{scale}_{sharing}_level{noise_level}",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE),
-    output=dict(runs_file=result("research/objects/scale{scale}/{sharing}_level{level}.csv")),
+    output=dict(runs_file=result("research/objects/scale{scale}/{sharing}_level{noise_level}.csv")),
     params=dict(
         **objects_settings(wildcard("scale", int)),
         **objects_batches(wildcard("scale", int)),
         methods=lambda wildcards: objects_screen(int(wildcards.scale))["methods"],
         sharing=lambda wildcards: SHARING_LABELS[wildcards.sharing],
-        level=wildcard("level", int),
+        noise_level=wildcard("noise_level", int),
         runs=OBJECTS.get("runs"),
         seed=config["noise"]["seed"],
         lr_decay=config["train"]["lr_decay"],

@@ -16,7 +16,7 @@ notebook_stage(
         distances=result("noise/distances.csv"),
         distances_plot=figure("distances", "distances"),
     ),
-    params=dict(levels=config["noise"]["levels"], runs=config["noise"]["runs"]),
+    params=dict(noise_levels=config["noise"]["levels"], runs=config["noise"]["runs"]),
 )
 
 notebook_stage(
@@ -32,7 +32,7 @@ notebook_stage(
     params=dict(
         example=config["figures"]["example"],
         noise_seed=config["figures"]["seed"],
-        levels=config["noise"]["levels"],
+        noise_levels=config["noise"]["levels"],
         s=config["train"]["s"],
         shift=config["sky"]["shift"],
     ),

@@ -12,30 +12,30 @@ notebook_stage(
     jobs=[{"rule": label} for label in RULE_LABELS],
     job="research_rules_{rule}",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE, best=BEST_FILE),
-    output=dict(runs_files=[result(f"research/rules/{{rule}}_level{level}.csv") for level in LEVELS]),
+    output=dict(runs_files=[result(f"research/rules/{{rule}}_level{noise_level}.csv") for noise_level in NOISE_LEVELS]),
     params=dict(
         **training(seed=config["noise"]["seed"]),
         rule=lambda wildcards: RULE_LABELS[wildcards.rule],
-        levels=LEVELS,
+        noise_levels=NOISE_LEVELS,
         runs=RULE_RUNS,
     ),
-    runtime=20 * len(LEVELS),
+    runtime=20 * len(NOISE_LEVELS),
 )
 
 notebook_stage(
     "depth_runs",
     "The depth runs of one c* at one noise level: targets moved by (a*, b*, c*), noise, fit (a, b, c).",
-    jobs=[{"c": label, "level": level} for label in DEPTH_SHIFTS for level in DEPTH_LEVELS],
-    job="research_depth_c{c}_level{level}",
+    jobs=[{"c": label, "noise_level": level} for label in DEPTH_SHIFTS for level in DEPTH_NOISE_LEVELS],
+    job="research_depth_c{c}_level{noise_level}",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE, best=BEST_FILE),
-    output=dict(runs_file=result("research/depth/c{c}_level{level}.csv")),
+    output=dict(runs_file=result("research/depth/c{c}_level{noise_level}.csv")),
     params=dict(
         **training(seed=config["noise"]["seed"]),
         # the schema's defaults fill these in whenever the section is there (no jobs when it is not)
         schedule=RESEARCH_DEPTH.get("schedule"),
         depth_lr_scale=RESEARCH_DEPTH.get("lr_scale"),
         c=lambda wildcards: DEPTH_SHIFTS[wildcards.c],
-        level=wildcard("level", int),
+        noise_level=wildcard("noise_level", int),
         runs=DEPTH_RUNS,
     ),
     runtime=30,
@@ -49,7 +49,7 @@ notebook_stage(
     output=dict(table4_bias=result("tables/table4_bias.csv")),
     params=dict(
         names=RULE_NAMES,
-        levels=config["noise"]["levels"],
+        noise_levels=config["noise"]["levels"],
         s=config["train"]["s"],
         seed=config["noise"]["seed"],
         shift=config["sky"]["shift"],
@@ -75,7 +75,7 @@ notebook_stage(
     ),
     params=dict(
         names=RULE_NAMES,
-        levels=config["noise"]["levels"],
+        noise_levels=config["noise"]["levels"],
         runs=RULE_RUNS,
     ),
 )
@@ -93,7 +93,7 @@ notebook_stage(
     ),
     params=dict(
         shifts_c=list(DEPTH_SHIFTS.values()),
-        levels=DEPTH_LEVELS,
+        noise_levels=DEPTH_NOISE_LEVELS,
         runs=DEPTH_RUNS,
         schedule=RESEARCH_DEPTH.get("schedule"),
         s=config["train"]["s"],

@@ -59,6 +59,10 @@ def load_config(path: str | Path, schema: str | Path = SCHEMA_PATH) -> dict:
 RENAMED = {
     "research.depth.flow": "research.depth.schedule",
     "research.network.refine.flow": "research.network.refine.rule",
+    "research.depth.levels": "research.depth.noise_levels",
+    "research.objects.levels": "research.objects.noise_levels",
+    "research.objects.scaling.level": "research.objects.scaling.noise_level",
+    "research.network.levels": "research.network.noise_levels",
 }
 
 

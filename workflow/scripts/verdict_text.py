@@ -35,14 +35,14 @@ def _span(values, digits: int = 2, suffix: str = "x") -> str:
     return f"{low}{suffix}" if low == high else f"{low}-{high}{suffix}"
 
 
-def _levels(levels) -> str:
+def _levels(noise_levels) -> str:
     """``[1, 2, 3, 4]`` -> ``"levels 1-4"``; ``[0, 2]`` -> ``"levels 0 and 2"``; ``[3]`` -> ``"level 3"``."""
-    levels = sorted(int(level) for level in levels)
-    if len(levels) == 1:
-        return f"level {levels[0]}"
-    if len(levels) > 2 and levels == list(range(levels[0], levels[-1] + 1)):
-        return f"levels {levels[0]}-{levels[-1]}"
-    return "levels " + ", ".join(str(level) for level in levels[:-1]) + f" and {levels[-1]}"
+    noise_levels = sorted(int(noise_level) for noise_level in noise_levels)
+    if len(noise_levels) == 1:
+        return f"level {noise_levels[0]}"
+    if len(noise_levels) > 2 and noise_levels == list(range(noise_levels[0], noise_levels[-1] + 1)):
+        return f"levels {noise_levels[0]}-{noise_levels[-1]}"
+    return "levels " + ", ".join(str(noise_level) for noise_level in noise_levels[:-1]) + f" and {noise_levels[-1]}"
 
 
 def _data_words(data: dict) -> str:
@@ -60,7 +60,7 @@ def _per_unit(objects: dict | None) -> dict | None:
     if not rows:
         return None
     peered = [row for row in rows if row["peer"] is not None]
-    return {"scale": scale, "screen": rows[0]["screen"], "levels": [row["level"] for row in rows],
+    return {"scale": scale, "screen": rows[0]["screen"], "levels": [row["noise_level"] for row in rows],
             "gated": all(row.get("gated") for row in rows),
             "removed": [row["removed"] for row in rows], "closer": [row["closer"] for row in rows],
             "peer": peered[0]["peer_label"] if peered else None, "peer_method": peered[0]["peer"] if peered else None,
@@ -73,7 +73,7 @@ def _network(network: dict | None) -> dict | None:
     rows = network["levels"]
     pick = lambda key: [row[key] for row in rows if row.get(key) is not None]  # noqa: E731
     paired = [row["paired"]["silhouette"] for row in rows if (row.get("paired") or {}).get("silhouette")]
-    return {"rule": network["rule"], "levels": [row["level"] for row in rows], "to_nothing": pick("to_nothing"),
+    return {"rule": network["rule"], "levels": [row["noise_level"] for row in rows], "to_nothing": pick("to_nothing"),
             "to_supervised": pick("to_supervised"), "ahead_of_silhouette": paired.count("closer"),
             "behind_silhouette": paired.count("farther"), "paired_levels": len(paired)}
 
@@ -95,7 +95,7 @@ def _schedule(default: dict, sample: dict | None) -> dict | None:
         if not against:
             continue
         if worst is None or against["high"] > worst["high"]:
-            worst = {"high": against["high"], "level": against["worst_level"], "data": _data_words(facts["data"])}
+            worst = {"high": against["high"], "noise_level": against["worst_level"], "data": _data_words(facts["data"])}
         if against["beyond"]:
             beyond.append({"kind": kind, "levels": against["beyond"]})
     return {"name": schedule["name"], "meets_bar": schedule["meets_bar"], "judged": schedule["judged"],
@@ -161,26 +161,26 @@ def _reproduction(answer: dict) -> str:
         parts.append(f"tuning picks {tuning['n_epoch']} epochs at learning rate {tuning['lr']:.0e} (paper: "
                      f"{tuning['paper_n_epoch']} at {tuning['paper_lr']:.0e})")
     joined = parts[0] + (", but " + ", and ".join(parts[1:]) if len(parts) > 1 else "")
-    return f"**Reproduces the paper?** {answer['level'].capitalize()}: {joined}."
+    return f"**Reproduces the paper?** {answer['verdict'].capitalize()}: {joined}."
 
 
 def _search(answer: dict) -> str:
     worst = answer["worst"]
-    head = {"no": "No", "partly": "Not everywhere", "yes": "Yes"}[answer["level"]]
-    if answer["level"] == "yes":
+    head = {"no": "No", "partly": "Not everywhere", "yes": "Yes"}[answer["verdict"]]
+    if answer["verdict"] == "yes":
         return (f"**Beats black-box search?** Yes: SDM ends closer than [CMA-ES]({LINKS['cmaes']}) at every "
                 f"noise level.")
     where = "every noise level" if not answer["sdm_closer_at"] else _levels(answer["search_closer_at"])
     sdm = f"; SDM only at {_levels(answer['sdm_closer_at'])}" if answer["sdm_closer_at"] else ""
     return (f"**Beats black-box search?** {head}: [CMA-ES]({LINKS['cmaes']}), a search of the pixel mismatch "
             f"over theta, ends closer at {where}, by up to {worst['ratio']:.0f}x ({worst['search_mm']:.3f} against "
-            f"{worst['sdm_mm']:.3f} mm at level {worst['level']}){sdm}.")
+            f"{worst['sdm_mm']:.3f} mm at level {worst['noise_level']}){sdm}.")
 
 
 def _instead(answer: dict) -> str:
     search, unit = answer["search"], answer["per_unit"]
     parts = []
-    if search and search["level"] != "yes":
+    if search and search["verdict"] != "yes":
         seconds = search.get("seconds_per_run")
         parts.append(f"CMA-ES for one shift shared by every configuration"
                      + (f" ({seconds:.2f} s a run)" if seconds is not None else ""))
@@ -211,15 +211,15 @@ def _good_for(answer: dict) -> str:
                    f"{_span(network['to_supervised'])} a labelled network's error")
         words = f"a label-free [SDM-trained network]({LINKS['network']}), {against}"
         if network.get("paired_levels"):  # paired by training seed: ahead or behind beyond the seeds' spread
-            ahead, behind, levels = (network[key] for key in ("ahead_of_silhouette", "behind_silhouette",
+            ahead, behind, noise_levels = (network[key] for key in ("ahead_of_silhouette", "behind_silhouette",
                                                               "paired_levels"))
             if ahead:
-                words += f", beats silhouette training at {ahead} of {levels} levels"
+                words += f", beats silhouette training at {ahead} of {noise_levels} levels"
                 words += f", loses at {behind}" if behind else ""
             elif behind:
-                words += f", loses to silhouette training at {behind} of {levels} levels"
+                words += f", loses to silhouette training at {behind} of {noise_levels} levels"
             else:
-                words += f", level with silhouette training at all {levels} levels"
+                words += f", level with silhouette training at all {noise_levels} levels"
         parts.append(words)
     return "**Good for?** Many unknowns at once: " + "; ".join(parts) + "."
 
@@ -264,7 +264,7 @@ def render(data: dict) -> str:
         "|" + "---:|" * len(header),
     ]
     for row in table["rows"]:
-        cells = [str(row["level"]), _mm(row["paper_mm"]), _mm(row["sdm_mm"]), _mm(row["search_mm"])]
+        cells = [str(row["noise_level"]), _mm(row["paper_mm"]), _mm(row["sdm_mm"]), _mm(row["search_mm"])]
         cells += [_mm(row["schedule_mm"])] if schedule else []
         lines.append("| " + " | ".join(cells) + " |")
     lines.append("")

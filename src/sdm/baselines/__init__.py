@@ -229,7 +229,7 @@ def best_settings(name: str, tuning: pd.DataFrame):
 RUN_COLUMNS = ["method", *experiments.RUN_COLUMNS, "seconds", "evaluations"]
 
 
-def baseline_noise_runs(name: str, train_set: ConfigurationSet, level: int, runs: Sequence[int], settings, seed: int,
+def baseline_noise_runs(name: str, train_set: ConfigurationSet, noise_level: int, runs: Sequence[int], settings, seed: int,
                shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
                group_size: int | None = None) -> pd.DataFrame:
     """Table 3's paired robustness runs of method ``name`` at one level, one row each (:data:`RUN_COLUMNS`).
@@ -265,7 +265,7 @@ def baseline_noise_runs(name: str, train_set: ConfigurationSet, level: int, runs
         return {"method": name} | shift_record(result.theta, shift) | {"seconds": result.seconds,
                                                                        "evaluations": result.evaluations}
 
-    return paired_runs(train_set.targets, level, runs, seed, fit_group, record, RUN_COLUMNS, group_size)
+    return paired_runs(train_set.targets, noise_level, runs, seed, fit_group, record, RUN_COLUMNS, group_size)
 
 
 __all__ = [

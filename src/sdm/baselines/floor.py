@@ -401,12 +401,12 @@ def floor_search(objective: PixelMismatch, seed: int = 0, settings: FloorSetting
 #: Columns of :func:`floor_runs`: the run, the floor (the region's centre) ``a, b, distance``, the
 #: search's own best point, the region's widths, the counts, the half-budget floor's distance (metres,
 #: pixels, seconds).
-FLOOR_COLUMNS = ["level", "run", "seed", "a", "b", "distance", "search_a", "search_b", "search_distance",
+FLOOR_COLUMNS = ["noise_level", "run", "seed", "a", "b", "distance", "search_a", "search_b", "search_distance",
                  "extent_a", "extent_b", "min_mismatch", "mismatch_at_truth", "half_distance", "evaluations",
                  "seconds"]
 
 
-def floor_runs(train_set: ConfigurationSet, level: int, runs: Sequence[int], seed: int,
+def floor_runs(train_set: ConfigurationSet, noise_level: int, runs: Sequence[int], seed: int,
                settings: FloorSettings | None = None, camera: Camera | None = None, *,
                clean_targets: torch.Tensor | None = None, shift: Sequence[float] = SKY_SHIFT,
                group_size: int = 1) -> pd.DataFrame:
@@ -462,7 +462,7 @@ def floor_runs(train_set: ConfigurationSet, level: int, runs: Sequence[int], see
                 "half_distance": result.half_distance, "evaluations": result.evaluations,
                 "seconds": result.seconds}
 
-    return paired_runs(clean, level, runs, seed, fit_group, record, FLOOR_COLUMNS, group_size)
+    return paired_runs(clean, noise_level, runs, seed, fit_group, record, FLOOR_COLUMNS, group_size)
 
 
 __all__ = ["FLOOR_COLUMNS", "FloorRegion", "FloorResult", "FloorSettings", "floor_runs", "floor_search"]

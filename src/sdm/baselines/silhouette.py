@@ -71,8 +71,8 @@ class SilhouetteSettings:
             raise field_error(self, "loss", f"must be 'iou' or 'l2', got {self.loss!r}")
 
 
-def runs_per_splat(level: int) -> int:
-    """Runs splatted together at zoom ``level``: about 256k cells (1 MB of float32) per pass.
+def runs_per_splat(zoom: int) -> int:
+    """Runs splatted together at zoom ``zoom``: about 256k cells (1 MB of float32) per pass.
 
     The splat and the soft IoU are dense over the cells; measured on one thread (level-2 noise
     runs of the default data), batching every run's level-0 silhouettes at once ran about twice
@@ -80,19 +80,19 @@ def runs_per_splat(level: int) -> int:
     at a time at the coarse levels, where a run has 512 to 2,048 cells per image, shares the
     per-operation overhead.
     """
-    return max(1, 4**level // 2)
+    return max(1, 4**zoom // 2)
 
 
-def soft_silhouette(screen: torch.Tensor, config: torch.Tensor, n_configs: int, level: int, sigma: float,
+def soft_silhouette(screen: torch.Tensor, config: torch.Tensor, n_configs: int, zoom: int, sigma: float,
                     shape: tuple[int, int]) -> torch.Tensor:
-    """Soft silhouettes of a batch of point sets at zoom level ``level``.
+    """Soft silhouettes of a batch of point sets at zoom level ``zoom``.
 
     Args:
         screen: ``(P, 2)`` float points ``(row, col)`` in screen pixels (may require grad); the
             splatting runs in this dtype (float32 halves the cost and is ample for weights).
         config: ``(P,)`` int64 batch-local configuration of each point, in ``[0, n_configs)``.
         n_configs: configurations in the batch.
-        level: zoom level ``k``: blocks of ``2^k`` pixels.
+        zoom: zoom level ``k``: blocks of ``2^k`` pixels.
         sigma: Gaussian width in blocks, positive.
         shape: full screen ``(H, W)``, divisible by ``2^k``.
 
@@ -101,7 +101,7 @@ def soft_silhouette(screen: torch.Tensor, config: torch.Tensor, n_configs: int, 
     """
     if not sigma > 0:
         raise SDMInputError(f"sigma must be positive, got {sigma!r}")
-    block = 1 << level
+    block = 1 << zoom
     height, width = shape[0] // block, shape[1] // block
     position = screen / block  # (P, 2) in blocks
     nearest = torch.floor(position.detach()).to(torch.int64)
@@ -216,7 +216,7 @@ def fit_runs(train_sets: Sequence[ConfigurationSet], settings: SilhouetteSetting
         check_divisible(camera.screen_shape, settings.s)
         pyramids = [train_set.pyramid(settings.s) for train_set in train_sets]
 
-        def chunk_loss(configs, theta, level, chunk_pyramids):
+        def chunk_loss(configs, theta, zoom, chunk_pyramids):
             n_runs, n_rows = configs.shape
             rows, local = first.rows(configs.reshape(-1))
             run_of_row = torch.div(local, n_rows, rounding_mode="floor")
@@ -225,18 +225,18 @@ def fit_runs(train_sets: Sequence[ConfigurationSet], settings: SilhouetteSetting
             else:  # each point its rows' sum, of its run's table
                 shift = point_shifts(theta.view(n_runs, -1, 2), index.index_select(0, rows), runs=run_of_row)
             screen = project_shifted(first.points.index_select(0, rows), shift, camera)
-            silhouette = soft_silhouette(screen.to(settings_dtype(settings)), local, n_runs * n_rows, level,
+            silhouette = soft_silhouette(screen.to(settings_dtype(settings)), local, n_runs * n_rows, zoom,
                                          settings.sigma, camera.screen_shape)
-            target = torch.cat([pyramid[level].index_select(0, run_configs)
+            target = torch.cat([pyramid[zoom].index_select(0, run_configs)
                                 for pyramid, run_configs in zip(chunk_pyramids, configs)])
             return image_losses(silhouette, target, settings.loss).view(n_runs, n_rows).mean(1)
 
-        def loss(configs, theta, level, generators):
+        def loss(configs, theta, zoom, generators):
             # The splat and the image loss are dense over the screen's cells: a few runs at a time
             # keep those tensors in cache; the whole batch at once is slower than one run after another.
-            chunk = runs_per_splat(level)
+            chunk = runs_per_splat(zoom)
             return torch.cat([chunk_loss(configs[first_run:first_run + chunk], theta[first_run:first_run + chunk],
-                                         level, pyramids[first_run:first_run + chunk])
+                                         zoom, pyramids[first_run:first_run + chunk])
                               for first_run in range(0, len(pyramids), chunk)])
 
         return staged_adam_runs(loss, len(first), range(settings.s, -1, -1), settings.steps, settings.lr,

@@ -17,7 +17,7 @@ from ..train import parse_schedule
 from .runs import noisy_targets, run_seed
 
 
-def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed: int, s: int = 4,
+def flow_at_true_shift(train_set: ConfigurationSet, noise_levels: Sequence[int], seed: int, s: int = 4,
                        shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
                        batch_size: int = 64, rule: str = "paper", zooms: Sequence[int] | None = None,
                        at: Sequence[float] | None = None) -> pd.DataFrame:
@@ -38,8 +38,8 @@ def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed:
     camera = camera or train_set.camera
     theta = shift_vector(shift if at is None else at, train_set.points)
     rows = []
-    for level in levels:
-        noisy = train_set.with_targets(noisy_targets(train_set.targets, level, run_seed(seed, level, 0)))
+    for noise_level in noise_levels:
+        noisy = train_set.with_targets(noisy_targets(train_set.targets, noise_level, run_seed(seed, noise_level, 0)))
         for zoom in (range(s, -1, -1) if zooms is None else zooms):
             layer = SpatialDomainMapping(camera, s=s, zoom=zoom, rule=rule)
             total = torch.zeros(2, dtype=torch.float64, device=train_set.device)
@@ -49,12 +49,12 @@ def flow_at_true_shift(train_set: ConfigurationSet, levels: Sequence[int], seed:
                 total += result.flow.sum(0)
                 entered += int(result.entered.sum())
                 unmatched += int(result.missed.sum())
-            rows.append({"level": int(level), "zoom": zoom, "flow_a": float(total[0]) / len(noisy),
+            rows.append({"noise_level": int(noise_level), "zoom": zoom, "flow_a": float(total[0]) / len(noisy),
                          "flow_b": float(total[1]) / len(noisy), "unmatched": unmatched / max(entered, 1)})
-    return pd.DataFrame.from_records(rows, columns=["level", "zoom", "flow_a", "flow_b", "unmatched"])
+    return pd.DataFrame.from_records(rows, columns=["noise_level", "zoom", "flow_a", "flow_b", "unmatched"])
 
 
-def rule_bias(train_set: ConfigurationSet, schedule: str, levels: Sequence[int], seed: int, s: int = 4,
+def rule_bias(train_set: ConfigurationSet, schedule: str, noise_levels: Sequence[int], seed: int, s: int = 4,
               shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None, step: float = 1e-3) -> pd.DataFrame:
     """Where a rule's SGD settles, predicted from two measurements at the last level (zoom 0): the flow's
     bias at theta* under noise and its stiffness near theta* without noise.
@@ -76,31 +76,31 @@ def rule_bias(train_set: ConfigurationSet, schedule: str, levels: Sequence[int],
     rule = refine.rule if refine is not None else first
     camera = camera or train_set.camera
     rows = []
-    for level in levels:
-        bias = flow_at_true_shift(train_set, [level], seed, s, shift, camera, rule=rule, zooms=[0])
-        row = {"level": int(level)}
+    for noise_level in noise_levels:
+        bias = flow_at_true_shift(train_set, [noise_level], seed, s, shift, camera, rule=rule, zooms=[0])
+        row = {"noise_level": int(noise_level)}
         for axis, name in enumerate("ab"):
             ends = []
             for sign in (1.0, -1.0):
                 at = [float(v) for v in shift]
                 at[axis] += sign * step
-                ends.append(float(flow_at_true_shift(train_set, [level], seed, s, shift, camera, rule=rule, zooms=[0],
+                ends.append(float(flow_at_true_shift(train_set, [noise_level], seed, s, shift, camera, rule=rule, zooms=[0],
                                                      at=at)[f"flow_{name}"].iloc[0]))
             stiffness = (ends[0] - ends[1]) / (2 * step)
             row[f"bias_{name}"] = float(bias[f"flow_{name}"].iloc[0])
             row[f"stiffness_{name}"] = stiffness
             row[f"offset_{name}"] = -row[f"bias_{name}"] / stiffness if stiffness else float("nan")
         rows.append(row | {"predicted_m": float(np.hypot(row["offset_a"], row["offset_b"]))})
-    return pd.DataFrame.from_records(rows, columns=["level", "bias_a", "stiffness_a", "offset_a", "bias_b",
+    return pd.DataFrame.from_records(rows, columns=["noise_level", "bias_a", "stiffness_a", "offset_a", "bias_b",
                                                     "stiffness_b", "offset_b", "predicted_m"])
 
 
 #: Columns of :func:`depth_bias`.
-DEPTH_BIAS_COLUMNS = ["c_true", "level", "zoom", "flow_c", "stiffness_c", "offset_c", "edge_share",
+DEPTH_BIAS_COLUMNS = ["c_true", "noise_level", "zoom", "flow_c", "stiffness_c", "offset_c", "edge_share",
                       "unmatched_edge", "unmatched_inside"]
 
 
-def depth_bias(train_set: ConfigurationSet, c: float, levels: Sequence[int], seed: int, schedule: str = "paper",
+def depth_bias(train_set: ConfigurationSet, c: float, noise_levels: Sequence[int], seed: int, schedule: str = "paper",
                s: int = 4, zooms: Sequence[int] | None = None, shift: Sequence[float] = SKY_SHIFT,
                camera: Camera | None = None, step: float = 1e-2, batch_size: int = 64) -> pd.DataFrame:
     """Table 5's bias of ``c``, measured at theta* = ``(a*, b*, c*)``: the depth flow there under noise, where
@@ -144,8 +144,8 @@ def depth_bias(train_set: ConfigurationSet, c: float, levels: Sequence[int], see
         empty_near = torch.nn.functional.max_pool2d(1.0 - occupied[:, None], 3, 1, 1)[:, 0] > 0
         edges.append(empty_near[batch.config, batch.pixels[:, 0], batch.pixels[:, 1]])
     rows = []
-    for level in levels:
-        noisy = train_set.with_targets(noisy_targets(clean, level, run_seed(seed, level, 0)))
+    for noise_level in noise_levels:
+        noisy = train_set.with_targets(noisy_targets(clean, noise_level, run_seed(seed, noise_level, 0)))
         for zoom in (range(s, -1, -1) if zooms is None else zooms):
             layer = SpatialDomainMapping(camera, s=s, zoom=zoom, rule=rule)
             # [flow_c at c*, at c* + step, at c* - step, edge part at c*, (edge, inside) entered and unmatched]
@@ -164,7 +164,7 @@ def depth_bias(train_set: ConfigurationSet, c: float, levels: Sequence[int], see
             n_configs = len(noisy)
             stiffness = (sums[1] - sums[2]) / (2 * step) / n_configs
             flow_c = sums[0] / n_configs
-            rows.append({"c_true": truth[2], "level": int(level), "zoom": int(zoom), "flow_c": flow_c,
+            rows.append({"c_true": truth[2], "noise_level": int(noise_level), "zoom": int(zoom), "flow_c": flow_c,
                          "stiffness_c": stiffness, "offset_c": -flow_c / stiffness if stiffness else float("nan"),
                          "edge_share": sums[3] / sums[0] if sums[0] else float("nan"),
                          "unmatched_edge": sums[5] / max(sums[4], 1), "unmatched_inside": sums[7] / max(sums[6], 1)})

@@ -34,12 +34,12 @@ from ..train import Refinement, TrainSettings, parse_schedule, refine_runs, trai
 NOISE_GROUP_SIZE = 4
 
 
-def run_seed(seed: int, level: int, run: int) -> int:
+def run_seed(seed: int, noise_level: int, run: int) -> int:
     """The seed of noise run ``run`` at ``level``: a hash of the three, stable across platforms."""
-    for name, value in (("seed", seed), ("level", level), ("run", run)):
+    for name, value in (("seed", seed), ("noise_level", noise_level), ("run", run)):
         if isinstance(value, bool) or int(value) != value or value < 0:
             raise SDMInputError(f"{name} must be a non-negative integer, got {value!r}")
-    state = np.random.SeedSequence([int(seed), int(level), int(run)]).generate_state(1, dtype=np.uint32)
+    state = np.random.SeedSequence([int(seed), int(noise_level), int(run)]).generate_state(1, dtype=np.uint32)
     return int(state[0])
 
 
@@ -117,7 +117,7 @@ def tune_cell(train_set, dev_set, settings, shift: Sequence[float] = SKY_SHIFT, 
     return record, history.to_frame()
 
 
-def noisy_targets(targets: torch.Tensor, level: int, seed: int, active: torch.Tensor | None = None,
+def noisy_targets(targets: torch.Tensor, noise_level: int, seed: int, active: torch.Tensor | None = None,
                   out: NoiseBuffer | None = None) -> torch.Tensor:
     """Every target moved by noise ``level`` (paper, section 5.2), drawn from ``seed``.
 
@@ -125,15 +125,15 @@ def noisy_targets(targets: torch.Tensor, level: int, seed: int, active: torch.Te
     :class:`sdm.sky.NoiseBuffer` to draw into (as :func:`sdm.sky.add_target_noise`'s).
     """
     generator = torch.Generator().manual_seed(int(seed))
-    return add_target_noise(targets, level, generator, active, out)  # one draw for all targets, in target order
+    return add_target_noise(targets, noise_level, generator, active, out)  # one draw for all targets, in target order
 
 
 #: Columns of Table 2's run rows (:func:`noise_runs`); lengths in metres, ``seed`` the run's own.
 #: Table 3's (:data:`sdm.baselines.RUN_COLUMNS`) and Table 4's (:func:`rule_noise_runs`) are built on it.
-RUN_COLUMNS = ["level", "run", "seed", "a", "b", "distance"]
+RUN_COLUMNS = ["noise_level", "run", "seed", "a", "b", "distance"]
 
 
-def paired_runs(clean_targets: torch.Tensor, level: int, runs: Sequence[int], seed: int,
+def paired_runs(clean_targets: torch.Tensor, noise_level: int, runs: Sequence[int], seed: int,
                 fit_group: Callable[[list[torch.Tensor], list[int]], Sequence], record: Callable[[object], dict],
                 columns: Sequence[str], group_size: int | None = NOISE_GROUP_SIZE) -> pd.DataFrame:
     """The paired runs of every table (2, 3, 4, 5) at one noise level, one row each.
@@ -168,24 +168,24 @@ def paired_runs(clean_targets: torch.Tensor, level: int, runs: Sequence[int], se
     """
     if group_size is not None and (isinstance(group_size, bool) or int(group_size) != group_size or group_size < 1):
         raise SDMInputError(f"group_size must be a positive integer, got {group_size!r}")
-    seeds = [run_seed(seed, level, run) for run in runs]
+    seeds = [run_seed(seed, noise_level, run) for run in runs]
     runs = [int(run) for run in runs]
     group_size = int(group_size) if group_size is not None else max(len(runs), 1)
     # Every run moves the same clean pixels; contiguous once (nonzero's rows are strided), not per draw.
-    active = clean_targets.nonzero().contiguous() if level else None
+    active = clean_targets.nonzero().contiguous() if noise_level else None
     buffers: list[torch.Tensor] = []  # the noisy targets' memory, drawn into again by every group
     rows = []
     for first in range(0, len(runs), group_size):
         group = range(first, min(first + group_size, len(runs)))
-        if level:
+        if noise_level:
             buffers += [NoiseBuffer(clean_targets) for _ in range(len(group) - len(buffers))]
-            noisy = [noisy_targets(clean_targets, level, seeds[i], active, out)
+            noisy = [noisy_targets(clean_targets, noise_level, seeds[i], active, out)
                      for i, out in zip(group, buffers)]
         else:
             noisy = [clean_targets] * len(group)
         results = fit_group(noisy, [seeds[i] for i in group])
         del noisy
-        rows += [{"level": int(level), "run": runs[i], "seed": seeds[i]} | record(result)
+        rows += [{"noise_level": int(noise_level), "run": runs[i], "seed": seeds[i]} | record(result)
                  for i, result in zip(group, results)]
     return pd.DataFrame.from_records(rows, columns=list(columns))
 
@@ -217,7 +217,7 @@ def shift_record(theta: Sequence[float], shift: Sequence[float]) -> dict:
     return {"a": a, "b": b, "distance": float(distance((a, b), tuple(shift)))}
 
 
-def noise_runs(train_set, level: int, runs: Sequence[int], settings: TrainSettings,
+def noise_runs(train_set, noise_level: int, runs: Sequence[int], settings: TrainSettings,
                shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
                group_size: int = NOISE_GROUP_SIZE, device: torch.device | str | None = None,
                refine: Refinement | None = None) -> pd.DataFrame:
@@ -243,25 +243,25 @@ def noise_runs(train_set, level: int, runs: Sequence[int], settings: TrainSettin
     Returns:
         Columns :data:`RUN_COLUMNS`, one row per run, in the order of ``runs`` (metres).
     """
-    return sdm_runs(train_set, train_set.targets, level, runs, settings, lambda theta: shift_record(theta, shift),
+    return sdm_runs(train_set, train_set.targets, noise_level, runs, settings, lambda theta: shift_record(theta, shift),
                      RUN_COLUMNS, camera, group_size, device, refine)
 
 
-def sdm_runs(train_set, clean_targets, level, runs, settings, record, columns, camera, group_size, device,
+def sdm_runs(train_set, clean_targets, noise_level, runs, settings, record, columns, camera, group_size, device,
               refine=None):
     """:func:`paired_runs` trained by SDM (:func:`train_group`): ``record`` gets a run's final theta."""
     def fit_group(targets, seeds):
         return train_group(train_set, targets, settings, seeds, camera, device, refine=refine).final_theta
 
-    return paired_runs(clean_targets, level, runs, settings.seed, fit_group, record, columns, group_size)
+    return paired_runs(clean_targets, noise_level, runs, settings.seed, fit_group, record, columns, group_size)
 
 
 #: Columns of a depth-run table (:func:`depth_noise_runs`); lengths in metres.
-DEPTH_RUN_COLUMNS = ["c_true", "level", "run", "seed", "a", "b", "c", "error_a", "error_b", "error_c",
+DEPTH_RUN_COLUMNS = ["c_true", "noise_level", "run", "seed", "a", "b", "c", "error_a", "error_b", "error_c",
                      "distance_ab", "distance"]
 
 
-def rule_noise_runs(train_set, rule: str, level: int, runs: Sequence[int], settings: TrainSettings,
+def rule_noise_runs(train_set, rule: str, noise_level: int, runs: Sequence[int], settings: TrainSettings,
                     shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
                     group_size: int = NOISE_GROUP_SIZE, device: torch.device | str | None = None) -> pd.DataFrame:
     """Table 4: Table 2's runs at one level trained with another gradient rule or schedule, one row each.
@@ -278,12 +278,12 @@ def rule_noise_runs(train_set, rule: str, level: int, runs: Sequence[int], setti
         Columns ``rule`` (the schedule's name) then :data:`RUN_COLUMNS`, in the order of ``runs``.
     """
     first, refine = parse_schedule(rule)
-    return sdm_runs(train_set, train_set.targets, level, runs, replace(settings, rule=first),
+    return sdm_runs(train_set, train_set.targets, noise_level, runs, replace(settings, rule=first),
                      lambda theta: {"rule": rule} | shift_record(theta, shift), ["rule", *RUN_COLUMNS], camera,
                      group_size, device, refine)
 
 
-def depth_noise_runs(train_set, c: float, level: int, runs: Sequence[int], settings: TrainSettings,
+def depth_noise_runs(train_set, c: float, noise_level: int, runs: Sequence[int], settings: TrainSettings,
                      shift: Sequence[float] = SKY_SHIFT, camera: Camera | None = None,
                      group_size: int = NOISE_GROUP_SIZE, device: torch.device | str | None = None,
                      refine: Refinement | None = None) -> pd.DataFrame:
@@ -338,7 +338,7 @@ def depth_noise_runs(train_set, c: float, level: int, runs: Sequence[int], setti
                 "distance_ab": float(np.hypot(errors[0], errors[1])),
                 "distance": float(np.sqrt(sum(error ** 2 for error in errors)))}
 
-    return sdm_runs(train_set, depth_targets(train_set, truth, camera), level, runs,
+    return sdm_runs(train_set, depth_targets(train_set, truth, camera), noise_level, runs,
                      replace(settings, fit_depth=True), record, DEPTH_RUN_COLUMNS, camera, group_size, device, refine)
 
 

@@ -14,7 +14,7 @@ The losses it is trained with (:data:`LOSSES`), the same architecture, data, ini
 
 * ``sdm_paper``, ``sdm_closed_centred_r1``: the SDM layer's loss on ``Q_i + theta_i`` against ``L_i``; its backward
   is the dynamic gradient flow, carried by autograd through ``theta_i`` into the weights. No labels. The zoom
-  level goes from ``s`` to 0 over the epochs (:func:`epoch_levels`). The paper's rule, or ``closed_centred_r1``
+  level goes from ``s`` to 0 over the epochs (:func:`epoch_zooms`). The paper's rule, or ``closed_centred_r1``
   (the rule of the recommended schedule's first pass).
 * ``silhouette``: the soft-silhouette image loss (:mod:`sdm.baselines.silhouette`), coarse to fine on the same
   levels. No labels.
@@ -32,16 +32,16 @@ The package: :mod:`.data` (the split, the shifts, the images), :mod:`.model` (th
 """
 from __future__ import annotations
 
-from .data import (DEPTH_SCALE, PARTS, ShiftSet, mixed_levels, network_images, read_sets, shift_set, split_three,
+from .data import (DEPTH_SCALE, PARTS, ShiftSet, mixed_noise_levels, network_images, read_sets, shift_set, split_three,
                    training_seed)
 from .evaluation import (BIAS_LOSSES, NO_RUN, NOTHING, SEARCHES, loss_bias, refine, refine_settings, refine_steps,
                          test_methods)
-from .losses import LOSSES, SDM_RULES, BatchLoss, NetworkSettings, epoch_levels
+from .losses import LOSSES, SDM_RULES, BatchLoss, NetworkSettings, epoch_zooms
 from .model import ShiftNet, load_weights, parameter_count, save_weights, weights_digest
 from .training import TrainedNetwork, deterministic, distances, network_settings, predict, train_network
 
 __all__ = ["BIAS_LOSSES", "BatchLoss", "DEPTH_SCALE", "LOSSES", "NO_RUN", "NOTHING", "NetworkSettings", "PARTS",
            "SDM_RULES", "SEARCHES", "ShiftNet", "ShiftSet", "TrainedNetwork", "deterministic", "distances",
-           "epoch_levels", "load_weights", "loss_bias", "mixed_levels", "network_images", "network_settings",
+           "epoch_zooms", "load_weights", "loss_bias", "mixed_noise_levels", "network_images", "network_settings",
            "parameter_count", "predict", "read_sets", "refine", "refine_settings", "refine_steps", "save_weights",
            "shift_set", "split_three", "test_methods", "train_network", "training_seed", "weights_digest"]

@@ -50,7 +50,7 @@ class ShiftSet:
 
     data: ConfigurationSet
     truth: torch.Tensor
-    levels: torch.Tensor
+    noise_levels: torch.Tensor
 
     def __len__(self) -> int:
         return len(self.data)
@@ -58,17 +58,17 @@ class ShiftSet:
     def subset(self, indices: Sequence[int]) -> "ShiftSet":
         """Configurations ``indices`` (integers in ``[0, N)``, in that order), with their shifts and noise levels."""
         chosen = self.data.check_indices(indices).cpu()
-        return ShiftSet(self.data.subset(chosen), self.truth[chosen.to(self.truth.device)], self.levels[chosen])
+        return ShiftSet(self.data.subset(chosen), self.truth[chosen.to(self.truth.device)], self.noise_levels[chosen])
 
 
-def shift_set(data: ConfigurationSet, seed: int, levels: Sequence[int] | torch.Tensor,
+def shift_set(data: ConfigurationSet, seed: int, noise_levels: Sequence[int] | torch.Tensor,
               truth: S.TruthDistribution = S.TruthDistribution(), noise_seed: int | None = None) -> ShiftSet:
     """Draw a shift per configuration (``seed``), render the targets, and add each configuration's noise level.
 
     Args:
         data: configurations, each with points (an empty one has no shift to learn: refused).
         seed: draws theta* (:func:`sdm.sharing.draw_truth`) and, without ``noise_seed``, the noise.
-        levels: ``(N,)`` the noise level of each configuration (e.g. :func:`mixed_levels`).
+        levels: ``(N,)`` the noise level of each configuration (e.g. :func:`mixed_noise_levels`).
         truth: the distribution of theta*.
         noise_seed: draws the noise (level ``n``'s configurations get one draw of
             :func:`sdm.experiments.noisy_targets` seeded ``noise_seed + 1 + n``); ``None``: ``seed``.
@@ -76,25 +76,25 @@ def shift_set(data: ConfigurationSet, seed: int, levels: Sequence[int] | torch.T
     if bool((data.counts == 0).any()):
         raise SDMInputError(f"data: configuration {int((data.counts == 0).nonzero()[0])} is empty (no points): "
                             "it has no shift to learn")
-    levels = torch.as_tensor(levels, dtype=torch.int64).cpu()
-    if levels.shape != (len(data),):
+    noise_levels = torch.as_tensor(noise_levels, dtype=torch.int64).cpu()
+    if noise_levels.shape != (len(data),):
         raise SDMInputError(f"levels must hold one noise level per configuration ({len(data)}), "
-                            f"got shape {tuple(levels.shape)}")
+                            f"got shape {tuple(noise_levels.shape)}")
     sharing = S.per_configuration(data)
     theta = S.draw_truth(sharing, seed, truth)
     targets = S.render_targets(data, theta, sharing.param_index)
     noise_seed = seed if noise_seed is None else int(noise_seed)
-    for level in sorted(set(levels.tolist())):
-        if level:
-            chosen = (levels == level).nonzero().squeeze(1).to(targets.device)
-            targets[chosen] = noisy_targets(targets.index_select(0, chosen), level, noise_seed + 1 + level)
-    return ShiftSet(data.with_targets(targets), theta, levels)
+    for noise_level in sorted(set(noise_levels.tolist())):
+        if noise_level:
+            chosen = (noise_levels == noise_level).nonzero().squeeze(1).to(targets.device)
+            targets[chosen] = noisy_targets(targets.index_select(0, chosen), noise_level, noise_seed + 1 + noise_level)
+    return ShiftSet(data.with_targets(targets), theta, noise_levels)
 
 
-def mixed_levels(n_configs: int, levels: Sequence[int], seed: int) -> torch.Tensor:
+def mixed_noise_levels(n_configs: int, noise_levels: Sequence[int], seed: int) -> torch.Tensor:
     """``(n_configs,)`` int64: each configuration's noise level, uniform over ``levels``, drawn from ``seed``."""
-    choice = torch.randint(len(levels), (n_configs,), generator=torch.Generator().manual_seed(int(seed)))
-    return torch.as_tensor(list(levels), dtype=torch.int64)[choice]
+    choice = torch.randint(len(noise_levels), (n_configs,), generator=torch.Generator().manual_seed(int(seed)))
+    return torch.as_tensor(list(noise_levels), dtype=torch.int64)[choice]
 
 
 #: The parts of a split, in the order their seeds are derived.
@@ -109,13 +109,13 @@ def training_seed(seed: int, run: int) -> int:
     return run_seed(seed, len(PARTS), run)
 
 
-def read_sets(sky: str | Path, sizes: Sequence[int], seed: int, levels: Sequence[int], camera_sd: float,
+def read_sets(sky: str | Path, sizes: Sequence[int], seed: int, noise_levels: Sequence[int], camera_sd: float,
               parts: Sequence[str] = ("train", "dev"), test_level: int | None = None,
               train_noise: int | None = None) -> dict[str, ShiftSet]:
     """The configurations of a Sky file split into train, dev and test (:func:`split_three`), each with its shifts.
 
     Part ``p`` draws theta* from ``run_seed(seed, PARTS.index(p), 0)``; train and dev mix ``levels``
-    (:func:`mixed_levels`, seeded ``run_seed(seed, PARTS.index(p), 1)``); the test set takes every target at
+    (:func:`mixed_noise_levels`, seeded ``run_seed(seed, PARTS.index(p), 1)``); the test set takes every target at
     ``test_level``, so that its configurations keep their theta* at every level and only the noise differs.
     Each part's noise is drawn from its theta* seed, the training part's from ``train_noise`` where given (a
     training run's own draws, :func:`training_seed`).
@@ -138,7 +138,7 @@ def read_sets(sky: str | Path, sizes: Sequence[int], seed: int, levels: Sequence
                 raise SDMInputError("test_level: the test part needs its noise level")
             part_levels = torch.full((len(data),), int(test_level), dtype=torch.int64)
         else:
-            part_levels = mixed_levels(len(data), levels, run_seed(seed, index, 1))
+            part_levels = mixed_noise_levels(len(data), noise_levels, run_seed(seed, index, 1))
         noise = train_noise if part == "train" else None
         sets[part] = shift_set(data, run_seed(seed, index, 0), part_levels, truth, noise)
     return sets

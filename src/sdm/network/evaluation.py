@@ -52,7 +52,7 @@ NOTHING = ("prior", "train_mean", "start")
 NO_RUN = -1
 
 
-def test_methods(test: ShiftSet, level: int, networks: dict[tuple[str, int], ShiftNet], refine_settings,
+def test_methods(test: ShiftSet, noise_level: int, networks: dict[tuple[str, int], ShiftNet], refine_settings,
                  objects_settings, seed: int, train_mean: torch.Tensor | None = None) -> pd.DataFrame:
     """Every Table 7 method on the test configurations at one noise level: one row per (method, run, configuration).
 
@@ -89,7 +89,7 @@ def test_methods(test: ShiftSet, level: int, networks: dict[tuple[str, int], Shi
     def record(method: str, theta: torch.Tensor, cpu_s, run: int = NO_RUN) -> None:
         error = (theta.double() - test.truth.double()).cpu()
         cpu = torch.as_tensor(cpu_s, dtype=torch.float64).expand(n_configs)
-        frames.append(pd.DataFrame({"level": int(level), "method": method, "run": int(run),
+        frames.append(pd.DataFrame({"noise_level": int(noise_level), "method": method, "run": int(run),
                                     "config": np.arange(n_configs), "distance": distances(theta, test.truth).cpu(),
                                     "error_a": error[:, 0], "error_b": error[:, 1], "cpu_s": cpu.cpu().numpy()}))
 
@@ -129,7 +129,7 @@ def refine_settings(refine: dict, seed: int):
 BIAS_LOSSES = ("sdm_paper", "sdm_closed_centred_r1", "silhouette")
 
 
-def loss_bias(test: ShiftSet, level: int, kind: str, settings: NetworkSettings, step: float = 1e-3,
+def loss_bias(test: ShiftSet, noise_level: int, kind: str, settings: NetworkSettings, step: float = 1e-3,
               batch_size: int = 64) -> dict:
     """Where a training loss's mean gradient vanishes on the test configurations, as :func:`sdm.experiments.rule_bias`
     measures it for the shared shift.
@@ -166,7 +166,7 @@ def loss_bias(test: ShiftSet, level: int, kind: str, settings: NetworkSettings, 
 
     truth = test.truth.to(torch.float64)
     bias = mean_gradient(truth)
-    row = {"level": int(level), "loss": kind, "bias_a": float(bias[0]), "bias_b": float(bias[1])}
+    row = {"noise_level": int(noise_level), "loss": kind, "bias_a": float(bias[0]), "bias_b": float(bias[1])}
     offsets = []
     for axis, name in enumerate("ab"):
         move = torch.zeros(2, dtype=torch.float64, device=device)

@@ -31,8 +31,8 @@ class NetworkSettings:
         batch_size: configurations per step.
         per_epoch: configurations each epoch visits, a fresh shuffle's first ones; 0 = the whole training set.
         lr: Adam's learning rate (cosine decay to 0 over the steps), per loss name; missing names use ``"default"``.
-        s: the coarsest zoom level of the SDM and silhouette losses (:func:`epoch_levels`).
-        sigma: the silhouette's Gaussian width, in blocks of the level.
+        s: the coarsest zoom level of the SDM and silhouette losses (:func:`epoch_zooms`).
+        sigma: the silhouette's Gaussian width, in blocks of the zoom level.
         max_points: Chamfer's points (and target pixels) per configuration and step; 0 = all.
         seed: initialises the weights and draws the shuffles (and Chamfer's subsamples).
     """
@@ -69,14 +69,14 @@ class NetworkSettings:
         return float(rates.get(loss, rates["default"]))
 
 
-def epoch_levels(epochs: int, s: int) -> list[int]:
+def epoch_zooms(epochs: int, s: int) -> list[int]:
     """The zoom level of each epoch: one epoch at each coarse level ``s..1``, then level 0 for the rest.
 
-    The coarse levels bring a fresh network's shifts within a few pixels of the targets; the shifts of single
-    configurations differ by about a pixel, which only level 0 resolves, so the epochs go there. Measured on a
+    The coarse zoom levels bring a fresh network's shifts within a few pixels of the targets; the shifts of single
+    configurations differ by about a pixel, which only zoom 0 resolves, so the epochs go there. Measured on a
     dev set (3,000 training configurations, 8 epochs): ``s..0`` in equal runs left the SDM-trained network at
-    the dev distance of a constant shift; two coarse epochs and six at level 0 took it to two thirds of it.
-    With fewer epochs than levels, the finest ``epochs`` levels.
+    the dev distance of a constant shift; two coarse epochs and six at zoom 0 took it to two thirds of it.
+    With fewer epochs than zoom levels, the finest ``epochs`` ones.
     """
     coarse = list(range(s, 0, -1))
     if epochs <= len(coarse):
@@ -85,7 +85,7 @@ def epoch_levels(epochs: int, s: int) -> list[int]:
 
 
 class BatchLoss:
-    """One training loss on a mini-batch: ``loss(theta (B, 2), indices (B,), level) -> scalar``.
+    """One training loss on a mini-batch: ``loss(theta (B, 2), indices (B,), zoom) -> scalar``.
 
     Args:
         kind: one of :data:`LOSSES`.
@@ -101,11 +101,11 @@ class BatchLoss:
         data = train.data
         self.camera = data.camera
         if kind in SDM_RULES:
-            self.layers = {level: SpatialDomainMapping(data.camera, s=settings.s, zoom=level, rule=SDM_RULES[kind])
-                           for level in range(settings.s + 1)}
+            self.layers = {zoom: SpatialDomainMapping(data.camera, s=settings.s, zoom=zoom, rule=SDM_RULES[kind])
+                           for zoom in range(settings.s + 1)}
             self.pyramid = data.pyramid(settings.s)
 
-    def __call__(self, theta: torch.Tensor, indices: torch.Tensor, level: int) -> torch.Tensor:
+    def __call__(self, theta: torch.Tensor, indices: torch.Tensor, zoom: int) -> torch.Tensor:
         data = self.train.data
         if theta.shape != (len(indices), 2):
             raise SDMInputError(f"theta must have shape ({len(indices)}, 2): one shift (a, b) per configuration of "
@@ -118,13 +118,13 @@ class BatchLoss:
             theta = theta.detach() + (theta - theta.detach()) / counts
         moves = shift_vector(theta.index_select(0, batch.config), batch.points)
         if self.kind in SDM_RULES:
-            return self.layers[level](batch.points + moves, batch.pixels, self.pyramid[level].index_select(0, indices),
+            return self.layers[zoom](batch.points + moves, batch.pixels, self.pyramid[zoom].index_select(0, indices),
                                       batch.config, batch.rank, target_is_zoomed=True, validate=False).loss
         if self.kind == "silhouette":
             screen = self.camera.project(batch.points + moves, validate=False).float()
-            silhouette = soft_silhouette(screen, batch.config, len(indices), level, self.settings.sigma,
+            silhouette = soft_silhouette(screen, batch.config, len(indices), zoom, self.settings.sigma,
                                          self.camera.screen_shape)
-            return image_losses(silhouette, zoom_out(batch.targets, level)).mean()
+            return image_losses(silhouette, zoom_out(batch.targets, zoom)).mean()
         return self._chamfer(theta, indices, batch)
 
     def _chamfer(self, theta, indices, batch) -> torch.Tensor:

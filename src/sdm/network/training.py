@@ -15,7 +15,7 @@ from ..batch import ConfigurationSet
 from ..errors import SDMInputError
 from ..sharing import TruthDistribution
 from .data import ShiftSet, network_images
-from .losses import BatchLoss, NetworkSettings, epoch_levels
+from .losses import BatchLoss, NetworkSettings, epoch_zooms
 from .model import ShiftNet
 
 @contextmanager
@@ -56,7 +56,7 @@ class TrainedNetwork:
 
     Attributes:
         net: the network (eval mode).
-        curve: one row per epoch: ``loss`` (the training loss's name), ``epoch`` (1-based), ``level``
+        curve: one row per epoch: ``loss`` (the training loss's name), ``epoch`` (1-based), ``zoom``
             (zoom level of the epoch), ``train_loss`` (mean over its steps), ``dev_mean_m``, ``dev_median_m``,
             ``train_cpu_s`` (the training's CPU seconds up to the epoch's end).
         seconds: the training's CPU (process) seconds, dev evaluations excluded.
@@ -78,7 +78,7 @@ def train_network(kind: str, train: ShiftSet, dev: ShiftSet, settings: NetworkSe
     """
     if len(train) < settings.batch_size:
         raise SDMInputError(f"train: {len(train)} configurations, fewer than one batch of {settings.batch_size}")
-    levels = epoch_levels(settings.epochs, settings.s)
+    zooms = epoch_zooms(settings.epochs, settings.s)
     steps_per_epoch = min(len(train), settings.per_epoch or len(train)) // settings.batch_size
     with deterministic():
         torch.manual_seed(settings.seed)
@@ -90,14 +90,14 @@ def train_network(kind: str, train: ShiftSet, dev: ShiftSet, settings: NetworkSe
         schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimiser, settings.epochs * steps_per_epoch)
         rows, seconds = [], 0.0
         bar = _progress(settings.epochs * steps_per_epoch, f"training ({kind})", progress)
-        for epoch, level in enumerate(levels, start=1):
+        for epoch, zoom in enumerate(zooms, start=1):
             began = time.process_time()
             order = torch.randperm(len(train), generator=generator).to(train.data.device)
             total = 0.0
             for step in range(steps_per_epoch):
                 indices = order[step * settings.batch_size:(step + 1) * settings.batch_size]
                 theta = net(network_images(train.data, indices))
-                loss = loss_of(theta, indices, level)
+                loss = loss_of(theta, indices, zoom)
                 optimiser.zero_grad(set_to_none=True)
                 loss.backward()
                 optimiser.step()
@@ -106,7 +106,7 @@ def train_network(kind: str, train: ShiftSet, dev: ShiftSet, settings: NetworkSe
                 bar.update()
             seconds += time.process_time() - began
             gap = distances(predict(net, dev.data), dev.truth)
-            rows.append({"loss": kind, "epoch": epoch, "level": level, "train_loss": total / steps_per_epoch,
+            rows.append({"loss": kind, "epoch": epoch, "zoom": zoom, "train_loss": total / steps_per_epoch,
                          "dev_mean_m": float(gap.mean()), "dev_median_m": float(gap.median()),
                          "train_cpu_s": seconds})
         bar.close()

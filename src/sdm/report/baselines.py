@@ -19,7 +19,7 @@ from .. import paper
 from .tables import TableFormat, in_millimetres, require_columns, write_table
 
 #: The per-run columns Table 3 needs (``sdm.baselines.RUN_COLUMNS`` has these and more).
-RUN_COLUMNS = ("method", "level", "run", "a", "b", "distance", "seconds")
+RUN_COLUMNS = ("method", "noise_level", "run", "a", "b", "distance", "seconds")
 
 #: Display order and labels (the registry's order; unknown methods go last under their own name).
 METHOD_LABELS = {
@@ -33,7 +33,7 @@ METHOD_LABELS = {
 #: The floor's rows (:mod:`sdm.baselines.floor`): what every method is read against, not a competitor.
 FLOOR = "floor"
 #: Per-run columns the floor's summary needs (``sdm.baselines.floor.FLOOR_COLUMNS`` has these and more).
-FLOOR_RUN_COLUMNS = ("level", "run", "a", "b", "distance", "search_distance", "half_distance", "extent_a",
+FLOOR_RUN_COLUMNS = ("noise_level", "run", "a", "b", "distance", "search_distance", "half_distance", "extent_a",
                      "extent_b", "min_mismatch", "mismatch_at_truth", "seconds")
 
 
@@ -60,23 +60,23 @@ def table3_frame(runs: pd.DataFrame, shift: Sequence[float] = SKY_SHIFT, referen
         count half), NaN where the reference has no such run.
     """
     require_columns(runs, RUN_COLUMNS, "Table 3 runs", runs=True)
-    duplicated = runs.duplicated(["method", "level", "run"])
+    duplicated = runs.duplicated(["method", "noise_level", "run"])
     if duplicated.any():
         first = runs[duplicated].iloc[0]
-        raise SDMInputError(f"Table 3 runs: (method, level, run) = ({first['method']}, {first['level']}, {first['run']}) twice")
+        raise SDMInputError(f"Table 3 runs: (method, level, run) = ({first['method']}, {first['noise_level']}, {first['run']}) twice")
     a_star, b_star = (float(v) for v in shift)
-    base = runs[runs["method"] == reference].set_index(["level", "run"])["distance"]
+    base = runs[runs["method"] == reference].set_index(["noise_level", "run"])["distance"]
     rows = []
     for name in _order(runs["method"].unique()):
-        for level, group in runs[runs["method"] == name].groupby("level", sort=True):
+        for noise_level, group in runs[runs["method"] == name].groupby("noise_level", sort=True):
             values = group["distance"].to_numpy(dtype=float)
             a, b = group["a"].to_numpy(dtype=float), group["b"].to_numpy(dtype=float)
             mean_a, mean_b = a.mean(), b.mean()
-            theirs = paper.TABLE2.get(int(level), {}) if name == reference else {}
+            theirs = paper.TABLE2.get(int(noise_level), {}) if name == reference else {}
             row = {
                 "method": name,
                 "label": METHOD_LABELS.get(name, name),
-                "level": int(level),
+                "noise_level": int(noise_level),
                 "runs": int(values.size),
                 "mean_m": float(values.mean()),
                 "std_m": float(values.std(ddof=1)) if values.size > 1 else math.nan,
@@ -90,7 +90,7 @@ def table3_frame(runs: pd.DataFrame, shift: Sequence[float] = SKY_SHIFT, referen
                 "paper_std_m": 1e-3 * theirs["std"] if theirs else math.nan,
                 "paper_median_m": 1e-3 * theirs["q2"] if theirs else math.nan,
             }
-            paired = group.set_index(["level", "run"])["distance"]
+            paired = group.set_index(["noise_level", "run"])["distance"]
             common = paired.index.intersection(base.index)
             if len(common):
                 ours, ref = paired.loc[common].to_numpy(float), base.loc[common].to_numpy(float)
@@ -102,7 +102,7 @@ def table3_frame(runs: pd.DataFrame, shift: Sequence[float] = SKY_SHIFT, referen
     return pd.DataFrame.from_records(rows)
 
 
-def table2_runs(distances: pd.DataFrame, timings: Sequence[Mapping], levels: Sequence[int],
+def table2_runs(distances: pd.DataFrame, timings: Sequence[Mapping], noise_levels: Sequence[int],
                 runs: Sequence[int], name: str = "sdm") -> pd.DataFrame:
     """SDM's rows of Table 3: Table 2's runs themselves, with the time per run the noise stage measured.
 
@@ -114,7 +114,7 @@ def table2_runs(distances: pd.DataFrame, timings: Sequence[Mapping], levels: Seq
     Args:
         distances: Table 2's per-run rows (``level, run, a, b, distance``; metres), e.g.
             ``results/noise/distances.csv``.
-        timings: the noise jobs' records, one per chunk: ``{"level", "runs", "seconds"}`` (wall seconds
+        timings: the noise jobs' records, one per chunk: ``{"noise_level", "runs", "seconds"}`` (wall seconds
             of the chunk's runs, trained together as one program). May be empty.
         levels, runs: the noise levels and run indices wanted (Table 3's).
         name: the method name the rows get.
@@ -127,21 +127,21 @@ def table2_runs(distances: pd.DataFrame, timings: Sequence[Mapping], levels: Seq
         SDMInputError: a wanted ``(level, run)`` that Table 2 does not have.
     """
     require_columns(distances, [c for c in RUN_COLUMNS if c not in ("method", "seconds")], "Table 2's runs")
-    wanted = pd.MultiIndex.from_product([[int(v) for v in levels], [int(v) for v in runs]], names=["level", "run"])
-    table2 = distances.set_index(["level", "run"])
+    wanted = pd.MultiIndex.from_product([[int(v) for v in noise_levels], [int(v) for v in runs]], names=["noise_level", "run"])
+    table2 = distances.set_index(["noise_level", "run"])
     absent = wanted.difference(table2.index)
     if len(absent):
-        level, run = absent[0]
-        raise SDMInputError(f"Table 2 has no run {run} at noise level {level} ({len(absent)} of Table 3's runs "
+        noise_level, run = absent[0]
+        raise SDMInputError(f"Table 2 has no run {run} at noise level {noise_level} ({len(absent)} of Table 3's runs "
                             f"missing): config key 'baselines.runs' must not exceed noise.runs")
     rows = table2.loc[wanted].reset_index()
     seconds, counted = {}, {}
     for record in timings:
-        level = int(record["level"])
-        seconds[level] = seconds.get(level, 0.0) + float(record["seconds"])
-        counted[level] = counted.get(level, 0) + int(record["runs"])
-    per_run = {level: seconds[level] / counted[level] for level in seconds if counted[level] > 0}
-    rows["seconds"] = [per_run.get(int(level), math.nan) for level in rows["level"]]
+        noise_level = int(record["noise_level"])
+        seconds[noise_level] = seconds.get(noise_level, 0.0) + float(record["seconds"])
+        counted[noise_level] = counted.get(noise_level, 0) + int(record["runs"])
+    per_run = {noise_level: seconds[noise_level] / counted[noise_level] for noise_level in seconds if counted[noise_level] > 0}
+    rows["seconds"] = [per_run.get(int(noise_level), math.nan) for noise_level in rows["noise_level"]]
     rows.insert(0, "method", name)
     return rows
 
@@ -151,11 +151,11 @@ _DISTANCES = ("mean", "std", "median", "bias", "spread")
 
 TABLE3_FORMAT = TableFormat(
     columns=(
-        "label", "level", "runs", "mean", "paper_mean", "std", "paper_std", "median", "paper_median",
+        "label", "noise_level", "runs", "mean", "paper_mean", "std", "paper_std", "median", "paper_median",
         "bias", "spread", "seconds_per_run", "mean_ratio_to_sdm", "wins_vs_sdm",
     ),
     headers={
-        "label": "method", "level": "noise level", "runs": "runs",
+        "label": "method", "noise_level": "noise level", "runs": "runs",
         "mean": "mean", "paper_mean": "mean (paper)", "std": "std", "paper_std": "std (paper)",
         "median": "median", "paper_median": "median (paper)", "bias": "bias", "spread": "spread",
         "seconds_per_run": "s / run", "mean_ratio_to_sdm": "mean / SDM's", "wins_vs_sdm": "beats SDM",
@@ -242,28 +242,28 @@ def baselines_figure(table: pd.DataFrame, runs: pd.DataFrame | None = None, shif
     markers = dict(zip(methods, "osD^vP*X"))
     ax = axes[0]
     for i, name in enumerate(methods):
-        rows = table[table["method"] == name].sort_values("level")
+        rows = table[table["method"] == name].sort_values("noise_level")
         mm = 1000.0
-        ax.errorbar(rows["level"] + 0.06 * (i - len(methods) / 2), mm * rows["median_m"],
+        ax.errorbar(rows["noise_level"] + 0.06 * (i - len(methods) / 2), mm * rows["median_m"],
                     yerr=[mm * (rows["median_m"] - rows["q1_m"]), mm * (rows["q3_m"] - rows["median_m"])],
                     marker=markers[name], color=colours(i), capsize=3, label=METHOD_LABELS.get(name, name))
         if name == "sdm" and rows["paper_median_m"].notna().any():
-            ax.plot(rows["level"], mm * rows["paper_median_m"], ls=":", color=colours(i), label="SDM (paper)")
+            ax.plot(rows["noise_level"], mm * rows["paper_median_m"], ls=":", color=colours(i), label="SDM (paper)")
     ax.set_yscale("log")
     ax.set_xlabel("noise level n (pixels)")
     ax.set_ylabel("||theta~ - theta*|| (1e-3 m): median, Q1-Q3")
     ax.set_title("(a) distance per noise level", fontsize=10)
-    ax.set_xticks(sorted(table["level"].unique()))
+    ax.set_xticks(sorted(table["noise_level"].unique()))
     ax.legend(fontsize=7)
     ax.grid(True, which="both", alpha=0.3)
 
     ax = axes[1]
     for i, name in enumerate(methods):
-        rows = table[table["method"] == name].sort_values("level")
+        rows = table[table["method"] == name].sort_values("noise_level")
         ax.plot(1000 * rows["bias_m"].clip(lower=1e-6), 1000 * rows["spread_m"].clip(lower=1e-6),
                 marker=markers[name], color=colours(i), label=METHOD_LABELS.get(name, name))
         for _, row in rows.iterrows():
-            ax.annotate(str(int(row["level"])), (1000 * max(row["bias_m"], 1e-6), 1000 * max(row["spread_m"], 1e-6)),
+            ax.annotate(str(int(row["noise_level"])), (1000 * max(row["bias_m"], 1e-6), 1000 * max(row["spread_m"], 1e-6)),
                         fontsize=7, xytext=(3, 3), textcoords="offset points", color=colours(i))
     ax.set_xscale("log")
     ax.set_yscale("log")
@@ -277,16 +277,16 @@ def baselines_figure(table: pd.DataFrame, runs: pd.DataFrame | None = None, shif
 
     if runs is not None:
         ax = axes[2]
-        level = int(runs["level"].max())
+        noise_level = int(runs["noise_level"].max())
         for i, name in enumerate(methods):
-            rows = runs[(runs["method"] == name) & (runs["level"] == level)]
+            rows = runs[(runs["method"] == name) & (runs["noise_level"] == noise_level)]
             ax.scatter(1000 * (rows["a"] - shift[0]), 1000 * (rows["b"] - shift[1]), s=14, marker=markers[name],
                        color=colours(i), alpha=0.8, label=METHOD_LABELS.get(name, name))
         ax.axhline(0, color="grey", lw=0.8)
         ax.axvline(0, color="grey", lw=0.8)
         ax.set_xlabel("a~ - a* (1e-3 m)")
         ax.set_ylabel("b~ - b* (1e-3 m)")
-        ax.set_title(f"(c) where theta~ lands, noise level {level}", fontsize=10)
+        ax.set_title(f"(c) where theta~ lands, noise level {noise_level}", fontsize=10)
         ax.legend(fontsize=7)
         ax.grid(True, alpha=0.3)
     fig.suptitle("Table 3: SDM against the baselines (same training sets, same noise draws)", fontsize=11)
@@ -307,7 +307,7 @@ def table3_summary(table: pd.DataFrame, reference: str = "sdm", table2_runs: int
     if reference not in set(table["method"]):
         raise SDMInputError(f"Table 3 has no {reference!r} rows to compare with")
     lines = []
-    for level, rows in table.groupby("level", sort=True):
+    for noise_level, rows in table.groupby("noise_level", sort=True):
         ref = rows[rows["method"] == reference]
         others = rows[(rows["method"] != reference) & (rows["method"] != FLOOR)]
         if ref.empty or others.empty:
@@ -323,7 +323,7 @@ def table3_summary(table: pd.DataFrame, reference: str = "sdm", table2_runs: int
             verdict = (f"SDM loses: {1000 * ref_mean:.3f}e-3 m against {1000 * best_other['mean_m']:.3f}e-3 m for "
                        f"{best_other['label']} ({1 / ratio:.1f} times closer than SDM on average)")
         beaten = [f"{row['label']} {row['wins_vs_sdm']:.0%}" for _, row in others.iterrows() if not math.isnan(row["wins_vs_sdm"])]
-        lines.append(f"- noise level {int(level)} ({runs} paired runs): {verdict}; share of paired runs closer to "
+        lines.append(f"- noise level {int(noise_level)} ({runs} paired runs): {verdict}; share of paired runs closer to "
                      f"theta* than SDM's: {', '.join(beaten)}. SDM's bias {1000 * float(ref['bias_m'].iloc[0]):.3f}e-3 m, "
                      f"spread {1000 * float(ref['spread_m'].iloc[0]):.3f}e-3 m.")
     seconds = table[table["method"] != FLOOR].groupby("method", sort=False)["seconds_per_run"].mean()
@@ -362,9 +362,9 @@ def floor_frame(runs: pd.DataFrame) -> pd.DataFrame:
     """
     require_columns(runs, FLOOR_RUN_COLUMNS, "floor runs", runs=True)
     rows = []
-    for level, group in runs.groupby("level", sort=True):
+    for noise_level, group in runs.groupby("noise_level", sort=True):
         mean, half = float(group["distance"].mean()), float(group["half_distance"].mean())
-        rows.append({"level": int(level), "runs": int(len(group)), "mean_m": mean,
+        rows.append({"noise_level": int(noise_level), "runs": int(len(group)), "mean_m": mean,
                      "median_m": float(group["distance"].median()), "search_mean_m": float(group["search_distance"].mean()),
                      "half_mean_m": half, "budget_change": abs(mean - half) / mean if mean > 0 else math.nan,
                      "extent_a_m": float(group["extent_a"].mean()), "extent_b_m": float(group["extent_b"].mean()),
@@ -379,7 +379,7 @@ def floor_summary(frame: pd.DataFrame, settings: Mapping) -> str:
     time: the words are deterministic, like the tables (the time is the table's ``s / run`` column)."""
     runs = ", ".join(sorted({str(int(r)) for r in frame["runs"]}))
     per_level = "; ".join(
-        f"level {int(row.level)}: {1e3 * row.mean_m:.3f} (region {1e3 * row.extent_a_m:.3f} x {1e3 * row.extent_b_m:.3f} "
+        f"level {int(row.noise_level)}: {1e3 * row.mean_m:.3f} (region {1e3 * row.extent_a_m:.3f} x {1e3 * row.extent_b_m:.3f} "
         f"along a x b; theta* minimal in {row.truth_minimal:.0%} of runs)" for row in frame.itertuples())
     worst = frame.loc[frame["budget_change"].idxmax()]
     budget = ", ".join(f"{key} {value}" for key, value in sorted(settings.items()))
@@ -387,5 +387,5 @@ def floor_summary(frame: pd.DataFrame, settings: Mapping) -> str:
             f"the region of theta where the exact zoom-0 pixel mismatch of its noisy training set is minimal, the "
             f"best any method minimising CMA-ES's objective can reach. Mean distance (1e-3 m) and the region's mean "
             f"extent (1e-3 m): {per_level}. Doubling the budget (the same search stopped after half of it against "
-            f"all of it) moves a level's mean by at most {worst['budget_change']:.1%} (level {int(worst['level'])}); "
+            f"all of it) moves a level's mean by at most {worst['budget_change']:.1%} (level {int(worst['noise_level'])}); "
             f"its time per run is Table 3's `s / run`.\n")

@@ -19,7 +19,7 @@ from .tables import TableFormat, in_millimetres, require_columns, write_table
 DEPTH_BAR_M = {"a": 2e-3, "b": 2e-3, "c": 2e-2}
 
 #: Per-run columns Table 5 needs (``sdm.experiments.DEPTH_RUN_COLUMNS``).
-DEPTH_RUN_COLUMNS = ("c_true", "level", "run", "c", "error_a", "error_b", "error_c", "distance_ab", "distance")
+DEPTH_RUN_COLUMNS = ("c_true", "noise_level", "run", "c", "error_a", "error_b", "error_c", "distance_ab", "distance")
 
 
 
@@ -38,13 +38,13 @@ def table5_frame(depth_runs: pd.DataFrame) -> pd.DataFrame:
     """
     require_columns(depth_runs, DEPTH_RUN_COLUMNS, "Table 5 depth runs", runs=True)
     rows = []
-    for (c_true, level), group in depth_runs.groupby(["c_true", "level"], sort=True):
-        row = {"c_true": float(c_true), "level": int(level), "runs": int(len(group))}
+    for (c_true, noise_level), group in depth_runs.groupby(["c_true", "noise_level"], sort=True):
+        row = {"c_true": float(c_true), "noise_level": int(noise_level), "runs": int(len(group))}
         for column in ("error_a", "error_b", "error_c", "distance_ab", "distance"):
             row[f"{column}_m"] = float(group[column].mean())
         row["bias_c_m"] = float((group["c"] - group["c_true"]).mean())
         row["distance_std_m"] = float(group["distance"].std(ddof=1)) if len(group) > 1 else math.nan
-        row["meets_bar"] = bool(int(level) == 0 and all(row[f"error_{axis}_m"] <= bar for axis, bar in DEPTH_BAR_M.items()))
+        row["meets_bar"] = bool(int(noise_level) == 0 and all(row[f"error_{axis}_m"] <= bar for axis, bar in DEPTH_BAR_M.items()))
         rows.append(row)
     return pd.DataFrame.from_records(rows)
 
@@ -52,10 +52,10 @@ def table5_frame(depth_runs: pd.DataFrame) -> pd.DataFrame:
 _TABLE5_DISTANCES = ("error_a", "error_b", "error_c", "bias_c", "distance_ab", "distance", "distance_std")
 
 TABLE5_FORMAT = TableFormat(
-    columns=("c_true", "level", "runs", "error_a", "error_b", "error_c", "bias_c", "distance_ab", "distance",
+    columns=("c_true", "noise_level", "runs", "error_a", "error_b", "error_c", "bias_c", "distance_ab", "distance",
              "distance_std", "meets_bar"),
     headers={
-        "c_true": "c* (m)", "level": "noise level", "runs": "runs", "error_a": "|a - a*|", "error_b": "|b - b*|",
+        "c_true": "c* (m)", "noise_level": "noise level", "runs": "runs", "error_a": "|a - a*|", "error_b": "|b - b*|",
         "error_c": "|c - c*|", "bias_c": "mean c - c*", "distance_ab": "distance in (a, b)",
         "distance": "distance in (a, b, c)", "distance_std": "std of distance", "meets_bar": "meets bar (noise-free)",
     },
@@ -80,17 +80,17 @@ def table5_summary(frame: pd.DataFrame) -> str:
     lines = []
     for c_true, rows in frame.groupby("c_true", sort=True):
         parts = []
-        for row in rows.sort_values("level").itertuples():
+        for row in rows.sort_values("noise_level").itertuples():
             errors = (f"|a - a*| {1e3 * row.error_a_m:.3f}, |b - b*| {1e3 * row.error_b_m:.3f}, "
                       f"|c - c*| {1e3 * row.error_c_m:.3f}")
-            if row.level == 0:
+            if row.noise_level == 0:
                 verdict = "meets" if row.meets_bar else "misses"
                 parts.append(f"noise-free {errors} ({verdict} the bar of 2, 2 and 20)")
             else:
-                parts.append(f"level {row.level} {errors}")
+                parts.append(f"level {row.noise_level} {errors}")
         runs = ", ".join(sorted({str(int(r)) for r in rows["runs"]}))
         lines.append(f"- c* = {c_true:g} m ({runs} runs per level), mean errors in 1e-3 m: " + "; ".join(parts) + ".")
-    if not (frame["level"] == 0).any():
+    if not (frame["noise_level"] == 0).any():
         lines.append("- No noise-free level was run: the depth bar was not checked.")
     return "\n".join(lines) + "\n"
 
@@ -104,15 +104,15 @@ def table5_bias_summary(frame: pd.DataFrame, bias: pd.DataFrame) -> str:
     empty blocks against the other points.
     """
     lines = []
-    measured = {(float(row.c_true), int(row.level)): row.bias_c_m for row in frame.itertuples()}
-    for (c_true, level), rows in bias[bias["level"] > 0].groupby(["c_true", "level"], sort=True):
+    measured = {(float(row.c_true), int(row.noise_level)): row.bias_c_m for row in frame.itertuples()}
+    for (c_true, noise_level), rows in bias[bias["noise_level"] > 0].groupby(["c_true", "noise_level"], sort=True):
         parts = [f"{row.rule} at zoom {int(row.zoom)}: predicted {1e3 * row.offset_c:+.2f}, "
                  f"{100 * row.edge_share:.0f}% of its pull from disc edges (their points on empty blocks "
                  f"{100 * row.unmatched_edge:.1f}%, the others {100 * row.unmatched_inside:.1f}%)"
                  for row in rows.itertuples()]
-        runs = measured.get((float(c_true), int(level)))
+        runs = measured.get((float(c_true), int(noise_level)))
         head = f"mean c - c* {1e3 * runs:+.2f}" if runs is not None else "no runs"
-        lines.append(f"- c* = {c_true:g} m, level {int(level)} (1e-3 m): {head}; " + "; ".join(parts) + ".")
+        lines.append(f"- c* = {c_true:g} m, level {int(noise_level)} (1e-3 m): {head}; " + "; ".join(parts) + ".")
     return "\n".join(lines) + "\n" if lines else ""
 
 
@@ -137,11 +137,11 @@ def depth_figure(frame: pd.DataFrame):
     colours = plt.get_cmap("tab10")
     for ax, (axis, scale, unit) in zip(axes, (("a", 1e3, "1e-3 m"), ("b", 1e3, "1e-3 m"), ("c", 1e2, "1e-2 m"))):
         for i, (c_true, rows) in enumerate(frame.groupby("c_true", sort=True)):
-            rows = rows.sort_values("level")
-            ax.plot(rows["level"], scale * rows[f"error_{axis}_m"], marker="o", color=colours(i), label=f"c* = {c_true:g} m")
+            rows = rows.sort_values("noise_level")
+            ax.plot(rows["noise_level"], scale * rows[f"error_{axis}_m"], marker="o", color=colours(i), label=f"c* = {c_true:g} m")
         ax.axhline(scale * DEPTH_BAR_M[axis], ls="--", color="grey", lw=0.8, label="bar (noise-free)")
         ax.set_yscale("log")
-        ax.set_xticks(sorted(frame["level"].unique()))
+        ax.set_xticks(sorted(frame["noise_level"].unique()))
         ax.set_xlabel("noise level n (pixels)")
         ax.set_ylabel(f"mean |{axis} - {axis}*| ({unit})")
         ax.grid(True, which="both", alpha=0.3)

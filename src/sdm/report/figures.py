@@ -252,14 +252,14 @@ def figure3(point: torch.Tensor, info: dict, level: int = 0):
 # -- Figure 4 -------------------------------------------------------------------------------------
 
 
-def figure4(target: torch.Tensor, levels: Sequence[int] = (0, 1, 2, 3, 4), seed: int = 0):
+def figure4(target: torch.Tensor, noise_levels: Sequence[int] = (0, 1, 2, 3, 4), seed: int = 0):
     """One target at each noise level (paper, Figure 4); the noise is drawn from ``seed``."""
     generator = torch.Generator().manual_seed(int(seed))
-    fig, axes = plt.subplots(len(levels), 1, figsize=(7, 3.1 * len(levels)), constrained_layout=True)
+    fig, axes = plt.subplots(len(noise_levels), 1, figsize=(7, 3.1 * len(noise_levels)), constrained_layout=True)
     axes = np.atleast_1d(axes)
-    for index, (ax, level) in enumerate(zip(axes, levels)):
-        noisy = add_target_noise(target, int(level), generator)
-        label = "original target L" if level == 0 else f"{level}-pixel noise"
+    for index, (ax, noise_level) in enumerate(zip(axes, noise_levels)):
+        noisy = add_target_noise(target, int(noise_level), generator)
+        label = "original target L" if noise_level == 0 else f"{noise_level}-pixel noise"
         _screen_axes(ax, noisy.numpy(), f"({chr(97 + index)}) {label} ({int(noisy.sum())} active pixels)")
     fig.suptitle("Figure 4: effect of the noise on a target", fontsize=11)
     return fig
@@ -308,16 +308,16 @@ def theta_path_figure(history: pd.DataFrame, theta_star: Sequence[float] = SKY_S
 
 def distances_figure(distances: pd.DataFrame):
     """Distances ||theta~ - theta*|| per noise level (1e-3 m, log scale), with the paper's mean and quartiles."""
-    levels = sorted(distances["level"].unique())
+    noise_levels = sorted(distances["noise_level"].unique())
     fig, ax = plt.subplots(figsize=(9, 5), constrained_layout=True)
-    data = [1000 * distances.loc[distances["level"] == level, "distance"].to_numpy() for level in levels]
-    ax.boxplot(data, positions=range(len(levels)), widths=0.5, showfliers=False)
+    data = [1000 * distances.loc[distances["noise_level"] == noise_level, "distance"].to_numpy() for noise_level in noise_levels]
+    ax.boxplot(data, positions=range(len(noise_levels)), widths=0.5, showfliers=False)
     rng = np.random.default_rng(0)
     for i, values in enumerate(data):
         ax.scatter(i - 0.12 + 0.24 * rng.random(values.size), values, s=9, alpha=0.6, color="#1f77b4",
                    label="our runs" if i == 0 else None)
-    for i, level in enumerate(levels):
-        ref = paper.TABLE2.get(int(level))
+    for i, noise_level in enumerate(noise_levels):
+        ref = paper.TABLE2.get(int(noise_level))
         if ref is None:
             continue
         ax.errorbar(i + 0.38, ref["q2"], yerr=[[ref["q2"] - ref["q1"]], [ref["q3"] - ref["q2"]]], fmt="none",
@@ -325,7 +325,7 @@ def distances_figure(distances: pd.DataFrame):
         ax.plot(i + 0.38, ref["mean"], "x", color="#d62728", ms=8, mew=2, label="paper mean" if i == 0 else None)
         ax.plot(i, data[i].mean(), "D", color="k", ms=5, label="our mean" if i == 0 else None)
     ax.set_yscale("log")
-    ax.set_xticks(range(len(levels)), [f"{level}-pixel" for level in levels])
+    ax.set_xticks(range(len(noise_levels)), [f"{noise_level}-pixel" for noise_level in noise_levels])
     ax.set_xlabel("noise level")
     ax.set_ylabel("||theta~ - theta*|| (1e-3 m)")
     ax.set_title(f"Distances per noise level ({len(distances)} runs)")

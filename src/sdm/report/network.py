@@ -35,9 +35,9 @@ IMAGE_LOSSES = ("silhouette", "chamfer")
 PAIRED_WITH = "sdm_closed_centred_r1"
 
 TABLE7_FORMAT = TableFormat(
-    columns=("level", "method", "runs", "mean", "sd", "median", "offset", "diff", "diff_sd", "diff_min", "diff_max",
+    columns=("noise_level", "method", "runs", "mean", "sd", "median", "offset", "diff", "diff_sd", "diff_min", "diff_max",
              "cpu_ms", "train_s", "pays_off"),
-    headers={"level": "noise level", "method": "method", "runs": "runs", "mean": "mean", "sd": "sd",
+    headers={"noise_level": "noise level", "method": "method", "runs": "runs", "mean": "mean", "sd": "sd",
              "median": "median", "offset": "bias", "diff": "minus SDM: mean", "diff_sd": "sd", "diff_min": "min",
              "diff_max": "max", "cpu_ms": "CPU ms / config", "train_s": "training CPU s",
              "pays_off": "cheaper than CMA-ES from (configs)"},
@@ -91,7 +91,7 @@ def paired_with(losses: Sequence[str]) -> str | None:
 def per_run(frame: pd.DataFrame) -> pd.DataFrame:
     """:func:`sdm.network.test_methods`' rows gathered per (level, method, run): ``configs``, ``mean_m``,
     ``median_m``, ``q3_m`` (distance, metres), ``offset_m`` (the norm of the mean error, metres), ``cpu_s``."""
-    grouped = frame.groupby(["level", "method", "run"], sort=False)
+    grouped = frame.groupby(["noise_level", "method", "run"], sort=False)
     out = grouped["distance"].agg(configs="size", mean_m="mean", median_m="median",
                                   q3_m=lambda d: float(np.quantile(d, 0.75)))
     errors = grouped[["error_a", "error_b"]].mean()
@@ -119,21 +119,21 @@ def table7(test_frames: Sequence[pd.DataFrame], curves: Sequence[pd.DataFrame]) 
     losses = [loss for loss in LOSSES if any(key[0] == loss for key in trained)]
     reference = paired_with(losses)
     rows = []
-    for (level, method), group in runs.groupby(["level", "method"], sort=False):
+    for (noise_level, method), group in runs.groupby(["noise_level", "method"], sort=False):
         means = group.set_index("run")["mean_m"]
         loss = method.split(":", 1)[1] if ":" in method else None
         seconds = [trained[(loss, run)] for run in group["run"] if (loss, run) in trained]
-        row = {"level": int(level), "method": method, "configs": int(group["configs"].iloc[0]),
+        row = {"noise_level": int(noise_level), "method": method, "configs": int(group["configs"].iloc[0]),
                "runs": int(len(group)), "mean_m": float(means.mean()), "sd_m": _sd(means),
                "min_m": float(means.min()), "max_m": float(means.max()),
                "median_m": float(group["median_m"].mean()), "q3_m": float(group["q3_m"].mean()),
-               "offset_m": float(group["offset_m"].mean()), **_paired(runs, level, method, reference, means),
+               "offset_m": float(group["offset_m"].mean()), **_paired(runs, noise_level, method, reference, means),
                "cpu_ms": 1000 * float(group["cpu_s"].mean()), "train_s": float(np.mean(seconds)) if seconds else np.nan}
         rows.append(row)
     table = pd.DataFrame(rows)
     table["pays_off"] = _pays_off(table)
     order = {name: index for index, name in enumerate(method_order(losses))}
-    return table.sort_values(["level", "method"], key=lambda c: c.map(order) if c.name == "method" else c,
+    return table.sort_values(["noise_level", "method"], key=lambda c: c.map(order) if c.name == "method" else c,
                              kind="stable").reset_index(drop=True)
 
 
@@ -142,13 +142,13 @@ def _sd(values: pd.Series) -> float:
     return float(values.std(ddof=1)) if len(values) > 1 else np.nan
 
 
-def _paired(runs: pd.DataFrame, level: int, method: str, reference: str | None, means: pd.Series) -> dict:
+def _paired(runs: pd.DataFrame, noise_level: int, method: str, reference: str | None, means: pd.Series) -> dict:
     """``method``'s run means minus the reference network's of the same kind and run: mean, sd, min, max."""
     empty = {"diff_m": np.nan, "diff_sd_m": np.nan, "diff_min_m": np.nan, "diff_max_m": np.nan}
     kind, _, loss = method.partition(":")
     if reference is None or kind not in ("net", "net+k") or loss == reference:
         return empty
-    other = runs[(runs["level"] == level) & (runs["method"] == f"{kind}:{reference}")].set_index("run")["mean_m"]
+    other = runs[(runs["noise_level"] == noise_level) & (runs["method"] == f"{kind}:{reference}")].set_index("run")["mean_m"]
     difference = (means - other).dropna()
     if not len(difference):
         return empty
@@ -159,8 +159,8 @@ def _paired(runs: pd.DataFrame, level: int, method: str, reference: str | None, 
 def _pays_off(table: pd.DataFrame) -> pd.Series:
     """Per row: the configurations ``n`` from which ``train_s + n cpu_ms`` is below ``n`` times CMA-ES's CPU per
     configuration at the row's level (NaN without training time, without CMA-ES, or where it is never so)."""
-    cma = table[table["method"] == "cmaes"].set_index("level")["cpu_ms"]
-    saved = table["level"].map(cma) - table["cpu_ms"]  # ms per configuration
+    cma = table[table["method"] == "cmaes"].set_index("noise_level")["cpu_ms"]
+    saved = table["noise_level"].map(cma) - table["cpu_ms"]  # ms per configuration
     count = np.floor(1000 * table["train_s"] / saved) + 1
     return count.where((saved > 0) & table["train_s"].notna())
 
@@ -173,8 +173,8 @@ def write_table7(table: pd.DataFrame, stem: str | Path) -> list[Path]:
     return write_table(table, stem, TABLE7_FORMAT, shown)
 
 
-def _at(table: pd.DataFrame, level: int, method: str) -> pd.Series | None:
-    rows = table[(table["level"] == level) & (table["method"] == method)]
+def _at(table: pd.DataFrame, noise_level: int, method: str) -> pd.Series | None:
+    rows = table[(table["noise_level"] == noise_level) & (table["method"] == method)]
     return rows.iloc[0] if len(rows) else None
 
 
@@ -185,25 +185,25 @@ def trained_losses(table: pd.DataFrame) -> list[str]:
 
 def ranking(row: pd.Series | None) -> str | None:
     """A paired row's ranking against the SDM-trained network: ``"closer"`` (the SDM network, at every run),
-    ``"farther"`` (at every run), ``"level"`` (the runs disagree, or one run only); None without a pairing."""
+    ``"farther"`` (at every run), ``"even"`` (the runs disagree, or one run only); None without a pairing."""
     if row is None or not np.isfinite(row["diff_m"]):
         return None
     if row["runs"] > 1 and row["diff_min_m"] > 0:
         return "closer"
     if row["runs"] > 1 and row["diff_max_m"] < 0:
         return "farther"
-    return "level"
+    return "even"
 
 
-def _levels_words(levels: Sequence[int]) -> str:
-    return ("level " if len(levels) == 1 else "levels ") + ", ".join(str(level) for level in levels)
+def _levels_words(noise_levels: Sequence[int]) -> str:
+    return ("level " if len(noise_levels) == 1 else "levels ") + ", ".join(str(noise_level) for noise_level in noise_levels)
 
 
-def paired_words(table: pd.DataFrame, other: str, levels: Sequence[int], kind: str = "net") -> tuple[str, dict]:
+def paired_words(table: pd.DataFrame, other: str, noise_levels: Sequence[int], kind: str = "net") -> tuple[str, dict]:
     """The SDM-trained network against ``other``'s, paired by run, in words, and each level's :func:`ranking`."""
-    found = {level: ranking(_at(table, level, f"{kind}:{other}")) for level in levels}
-    groups = {word: [level for level, found_word in found.items() if found_word == word]
-              for word in ("closer", "level", "farther")}
+    found = {noise_level: ranking(_at(table, noise_level, f"{kind}:{other}")) for noise_level in noise_levels}
+    groups = {word: [noise_level for noise_level, found_word in found.items() if found_word == word]
+              for word in ("closer", "even", "farther")}
     parts = [f"{word} at {_levels_words(found_levels)}" for word, found_levels in groups.items() if found_levels]
     return "; ".join(parts), found
 
@@ -214,7 +214,7 @@ def table7_summary(table: pd.DataFrame, steps: int, train: dict, n_train: int,
     (a ranking only beyond the runs' spread), the bars met or missed with their numbers, training time and where
     it pays off against CMA-ES, doing nothing, and (``bias``: :func:`sdm.network.loss_bias`' rows) where each
     label-free loss's mean gradient vanishes beside where the trained networks' mean error sits."""
-    levels = sorted(set(table["level"]))
+    noise_levels = sorted(set(table["noise_level"]))
     trained = trained_losses(table)
     reference = paired_with(trained)
     runs = int(table.loc[table["method"].str.startswith("net:"), "runs"].max()) if trained else 0
@@ -226,72 +226,72 @@ def table7_summary(table: pd.DataFrame, steps: int, train: dict, n_train: int,
              "ranking is stated only where every run agrees (the paired differences' range excludes 0); otherwise "
              "the two are level.", ""]
     lines.append("- **Training CPU time** of one network on this machine (one thread; the runs' mean): "
-                 + ", ".join(f"{LOSS_LABELS[loss]} {_at(table, levels[0], f'net:{loss}')['train_s']:.1f} s"
+                 + ", ".join(f"{LOSS_LABELS[loss]} {_at(table, noise_levels[0], f'net:{loss}')['train_s']:.1f} s"
                              for loss in trained) + ".")
     if reference is not None:
-        lines += _paired_lines(table, reference, trained, levels)
+        lines += _paired_lines(table, reference, trained, noise_levels)
         lines.append(f"- **{LOSS_LABELS[reference]}, label-free, against labels**: "
-                     + _against_supervised(table, reference, levels))
+                     + _against_supervised(table, reference, noise_levels))
         lines.append(f"- **{LOSS_LABELS[reference]} + k SDM steps against CMA-ES**: "
-                     + _against_cmaes(table, reference, levels))
-    nothing = _against_nothing(table, trained, levels)
+                     + _against_cmaes(table, reference, noise_levels))
+    nothing = _against_nothing(table, trained, noise_levels)
     if nothing:
         lines.append(nothing)
     if bias is not None and len(bias):
-        lines.append(_bias_words(bias, table, levels))
-    best = {level: min((row["mean_m"], row["method"]) for _, row in table[table["level"] == level].iterrows())
-            for level in levels}
+        lines.append(_bias_words(bias, table, noise_levels))
+    best = {noise_level: min((row["mean_m"], row["method"]) for _, row in table[table["noise_level"] == noise_level].iterrows())
+            for noise_level in noise_levels}
     lines.append("- **Closest at each level** (mean over runs): " + "; ".join(
-        f"level {level}: {method_label(method)} ({1e3 * mean:.1f}e-3 m)" for level, (mean, method) in best.items())
+        f"level {noise_level}: {method_label(method)} ({1e3 * mean:.1f}e-3 m)" for noise_level, (mean, method) in best.items())
         + ".")
     return "\n".join(lines) + "\n"
 
 
-def _paired_lines(table: pd.DataFrame, reference: str, trained: Sequence[str], levels: Sequence[int]) -> list[str]:
+def _paired_lines(table: pd.DataFrame, reference: str, trained: Sequence[str], noise_levels: Sequence[int]) -> list[str]:
     """One line per network paired with the reference: its difference per level with spread, and the ranking."""
     lines = []
     for other in (loss for loss in (*IMAGE_LOSSES, "supervised") if loss in trained):
         numbers = "; ".join(
-            f"level {level}: {1e3 * row['diff_m']:+.1f}e-3 m (sd {1e3 * row['diff_sd_m']:.1f}, "
+            f"level {noise_level}: {1e3 * row['diff_m']:+.1f}e-3 m (sd {1e3 * row['diff_sd_m']:.1f}, "
             f"{1e3 * row['diff_min_m']:+.1f} to {1e3 * row['diff_max_m']:+.1f})"
-            for level in levels if (row := _at(table, level, f"net:{other}")) is not None)
-        words, _ = paired_words(table, other, levels)
+            for noise_level in noise_levels if (row := _at(table, noise_level, f"net:{other}")) is not None)
+        words, _ = paired_words(table, other, noise_levels)
         lines.append(f"- **{LOSS_LABELS[reference]} paired with {LOSS_LABELS[other]}** (the {LOSS_LABELS[other]} "
                      f"network's mean distance minus the SDM-trained network's, per run: positive, the SDM-trained one "
                      f"is closer): {numbers}. The SDM-trained network is {words}.")
     if "silhouette" in trained:
-        _, found = paired_words(table, "silhouette", levels)
+        _, found = paired_words(table, "silhouette", noise_levels)
         met = all(word == "closer" for word in found.values())
         lines.append(f"- **The SDM-trained network ahead of the silhouette-trained one beyond the runs' spread at "
                      f"every noise level**: {'met' if met else 'missed'}.")
     return lines
 
 
-def _against_supervised(table: pd.DataFrame, loss: str, levels: Sequence[int]) -> str:
-    if _at(table, levels[0], "net:supervised") is None:
+def _against_supervised(table: pd.DataFrame, loss: str, noise_levels: Sequence[int]) -> str:
+    if _at(table, noise_levels[0], "net:supervised") is None:
         return "no supervised network in this run."
     parts, met = [], []
-    for level in levels:
-        ratio = float(_at(table, level, f"net:{loss}")["mean_m"] / _at(table, level, "net:supervised")["mean_m"])
-        parts.append(f"level {level}: {ratio:.2f}x supervised's mean")
-        if level in (0, 2):
+    for noise_level in noise_levels:
+        ratio = float(_at(table, noise_level, f"net:{loss}")["mean_m"] / _at(table, noise_level, "net:supervised")["mean_m"])
+        parts.append(f"level {noise_level}: {ratio:.2f}x supervised's mean")
+        if noise_level in (0, 2):
             met.append(ratio <= 2.0)
     verdict = ("within 2x of supervised regression at levels 0 and 2: " + ("met" if met and all(met) else "missed")
                if met else "levels 0 and 2 not run")
     return f"{'; '.join(parts)} ({verdict})."
 
 
-def _against_cmaes(table: pd.DataFrame, loss: str, levels: Sequence[int]) -> str:
+def _against_cmaes(table: pd.DataFrame, loss: str, noise_levels: Sequence[int]) -> str:
     parts, met = [], []
-    for level in levels:
-        mine, cma = _at(table, level, f"net+k:{loss}"), _at(table, level, "cmaes")
+    for noise_level in noise_levels:
+        mine, cma = _at(table, noise_level, f"net+k:{loss}"), _at(table, noise_level, "cmaes")
         if mine is None or cma is None:
             continue
         ratio = float(mine["mean_m"] / cma["mean_m"])
         speed = float(cma["cpu_ms"] / mine["cpu_ms"]) if mine["cpu_ms"] > 0 else math.inf
         pays = (f"cheaper than CMA-ES from {mine['pays_off']:.0f} configurations on, its training included"
                 if np.isfinite(mine["pays_off"]) else "never cheaper than CMA-ES")
-        parts.append(f"level {level}: {ratio:.2f}x CMA-ES's mean at 1/{speed:.0f} of its CPU time per "
+        parts.append(f"level {noise_level}: {ratio:.2f}x CMA-ES's mean at 1/{speed:.0f} of its CPU time per "
                      f"configuration, {pays}")
         met.append(ratio <= 2.0 and speed >= 100)
     if not parts:
@@ -300,33 +300,33 @@ def _against_cmaes(table: pd.DataFrame, loss: str, levels: Sequence[int]) -> str
             f"{'met' if all(met) else 'missed'}).")
 
 
-def _against_nothing(table: pd.DataFrame, trained: Sequence[str], levels: Sequence[int]) -> str:
+def _against_nothing(table: pd.DataFrame, trained: Sequence[str], noise_levels: Sequence[int]) -> str:
     """Every network against doing nothing (the training set's mean theta*, else theta*'s mean), per level."""
     parts = []
-    for level in levels:
-        nothing = _at(table, level, "train_mean")
-        nothing = nothing if nothing is not None else _at(table, level, "prior")
+    for noise_level in noise_levels:
+        nothing = _at(table, noise_level, "train_mean")
+        nothing = nothing if nothing is not None else _at(table, noise_level, "prior")
         if nothing is None:
             continue
-        ratios = [float(_at(table, level, f"net:{loss}")["mean_m"] / nothing["mean_m"]) for loss in trained]
+        ratios = [float(_at(table, noise_level, f"net:{loss}")["mean_m"] / nothing["mean_m"]) for loss in trained]
         if ratios:
-            parts.append(f"level {level}: {1e3 * nothing['mean_m']:.1f}e-3 m ({method_label(nothing['method'])}), "
+            parts.append(f"level {noise_level}: {1e3 * nothing['mean_m']:.1f}e-3 m ({method_label(nothing['method'])}), "
                          f"the networks at {min(ratios):.2f}-{max(ratios):.2f}x of it")
     return ("- **Doing nothing** (one shift for every configuration): " + "; ".join(parts) + ".") if parts else ""
 
 
-def _bias_words(bias: pd.DataFrame, table: pd.DataFrame, levels: Sequence[int]) -> str:
+def _bias_words(bias: pd.DataFrame, table: pd.DataFrame, noise_levels: Sequence[int]) -> str:
     """Where each loss's mean gradient vanishes (the offset a network trained with it settles at), and the trained
     networks' own mean error, per level."""
     parts = []
     for loss, rows in bias.groupby("loss", sort=False):
-        offsets = ", ".join(f"{1e3 * row.offset_m:.1f}" for row in rows.sort_values("level").itertuples())
-        observed = [_at(table, level, f"net:{loss}") for level in sorted(rows["level"])]
+        offsets = ", ".join(f"{1e3 * row.offset_m:.1f}" for row in rows.sort_values("noise_level").itertuples())
+        observed = [_at(table, noise_level, f"net:{loss}") for noise_level in sorted(rows["noise_level"])]
         seen = ", ".join(f"{1e3 * row['offset_m']:.1f}" for row in observed if row is not None)
         parts.append(f"{LOSS_LABELS[loss]}: {offsets}e-3 m" + (f" (its networks' mean error: {seen}e-3 m)"
                                                                if seen else ""))
     return ("- **Where each label-free loss's gradient vanishes** (its mean over the test configurations at zoom 0: "
-            f"-bias / stiffness from theta*, at {_levels_words(sorted(bias['level'].unique()))}; a network trained "
+            f"-bias / stiffness from theta*, at {_levels_words(sorted(bias['noise_level'].unique()))}; a network trained "
             "with the loss settles about there; beside it, the norm of the trained networks' mean error): "
             + "; ".join(parts) + ".")
 
@@ -359,30 +359,30 @@ def verdict_facts(table: pd.DataFrame) -> dict:
     runs' spread, and the network + k SDM steps against CMA-ES (the ratio of means, CMA-ES's CPU time over its
     own, and the configurations from which its training pays off). ``loss`` None where no network was trained
     through SDM."""
-    levels = sorted(int(level) for level in set(table["level"]))
+    noise_levels = sorted(int(noise_level) for noise_level in set(table["noise_level"]))
     loss = paired_with(trained_losses(table))
     if loss is None:
         return {"loss": None, "levels": []}
 
-    def ratio(level: int, method: str, other: str) -> float | None:
-        mine, theirs = _at(table, level, method), _at(table, level, other)
+    def ratio(noise_level: int, method: str, other: str) -> float | None:
+        mine, theirs = _at(table, noise_level, method), _at(table, noise_level, other)
         return None if mine is None or theirs is None else float(mine["mean_m"] / theirs["mean_m"])
 
     rows = []
-    for level in levels:
-        mine = _at(table, level, f"net:{loss}")
-        rankings = {other: ranking(_at(table, level, f"net:{other}")) for other in IMAGE_LOSSES
-                    if _at(table, level, f"net:{other}") is not None}
-        refined, search = _at(table, level, f"net+k:{loss}"), _at(table, level, "cmaes")
-        nothing = ratio(level, f"net:{loss}", "train_mean")
+    for noise_level in noise_levels:
+        mine = _at(table, noise_level, f"net:{loss}")
+        rankings = {other: ranking(_at(table, noise_level, f"net:{other}")) for other in IMAGE_LOSSES
+                    if _at(table, noise_level, f"net:{other}") is not None}
+        refined, search = _at(table, noise_level, f"net+k:{loss}"), _at(table, noise_level, "cmaes")
+        nothing = ratio(noise_level, f"net:{loss}", "train_mean")
         pays = float(refined["pays_off"]) if refined is not None else math.nan
         rows.append({
-            "level": level, "mm": 1e3 * float(mine["mean_m"]),
-            "to_supervised": ratio(level, f"net:{loss}", "net:supervised"),
-            "to_nothing": nothing if nothing is not None else ratio(level, f"net:{loss}", "prior"),
+            "noise_level": noise_level, "mm": 1e3 * float(mine["mean_m"]),
+            "to_supervised": ratio(noise_level, f"net:{loss}", "net:supervised"),
+            "to_nothing": nothing if nothing is not None else ratio(noise_level, f"net:{loss}", "prior"),
             "paired": rankings,
             "beats_image_losses": bool(rankings) and all(word == "closer" for word in rankings.values()),
-            "refined_to_search": ratio(level, f"net+k:{loss}", "cmaes"),
+            "refined_to_search": ratio(noise_level, f"net+k:{loss}", "cmaes"),
             "search_cpu_ratio": (float(search["cpu_ms"] / refined["cpu_ms"])
                                  if refined is not None and search is not None else None),
             "pays_off_configs": pays if math.isfinite(pays) else None,

@@ -40,9 +40,9 @@ UNIT = {"shared": "the shared shift", "configuration": "a configuration's shift"
         "camera+car": "a car's camera + residual"}
 
 TABLE6_FORMAT = TableFormat(
-    columns=("scale", "sharing", "level", "method", "units", "hidden", "mean", "median", "q3", "start", "of_start",
+    columns=("scale", "sharing", "noise_level", "method", "units", "hidden", "mean", "median", "q3", "start", "of_start",
              "closer", "gated", "gated_of_start", "extent_a", "extent_b", "cpu_ms"),
-    headers={"scale": "screen scale", "sharing": "sharing", "level": "noise level", "method": "method",
+    headers={"scale": "screen scale", "sharing": "sharing", "noise_level": "noise level", "method": "method",
              "units": "units scored", "hidden": "hidden cars", "mean": "mean", "median": "median", "q3": "Q3",
              "start": "its start's mean", "of_start": "x start", "closer": "closer than start",
              "gated": "mean, gated", "gated_of_start": "x start, gated",
@@ -94,11 +94,11 @@ def table6(run_frames: Sequence[pd.DataFrame], table2_distances: pd.DataFrame | 
         frame = frame.assign(scale=1)
     scales = list(dict.fromkeys(int(v) for v in frame["scale"])) if len(frame) else []
     if table2_distances is not None and len(table2_distances):
-        for level, group in table2_distances.groupby("level", sort=True):
+        for noise_level, group in table2_distances.groupby("noise_level", sort=True):
             d = group["distance"].to_numpy(dtype=float)
-            rows.append(_row(1, "shared", int(level), "sdm_paper", d, 0, math.nan))
+            rows.append(_row(1, "shared", int(noise_level), "sdm_paper", d, 0, math.nan))
         scales = scales if 1 in scales else scales + [1]
-    for (scale, sharing, level), group in (frame.groupby(["scale", "sharing", "level"], sort=False)
+    for (scale, sharing, noise_level), group in (frame.groupby(["scale", "sharing", "noise_level"], sort=False)
                                            if len(frame) else []):
         hidden = int(group.loc[group["method"] == "hidden", "unit"].sum())
         sets = group[group["method"] == EXACT_SET]
@@ -109,22 +109,22 @@ def table6(run_frames: Sequence[pd.DataFrame], table2_distances: pd.DataFrame | 
             if len(own):
                 per_run = own.groupby("run")["cpu_s"].first()
                 gated = own["gated"].to_numpy(dtype=float) if "gated" in own.columns else None
-                rows.append(_row(int(scale), sharing, int(level), method, own["distance"].to_numpy(dtype=float),
+                rows.append(_row(int(scale), sharing, int(noise_level), method, own["distance"].to_numpy(dtype=float),
                                  hidden, 1000 * float(per_run.mean()), own["start"].to_numpy(dtype=float), extent,
                                  gated))
-    table = pd.DataFrame(rows, columns=["scale", "sharing", "level", "method", "units", "hidden", "mean_m", "median_m",
+    table = pd.DataFrame(rows, columns=["scale", "sharing", "noise_level", "method", "units", "hidden", "mean_m", "median_m",
                                         "q3_m", "start_m", "of_start", "closer", "gated_m", "gated_median_m",
                                         "gated_of_start", "gated_closer", "extent_a_m", "extent_b_m", "cpu_ms"])
     order = {name: i for i, name in enumerate(SHARING_ORDER)}
     methods = {name: i for i, name in enumerate(ROWS)}
     screens = {scale: i for i, scale in enumerate(scales)}
     keys = {"scale": screens, "sharing": order, "method": methods}
-    return table.sort_values(["scale", "sharing", "level", "method"],
+    return table.sort_values(["scale", "sharing", "noise_level", "method"],
                              key=lambda c: c.map(keys[c.name]) if c.name in keys else c,
                              kind="stable").reset_index(drop=True)
 
 
-def _row(scale, sharing, level, method, distances: np.ndarray, hidden: int, cpu_ms: float,
+def _row(scale, sharing, noise_level, method, distances: np.ndarray, hidden: int, cpu_ms: float,
          start: np.ndarray | None = None, extent: tuple[float, float] = (math.nan, math.nan),
          gated: np.ndarray | None = None) -> dict:
     """One row; ``start``: the distances of the method's start on the same units (paired), or None (Table 2's);
@@ -136,7 +136,7 @@ def _row(scale, sharing, level, method, distances: np.ndarray, hidden: int, cpu_
             "gated_median_m": float(np.median(gated)) if scored else nan,
             "gated_of_start": float(gated.mean() / start.mean()) if scored else nan,
             "gated_closer": float((gated < start).mean()) if scored else nan,
-            "scale": scale, "sharing": sharing, "level": level, "method": method, "units": int(distances.size),
+            "scale": scale, "sharing": sharing, "noise_level": noise_level, "method": method, "units": int(distances.size),
             "hidden": hidden, "mean_m": float(distances.mean()), "median_m": float(np.median(distances)),
             "q3_m": float(np.quantile(distances, 0.75)),
             "start_m": float(start.mean()) if start is not None and start.size else math.nan,
@@ -185,7 +185,7 @@ def against_start(table: pd.DataFrame, sharing: str, scale: int = 1, gated: bool
     mean, of_start, closer = ("gated_m", "gated_of_start", "gated_closer") if gated else ("mean_m", "of_start",
                                                                                         "closer")
     out = []
-    for level, group in _of_scale(table, scale, sharing).groupby("level", sort=True):
+    for noise_level, group in _of_scale(table, scale, sharing).groupby("noise_level", sort=True):
         by = group.set_index("method")
         if mean not in by.columns:
             continue
@@ -195,7 +195,7 @@ def against_start(table: pd.DataFrame, sharing: str, scale: int = 1, gated: bool
         best = min(rules, key=lambda m: by.loc[m, mean])
         peers = [m for m in PEERS if m in by.index and not math.isnan(by.loc[m, mean])]
         peer = min(peers, key=lambda m: by.loc[m, mean]) if peers else None
-        row = {"level": int(level), "rule": best, "gated": gated, "removed": 1 - float(by.loc[best, of_start]),
+        row = {"noise_level": int(noise_level), "rule": best, "gated": gated, "removed": 1 - float(by.loc[best, of_start]),
                "closer": float(by.loc[best, closer]), "start_m": float(by.loc[best, "start_m"]),
                "prior_m": float(by.loc["prior", "mean_m"]) if "prior" in by.index else math.nan,
                "extent": (float(by.loc[best, "extent_a_m"]), float(by.loc[best, "extent_b_m"]))
@@ -211,7 +211,7 @@ def against_start(table: pd.DataFrame, sharing: str, scale: int = 1, gated: bool
 
 def _removed_words(row: dict) -> str:
     """One level in words: the share of the start's error SDM removes, the best peer's, the CPU ratio."""
-    words = (f"level {row['level']}: {LABELS[row['rule']]} removes {100 * row['removed']:.0f} % of its start's "
+    words = (f"level {row['noise_level']}: {LABELS[row['rule']]} removes {100 * row['removed']:.0f} % of its start's "
              f"error ({100 * row['closer']:.0f} % of units end closer)")
     if row["peer"] is not None:
         removed = (f"{100 * row['peer_removed']:.0f} %" if row["peer_removed"] >= 0 else
@@ -238,7 +238,7 @@ def verdict_facts(table: pd.DataFrame) -> dict:
                 for row in compared:
                     peer, gate = row["peer"], " with the prior gate" if row["gated"] else ""
                     rows.append({"scale": int(scale), "screen": [128 * int(scale), 256 * int(scale)],
-                                 "sharing": sharing, "level": row["level"], "rule": row["rule"],
+                                 "sharing": sharing, "noise_level": row["noise_level"], "rule": row["rule"],
                                  "gated": row["gated"], "rule_label": LABELS[row["rule"]] + gate,
                                  "removed": row["removed"], "closer": row["closer"], "peer": peer,
                                  "peer_label": LABELS[peer] + gate if peer else None,
@@ -287,7 +287,7 @@ def tail_words(run_frames: Sequence[pd.DataFrame], scale: int, method: str = "sd
     if column not in rows.columns:
         return []
     lines = []
-    for level, own in rows.groupby("level", sort=True):
+    for noise_level, own in rows.groupby("noise_level", sort=True):
         total = float(own[column].sum())
         if not total > 0:
             continue
@@ -298,7 +298,7 @@ def tail_words(run_frames: Sequence[pd.DataFrame], scale: int, method: str = "sd
         top_share = float(cars.sum().loc[top].sum()) / total
         name = LABELS[method].removeprefix("SDM, ") + (" with the prior gate" if gated else "")
         words = (
-            f"- Car level, noise {int(level)}, {name}, where the mean comes from: {own['run'].nunique()} runs of the "
+            f"- Car level, noise {int(noise_level)}, {name}, where the mean comes from: {own['run'].nunique()} runs of the "
             f"same {own['config'].nunique()} configurations ({cars.ngroups} cars, each run with its own theta* and "
             f"start); {100 * far.mean():.0f} % of the cars' runs end farther than {FAR_M:g} m from theta* and make "
             f"{100 * own.loc[far, column].sum() / total:.0f} % of the summed distance; the {len(top)} cars with the "
@@ -345,30 +345,30 @@ def _bars(table: pd.DataFrame, scale: int) -> list[str]:
     are and every method with the prior gate)."""
     own = table[table["scale"] == scale] if "scale" in table.columns else table
     lines = []
-    car = own[own["sharing"] == "car"].set_index(["level", "method"])
-    for (level, bar), gated in itertools.product(((0, 0.2), (2, 0.5)), (False, True)):
-        if (level, "sdm_schedule") not in car.index:
+    car = own[own["sharing"] == "car"].set_index(["noise_level", "method"])
+    for (noise_level, bar), gated in itertools.product(((0, 0.2), (2, 0.5)), (False, True)):
+        if (noise_level, "sdm_schedule") not in car.index:
             continue
-        row = car.loc[(level, "sdm_schedule")]
-        start = car.loc[(level, "start")] if (level, "start") in car.index else None
+        row = car.loc[(noise_level, "sdm_schedule")]
+        start = car.loc[(noise_level, "start")] if (noise_level, "start") in car.index else None
         mean, median, of_start, closer = (row[f"{'gated_' if gated else ''}{key}"]
                                           for key in ("m" if gated else "mean_m", "median_m", "of_start", "closer"))
         if math.isnan(of_start):
             continue
-        moon = f"; moonshot at most 0.1x: {bar_word(of_start <= 0.1)}" if level == 0 else ""
+        moon = f"; moonshot at most 0.1x: {bar_word(of_start <= 0.1)}" if noise_level == 0 else ""
         start_median = f" against the shared start's {1e3 * start['median_m']:.1f}e-3 m" if start is not None else ""
         name = "the recommended schedule" + (" with the prior gate" if gated else "")
-        lines.append(f"- Car level, noise {level}: {name} ends at {of_start:.2f}x its start's mean distance "
+        lines.append(f"- Car level, noise {noise_level}: {name} ends at {of_start:.2f}x its start's mean distance "
                      f"({1e3 * mean:.1f} against {1e3 * row['start_m']:.1f}e-3 m); at most {bar}x: "
                      f"{bar_word(of_start <= bar)}{moon}. Its median is {1e3 * median:.1f}e-3 m{start_median}; "
                      f"{100 * (1 - closer):.0f} % of the cars end no closer than their start.")
-    floors = own[(own["method"] == "floor") & (own["level"] == 0)]
+    floors = own[(own["method"] == "floor") & (own["noise_level"] == 0)]
     if len(floors):
         worst = floors.loc[floors["of_start"].idxmax()]
         lines.append(f"- The floor without noise: at most {worst['of_start']:.3f}x the start's error over the "
                      f"sharing levels (worst: {worst['sharing']}); at most 0.05x: "
                      f"{bar_word(worst['of_start'] <= 0.05)}.")
-    noise_free = own[(own["level"] == 0) & own["method"].isin(METHODS)]
+    noise_free = own[(own["noise_level"] == 0) & own["method"].isin(METHODS)]
     if len(noise_free):
         worse = noise_free[noise_free["of_start"] > 1]
         lines.append("- Without noise, every method ends closer than its start on average." if not len(worse) else
@@ -381,11 +381,11 @@ def _bars(table: pd.DataFrame, scale: int) -> list[str]:
                 continue
             which = "with the prior gate on every method, " if gated else ""
             if row["peer_removed"] < 0:
-                lines.append(f"- Car level, noise {row['level']}, {which}the best peer ({LABELS[row['peer']]}) ends "
+                lines.append(f"- Car level, noise {row['noise_level']}, {which}the best peer ({LABELS[row['peer']]}) ends "
                              "farther than its start: no ratio to it is a comparison.")
                 continue
             within, cheap = row["ratio"] <= 1.5, row["speed"] >= 10
-            lines.append(f"- Car level, noise {row['level']}, {which}SDM's mean is {row['ratio']:.2f}x the best "
+            lines.append(f"- Car level, noise {row['noise_level']}, {which}SDM's mean is {row['ratio']:.2f}x the best "
                          f"peer's ({LABELS[row['peer']]}) at 1/{row['speed']:.0f} of its CPU time; within 1.5x at no "
                          f"more than 1/10 of its time: {bar_word(within and cheap)}.")
     return lines
@@ -402,10 +402,10 @@ def plot_table6(table: pd.DataFrame, path: str | Path) -> Path:
     for ax, (scale, sharing) in zip(axes[0], panels):
         rows = _of_scale(table, scale, sharing)
         for index, method in enumerate(ROWS):
-            own = rows[rows["method"] == method].sort_values("level")
+            own = rows[rows["method"] == method].sort_values("noise_level")
             if len(own):
                 reference = method in REFERENCES or method == EXACT_SET
-                ax.plot(own["level"], 1e3 * own["mean_m"], marker="." if reference else "o",
+                ax.plot(own["noise_level"], 1e3 * own["mean_m"], marker="." if reference else "o",
                         linestyle=":" if reference else "-",
                         color={"prior": "grey", "start": "black"}.get(method, f"C{index % 10}"),
                         label=LABELS[method])

@@ -44,18 +44,18 @@ class Check:
 def checks(table1: pd.DataFrame, table2: pd.DataFrame) -> list[Check]:
     """The acceptance criteria on the measured tables (Table 2 in 1e-3 m)."""
     result = []
-    by_level = table2.set_index("level")
+    by_level = table2.set_index("noise_level")
     if 0 in by_level.index:
         mean0 = float(by_level.loc[0, "mean"])
         result.append(Check("Table 2, level 0: mean distance", f"{mean0:.3f}e-3 m",
                             f"<= {NOISE_FREE_MAX:g}e-3 m (paper {paper.TABLE2[0]['mean']:.3f})",
                             mean0 <= NOISE_FREE_MAX))
     low, high = NOISY_RATIO
-    for level, row in by_level.iterrows():
-        if level == 0 or int(level) not in paper.TABLE2:
+    for noise_level, row in by_level.iterrows():
+        if noise_level == 0 or int(noise_level) not in paper.TABLE2:
             continue
         ratio = float(row["mean_ratio"])
-        result.append(Check(f"Table 2, level {level}: mean / paper's", f"{row['mean']:.3f}e-3 m = {ratio:.2f}x",
+        result.append(Check(f"Table 2, level {noise_level}: mean / paper's", f"{row['mean']:.3f}e-3 m = {ratio:.2f}x",
                             f"{low:g}x to {high:g}x of {row['paper_mean']:.3f}e-3 m", low <= ratio <= high))
     best = table1[table1["best"]].iloc[0]
     best_n, best_lr = paper.TABLE1_BEST
@@ -167,12 +167,12 @@ def _table2_section(table2, distances, sky_stats, theta_star) -> list[str]:
     lines += ["Ratios ours / paper:", "", "| level | mean | std | Q1 | Q2 | Q3 | Avg. Dist. |", "|---:|---:|---:|---:|---:|---:|---:|"]
     for row in table2.itertuples():
         cells = [_ratio(getattr(row, s), getattr(row, f"paper_{s}")) for s in ("mean", "std", "q1", "q2", "q3")]
-        avg = _ratio(row.avg_dist_mm, row.paper_avg_dist_mm) if row.level else "-"
-        lines.append(f"| {row.level} | " + " | ".join(cells) + f" | {avg} |")
+        avg = _ratio(row.avg_dist_mm, row.paper_avg_dist_mm) if row.noise_level else "-"
+        lines.append(f"| {row.noise_level} | " + " | ".join(cells) + f" | {avg} |")
     lines += ["", "Where the error lies (mean of a~ - a* and b~ - b* over the runs, 1e-3 m):", "",
               "| level | mean a~ - a* | mean b~ - b* | bias length / mean distance |", "|---:|---:|---:|---:|"]
-    for level, bias_a, bias_b, share in _biases(distances, theta_star):
-        lines.append(f"| {level} | {bias_a:+.3f} | {bias_b:+.3f} | {share:.2f} |")
+    for noise_level, bias_a, bias_b, share in _biases(distances, theta_star):
+        lines.append(f"| {noise_level} | {bias_a:+.3f} | {bias_b:+.3f} | {share:.2f} |")
     lines.append("")
     return lines
 
@@ -191,15 +191,15 @@ def _flow_section(flow: pd.DataFrame) -> list[str]:
         "| noise level | " + " | ".join(f"zoom {z}: (a, b) flow, unmatched" for z in zooms) + " |",
         "|---:|" + "---|" * len(zooms),
     ]
-    for level, group in flow.groupby("level", sort=True):
+    for noise_level, group in flow.groupby("noise_level", sort=True):
         cells = []
         for zoom in zooms:
             row = group[group["zoom"] == zoom].iloc[0]
             cells.append(f"({row['flow_a']:+.2f}, {row['flow_b']:+.2f}), {100 * row['unmatched']:.1f}%")
-        lines.append(f"| {level} | " + " | ".join(cells) + " |")
+        lines.append(f"| {noise_level} | " + " | ".join(cells) + " |")
     finest = flow[flow["zoom"] == min(zooms)]
-    noisy = finest[finest["level"] > 0]
-    noise_free = finest[finest["level"] == 0]
+    noisy = finest[finest["noise_level"] > 0]
+    noise_free = finest[finest["noise_level"] == 0]
     if len(noisy):
         lines += [
             "",
@@ -215,11 +215,11 @@ def _flow_section(flow: pd.DataFrame) -> list[str]:
 
 def _biases(distances: pd.DataFrame, theta_star) -> list[tuple[int, float, float, float]]:
     rows = []
-    for level, group in distances.groupby("level", sort=True):
+    for noise_level, group in distances.groupby("noise_level", sort=True):
         bias_a = 1000 * float((group["a"] - theta_star[0]).mean())
         bias_b = 1000 * float((group["b"] - theta_star[1]).mean())
         mean = 1000 * float(group["distance"].mean())
-        rows.append((int(level), bias_a, bias_b, math.hypot(bias_a, bias_b) / mean if mean else math.nan))
+        rows.append((int(noise_level), bias_a, bias_b, math.hypot(bias_a, bias_b) / mean if mean else math.nan))
     return rows
 
 
@@ -227,8 +227,8 @@ def _gaps_section(results: Sequence[Check], table1, table2, distances, sky_stats
                   theta_star) -> list[str]:
     """The report's "Gaps and their reasons": one bullet for each number outside its criterion, with its reason."""
     lines = ["## Gaps and their reasons", ""]
-    biases = {level: (a, b, share) for level, a, b, share in _biases(distances, theta_star)}
-    by_level = table2.set_index("level")
+    biases = {noise_level: (a, b, share) for noise_level, a, b, share in _biases(distances, theta_star)}
+    by_level = table2.set_index("noise_level")
     failed = {c.name for c in results if not c.passed}
     best = table1[table1["best"]].iloc[0]
     lines += _depth_gap(sky_stats)
@@ -290,8 +290,8 @@ def _noisy_gaps(failed, by_level, biases, best, data_summary, sky_stats) -> list
     lines = []
     noisy = [int(name.split("level ")[1].split(":")[0]) for name in sorted(failed) if name.startswith("Table 2, level")
              and not name.startswith("Table 2, level 0")]
-    all_noisy = [int(level) for level in by_level.index if level != 0 and int(level) in paper.TABLE2]
-    ratios = [float(by_level.loc[level, "mean_ratio"]) for level in all_noisy]
+    all_noisy = [int(noise_level) for noise_level in by_level.index if noise_level != 0 and int(noise_level) in paper.TABLE2]
+    ratios = [float(by_level.loc[noise_level, "mean_ratio"]) for noise_level in all_noisy]
     one_sided = bool(ratios) and (min(ratios) > 1.25 or max(ratios) < 0.8)
     if not noisy and one_sided:
         noisy = all_noisy
@@ -303,15 +303,15 @@ def _noisy_gaps(failed, by_level, biases, best, data_summary, sky_stats) -> list
     elif noisy:
         lines.append("- **Noisy levels outside 0.5x-2x of the paper's mean**:")
     if noisy:
-        for level in noisy:
-            row = by_level.loc[level]
-            a, b, share = biases.get(level, (math.nan, math.nan, math.nan))
+        for noise_level in noisy:
+            row = by_level.loc[noise_level]
+            a, b, share = biases.get(noise_level, (math.nan, math.nan, math.nan))
             lines.append(
-                f"  - level {level}: {row['mean']:.3f}e-3 m = {row['mean_ratio']:.2f}x the paper's "
+                f"  - level {noise_level}: {row['mean']:.3f}e-3 m = {row['mean_ratio']:.2f}x the paper's "
                 f"{row['paper_mean']:.3f}e-3 m (std {row['std']:.3f} against {row['paper_std']:.3f}); the runs end on "
                 f"average ({a:+.3f}, {b:+.3f})e-3 m from theta*, a bias that makes up {share:.2f} of the mean distance."
             )
-        directions = {(bool(biases[level][0] > 0), bool(biases[level][1] > 0)) for level in noisy}
+        directions = {(bool(biases[noise_level][0] > 0), bool(biases[noise_level][1] > 0)) for noise_level in noisy}
         signs = ", ".join(f"a~ {'above' if a else 'below'} a* and b~ {'above' if b else 'below'} b*" for a, b in directions)
         lines.append(
             f"  Reason: the noisy estimates are pulled to one side ({signs}), not scattered around theta*, so the "
@@ -385,8 +385,8 @@ def _table1_values_gap(table1) -> list[str]:
     return lines
 
 
-def _range(by_level: pd.DataFrame, levels: Sequence[int], stat: str) -> str:
-    ratios = [float(by_level.loc[level, stat]) / float(by_level.loc[level, f"paper_{stat}"]) for level in levels]
+def _range(by_level: pd.DataFrame, noise_levels: Sequence[int], stat: str) -> str:
+    ratios = [float(by_level.loc[noise_level, stat]) / float(by_level.loc[noise_level, f"paper_{stat}"]) for noise_level in noise_levels]
     return f"{min(ratios):.2f}x" if len(ratios) == 1 else f"{min(ratios):.2f}x to {max(ratios):.2f}x"
 
 

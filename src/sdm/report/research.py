@@ -23,7 +23,7 @@ from .io import read_csv
 from .tables import TableFormat, in_millimetres, require_columns, write_table
 
 #: Per-run columns Table 4 needs (``sdm.experiments.rule_noise_runs``; Table 2's runs have no ``rule``).
-RULE_RUN_COLUMNS = ("rule", "level", "run", "distance")
+RULE_RUN_COLUMNS = ("rule", "noise_level", "run", "distance")
 
 #: Table 4's rows that are not gradient rules: the best black-box search (Table 3's CMA-ES runs) and the
 #: floor (the exact-mismatch minimiser of each run, :mod:`sdm.baselines.floor`), on their own paired runs.
@@ -39,19 +39,19 @@ def reference_rows(baseline_runs: pd.DataFrame | None, floor_runs: pd.DataFrame 
     parts = []
     if baseline_runs is not None and "cmaes" in set(baseline_runs.get("method", ())):
         cmaes = baseline_runs[baseline_runs["method"] == "cmaes"]
-        parts.append(cmaes[["level", "run", "distance"]].assign(rule=CMAES_ROW))
+        parts.append(cmaes[["noise_level", "run", "distance"]].assign(rule=CMAES_ROW))
     if floor_runs is not None and len(floor_runs):
-        parts.append(floor_runs[["level", "run", "distance"]].assign(rule=FLOOR_ROW))
+        parts.append(floor_runs[["noise_level", "run", "distance"]].assign(rule=FLOOR_ROW))
     if not parts:
         return pd.DataFrame(columns=list(RULE_RUN_COLUMNS))
     return pd.concat(parts, ignore_index=True)[list(RULE_RUN_COLUMNS)]
-def half_paper_mean_m(level: int) -> float:
+def half_paper_mean_m(noise_level: int) -> float:
     """The bar "half the paper's mean" on a rule's mean distance at ``level`` (metres): half the paper's published
     Table 2 mean at a noisy level, the paper's own mean noise-free; NaN where the paper has no level."""
-    published = paper.TABLE2.get(int(level))
+    published = paper.TABLE2.get(int(noise_level))
     if published is None:
         return math.nan
-    return 1e-3 * published["mean"] * (1.0 if int(level) == 0 else 0.5)
+    return 1e-3 * published["mean"] * (1.0 if int(noise_level) == 0 else 0.5)
 
 
 def run_stats(values: np.ndarray) -> dict[str, float]:
@@ -96,19 +96,19 @@ def table4_frame(rule_runs: pd.DataFrame, table2_runs: pd.DataFrame,
         ``ratio_to_cmaes`` and ``within_2x_cmaes`` (ratio at most :data:`CMAES_FACTOR`).
     """
     require_columns(rule_runs, RULE_RUN_COLUMNS, "Table 4 rule runs", runs=True)
-    require_columns(table2_runs, ("level", "run", "distance"), "Table 2 runs", runs=True)
-    reference = table2_runs.set_index(["level", "run"])["distance"]
-    search = cmaes_runs.set_index(["level", "run"])["distance"] if cmaes_runs is not None and len(cmaes_runs) else None
+    require_columns(table2_runs, ("noise_level", "run", "distance"), "Table 2 runs", runs=True)
+    reference = table2_runs.set_index(["noise_level", "run"])["distance"]
+    search = cmaes_runs.set_index(["noise_level", "run"])["distance"] if cmaes_runs is not None and len(cmaes_runs) else None
     rows = []
     for rule in pd.unique(rule_runs["rule"]):
-        for level, group in rule_runs[rule_runs["rule"] == rule].groupby("level", sort=True):
+        for noise_level, group in rule_runs[rule_runs["rule"] == rule].groupby("noise_level", sort=True):
             ours = run_stats(group["distance"].to_numpy(dtype=float))
-            pairs = pd.MultiIndex.from_arrays([group["level"], group["run"]])
+            pairs = pd.MultiIndex.from_arrays([group["noise_level"], group["run"]])
             paired = reference.reindex(pairs).dropna().to_numpy(dtype=float)
             theirs = run_stats(paired) if paired.size else dict.fromkeys(("mean_m", "std_m", "median_m"), math.nan)
-            published = paper.TABLE2.get(int(level), {})
-            bar = half_paper_mean_m(level)
-            row = {"rule": str(rule), "level": int(level), "runs": int(len(group)), **ours}
+            published = paper.TABLE2.get(int(noise_level), {})
+            bar = half_paper_mean_m(noise_level)
+            row = {"rule": str(rule), "noise_level": int(noise_level), "runs": int(len(group)), **ours}
             row |= {f"paper_rule_{key}": value for key, value in theirs.items()} | {"paper_rule_runs": int(paired.size)}
             row |= {f"published_{stat}_m": 1e-3 * published[key] if published else math.nan
                     for stat, key in (("mean", "mean"), ("std", "std"), ("median", "q2"))}
@@ -122,7 +122,7 @@ def table4_frame(rule_runs: pd.DataFrame, table2_runs: pd.DataFrame,
 
 def _against_cmaes(group: pd.DataFrame, search: pd.Series) -> dict:
     """The CMA-ES columns for one (row, level): the row's and CMA-ES's means over the runs both have."""
-    own = group.set_index(["level", "run"])["distance"]
+    own = group.set_index(["noise_level", "run"])["distance"]
     common = own.index.intersection(search.index)
     if not len(common):
         return {"cmaes_runs": 0, "on_cmaes_runs_mean_m": math.nan, "cmaes_mean_m": math.nan,
@@ -138,11 +138,11 @@ _TABLE4_DISTANCES = ("mean", "std", "median", "paper_rule_mean", "paper_rule_std
                      "cmaes_mean")
 
 TABLE4_FORMAT = TableFormat(
-    columns=("rule", "level", "runs", "mean", "std", "median", "paper_rule_mean", "paper_rule_std",
+    columns=("rule", "noise_level", "runs", "mean", "std", "median", "paper_rule_mean", "paper_rule_std",
              "paper_rule_median", "published_mean", "published_median", "bar", "meets_bar", "ratio_to_paper_rule",
              "cmaes_runs", "on_cmaes_runs_mean", "cmaes_mean", "ratio_to_cmaes"),
     headers={
-        "rule": "rule", "level": "noise level", "runs": "runs", "mean": "mean", "std": "std", "median": "median",
+        "rule": "rule", "noise_level": "noise level", "runs": "runs", "mean": "mean", "std": "std", "median": "median",
         "paper_rule_mean": "mean (paper's rule)", "paper_rule_std": "std (paper's rule)",
         "paper_rule_median": "median (paper's rule)", "published_mean": "mean (paper)",
         "published_median": "median (paper)", "bar": "bar", "meets_bar": "meets bar",
@@ -179,12 +179,12 @@ def table4_summary(frame: pd.DataFrame) -> str:
     lines = []
     rules = [rule for rule in pd.unique(frame["rule"]) if rule not in (CMAES_ROW, FLOOR_ROW)]
     for rule in rules:
-        rows = frame[frame["rule"] == rule].sort_values("level")
+        rows = frame[frame["rule"] == rule].sort_values("noise_level")
         judged = rows[rows["bar_m"].notna()]
         missed = judged[~judged["meets_bar"]]
         runs = ", ".join(sorted({str(int(r)) for r in rows["runs"]}))
         per_level = "; ".join(
-            f"level {int(row.level)}: {1e3 * row.mean_m:.3f} against {1e3 * row.paper_rule_mean_m:.3f} for the "
+            f"level {int(row.noise_level)}: {1e3 * row.mean_m:.3f} against {1e3 * row.paper_rule_mean_m:.3f} for the "
             f"paper's rule ({row.ratio_to_paper_rule:.2f}x), bar {1e3 * row.bar_m:.3f}"
             for row in rows.itertuples())
         if judged.empty:
@@ -193,17 +193,17 @@ def table4_summary(frame: pd.DataFrame) -> str:
             verdict = f"meets the bar (half the paper's mean) at every level run ({len(judged)} of {len(judged)})"
         else:
             verdict = ("misses the bar (half the paper's mean) at level "
-                       + ", ".join(str(int(v)) for v in missed["level"])
+                       + ", ".join(str(int(v)) for v in missed["noise_level"])
                        + f" and meets it at {len(judged) - len(missed)} of {len(judged)} levels")
         lines.append(f"- rule `{rule}` ({runs} runs per level) {verdict}. Mean distance (1e-3 m): {per_level}.")
         if "ratio_to_cmaes" in rows and (rows["cmaes_runs"] > 0).any():
             lines.append(_cmaes_verdict(rule, rows))
             lines += _refinement_reading(rule, rows, frame)
     for name in (CMAES_ROW, FLOOR_ROW):
-        rows = frame[frame["rule"] == name].sort_values("level")
+        rows = frame[frame["rule"] == name].sort_values("noise_level")
         if len(rows):
             runs = ", ".join(sorted({str(int(r)) for r in rows["runs"]}))
-            means = "; ".join(f"level {int(row.level)}: {1e3 * row.mean_m:.3f}" for row in rows.itertuples())
+            means = "; ".join(f"level {int(row.noise_level)}: {1e3 * row.mean_m:.3f}" for row in rows.itertuples())
             what = ("the best black-box search of Table 3, on the exact pixel mismatch" if name == CMAES_ROW else
                     "the best any method minimising CMA-ES's objective can reach on these runs")
             lines.append(f"- {name}, {what} ({runs} runs per level). Mean distance (1e-3 m): {means}.")
@@ -251,11 +251,11 @@ def _cmaes_verdict(rule: str, rows: pd.DataFrame) -> str:
         return (f"  Against CMA-ES on the same {runs} runs per level (bar: within {CMAES_FACTOR:g}x of CMA-ES's "
                 f"mean): met at every level ({len(judged)} of {len(judged)}).")
     worst = missed.loc[missed["ratio_to_cmaes"].idxmax()]
-    by_level = "; ".join(f"level {int(row.level)}: {1e3 * row.on_cmaes_runs_mean_m:.3f} against "
+    by_level = "; ".join(f"level {int(row.noise_level)}: {1e3 * row.on_cmaes_runs_mean_m:.3f} against "
                          f"{1e3 * row.cmaes_mean_m:.3f} ({row.ratio_to_cmaes:.1f}x)" for row in judged.itertuples())
     return (f"  Against CMA-ES on the same {runs} runs per level (bar: within {CMAES_FACTOR:g}x of CMA-ES's mean): "
-            f"missed at level {', '.join(str(int(v)) for v in missed['level'])}, met at {len(judged) - len(missed)} of "
-            f"{len(judged)}; the worst miss is level {int(worst['level'])}, {worst['ratio_to_cmaes']:.1f}x CMA-ES's "
+            f"missed at level {', '.join(str(int(v)) for v in missed['noise_level'])}, met at {len(judged) - len(missed)} of "
+            f"{len(judged)}; the worst miss is level {int(worst['noise_level'])}, {worst['ratio_to_cmaes']:.1f}x CMA-ES's "
             f"mean ({worst['ratio_to_cmaes'] / CMAES_FACTOR:.1f} times the bar). Mean distance (1e-3 m): {by_level}.")
 
 
@@ -265,17 +265,17 @@ def _refinement_reading(rule: str, rows: pd.DataFrame, frame: pd.DataFrame) -> l
     refinement takes it and CMA-ES's mean, so the share of the first rule's gap to CMA-ES that the refinement
     closes. No line where the schedule meets the bar or the table has no row of its first rule alone."""
     first, plus, refine = rule.partition("+")
-    alone = frame[frame["rule"] == first].set_index("level")
+    alone = frame[frame["rule"] == first].set_index("noise_level")
     missed = rows[(rows["cmaes_runs"] > 0) & ~rows["within_2x_cmaes"].astype(bool)]
     if not plus or missed.empty or alone.empty or "on_cmaes_runs_mean_m" not in alone:
         return []
     parts = []
     for row in missed.itertuples():
-        if row.level not in alone.index:
+        if row.noise_level not in alone.index:
             continue
-        start, cmaes = float(alone.loc[row.level, "on_cmaes_runs_mean_m"]), float(row.cmaes_mean_m)
+        start, cmaes = float(alone.loc[row.noise_level, "on_cmaes_runs_mean_m"]), float(row.cmaes_mean_m)
         closed = (start - row.on_cmaes_runs_mean_m) / (start - cmaes) if start > cmaes else math.nan
-        parts.append(f"level {int(row.level)}: `{first}` alone ends at {1e3 * start:.3f}, the refinement at "
+        parts.append(f"level {int(row.noise_level)}: `{first}` alone ends at {1e3 * start:.3f}, the refinement at "
                      f"{1e3 * row.on_cmaes_runs_mean_m:.3f}, CMA-ES {1e3 * cmaes:.3f} ({max(100 * closed, 0):.0f}% of "
                      f"the gap closed)")
     if not parts:
@@ -290,7 +290,7 @@ def _refinement_reading(rule: str, rows: pd.DataFrame, frame: pd.DataFrame) -> l
 
 
 #: Columns of the rules' fixed-point measurement (:func:`sdm.experiments.rule_bias`, plus ``rule``).
-BIAS_COLUMNS = ("rule", "level", "bias_a", "stiffness_a", "offset_a", "bias_b", "stiffness_b", "offset_b",
+BIAS_COLUMNS = ("rule", "noise_level", "bias_a", "stiffness_a", "offset_a", "bias_b", "stiffness_b", "offset_b",
                 "predicted_m")
 
 
@@ -301,12 +301,12 @@ def bias_summary(bias: pd.DataFrame, frame: pd.DataFrame) -> str:
     require_columns(bias, BIAS_COLUMNS, "the rules' bias", runs=True)
     lines = []
     for rule in pd.unique(bias["rule"]):
-        rows = bias[bias["rule"] == rule].sort_values("level")
-        mine = frame[frame["rule"] == rule].set_index("level")["mean_m"] if rule in set(frame["rule"]) else (
-            frame[~frame["rule"].isin((CMAES_ROW, FLOOR_ROW))].groupby("level")["paper_rule_mean_m"].first())
-        parts = [f"level {int(row.level)}: bias ({row.bias_a:.2f}, {row.bias_b:.2f}) per configuration, stiffness "
+        rows = bias[bias["rule"] == rule].sort_values("noise_level")
+        mine = frame[frame["rule"] == rule].set_index("noise_level")["mean_m"] if rule in set(frame["rule"]) else (
+            frame[~frame["rule"].isin((CMAES_ROW, FLOOR_ROW))].groupby("noise_level")["paper_rule_mean_m"].first())
+        parts = [f"level {int(row.noise_level)}: bias ({row.bias_a:.2f}, {row.bias_b:.2f}) per configuration, stiffness "
                  f"({row.stiffness_a:.0f}, {row.stiffness_b:.0f}) per metre, fixed point {1e3 * row.predicted_m:.3f} "
-                 f"from theta* against {1e3 * float(mine.get(row.level, math.nan)):.3f} measured"
+                 f"from theta* against {1e3 * float(mine.get(row.noise_level, math.nan)):.3f} measured"
                  for row in rows.itertuples()]
         lines.append(f"- rule `{rule}`, measured at the last level (zoom 0; run 0's draw; flow per configuration, "
                      f"distances 1e-3 m): " + "; ".join(parts) + ".")
@@ -329,26 +329,26 @@ def rules_against_baselines(rule_runs: pd.DataFrame, baseline_runs: pd.DataFrame
         same runs (1e-3 m), and how many baselines it beats; empty when no (level, run) is shared.
     """
     require_columns(rule_runs, RULE_RUN_COLUMNS, "Table 4's runs", runs=True)
-    require_columns(baseline_runs, ("method", "level", "run", "distance"), "Table 3's runs", runs=True)
+    require_columns(baseline_runs, ("method", "noise_level", "run", "distance"), "Table 3's runs", runs=True)
     lines = []
     for rule in pd.unique(rule_runs["rule"]):
         mine = rule_runs[rule_runs["rule"] == rule]
         parts, beaten_everywhere = [], True
-        for level in sorted(pd.unique(mine["level"])):
-            runs = set(mine.loc[mine["level"] == level, "run"])
-            others = baseline_runs[(baseline_runs["level"] == level) & baseline_runs["run"].isin(runs)]
+        for noise_level in sorted(pd.unique(mine["noise_level"])):
+            runs = set(mine.loc[mine["noise_level"] == noise_level, "run"])
+            others = baseline_runs[(baseline_runs["noise_level"] == noise_level) & baseline_runs["run"].isin(runs)]
             if others.empty:
                 continue
             counts = others.groupby("method")["run"].nunique()
             others = others[others["method"].isin(counts[counts == len(runs)].index)]  # only fully paired methods
             if others.empty:
                 continue
-            own = float(mine.loc[mine["level"] == level, "distance"].mean())
+            own = float(mine.loc[mine["noise_level"] == noise_level, "distance"].mean())
             means = others.groupby("method")["distance"].mean()
             best = str(means.idxmin())
             beaten = int((means > own).sum())
             beaten_everywhere &= beaten == len(means)
-            parts.append(f"level {int(level)}: {1e3 * own:.3f} against {1e3 * float(means[best]):.3f} for `{best}`, the "
+            parts.append(f"level {int(noise_level)}: {1e3 * own:.3f} against {1e3 * float(means[best]):.3f} for `{best}`, the "
                          f"best baseline (beats {beaten} of {len(means)})")
         if parts:
             verdict = ("beats every baseline at every level" if beaten_everywhere
@@ -404,29 +404,29 @@ def rules_figure(frame: pd.DataFrame):
     fig, ax = plt.subplots(figsize=(6.4, 4.4), constrained_layout=True)
     colours = plt.get_cmap("tab10")
     rules = [rule for rule in pd.unique(frame["rule"]) if rule not in (CMAES_ROW, FLOOR_ROW)]
-    first = frame[frame["rule"] == (rules or list(pd.unique(frame["rule"])))[0]].sort_values("level")
-    ax.plot(first["level"], 1e3 * first["paper_rule_mean_m"], marker="s", color="black",
+    first = frame[frame["rule"] == (rules or list(pd.unique(frame["rule"])))[0]].sort_values("noise_level")
+    ax.plot(first["noise_level"], 1e3 * first["paper_rule_mean_m"], marker="s", color="black",
             label="paper's rule (Table 2's runs)")
-    ax.plot(first["level"], 1e3 * first["published_mean_m"], ls=":", color="black", label="paper (published)")
-    ax.plot(first["level"], 1e3 * first["bar_m"], ls="--", color="grey", label="half the paper's mean (bar)")
+    ax.plot(first["noise_level"], 1e3 * first["published_mean_m"], ls=":", color="black", label="paper (published)")
+    ax.plot(first["noise_level"], 1e3 * first["bar_m"], ls="--", color="grey", label="half the paper's mean (bar)")
     for i, rule in enumerate(rules):
-        rows = frame[frame["rule"] == rule].sort_values("level")
-        ax.errorbar(rows["level"], 1e3 * rows["mean_m"], yerr=1e3 * rows["std_m"].fillna(0.0), marker="o",
+        rows = frame[frame["rule"] == rule].sort_values("noise_level")
+        ax.errorbar(rows["noise_level"], 1e3 * rows["mean_m"], yerr=1e3 * rows["std_m"].fillna(0.0), marker="o",
                     capsize=3, color=colours(i), label=f"rule {rule}")
-    search = frame[frame["rule"] == CMAES_ROW].sort_values("level")
+    search = frame[frame["rule"] == CMAES_ROW].sort_values("noise_level")
     if len(search):
-        ax.plot(search["level"], 1e3 * search["mean_m"], marker="^", color="tab:red", label=CMAES_ROW)
-        ax.plot(search["level"], CMAES_FACTOR * 1e3 * search["mean_m"], ls="-.", color="tab:red", lw=0.8,
+        ax.plot(search["noise_level"], 1e3 * search["mean_m"], marker="^", color="tab:red", label=CMAES_ROW)
+        ax.plot(search["noise_level"], CMAES_FACTOR * 1e3 * search["mean_m"], ls="-.", color="tab:red", lw=0.8,
                 label=f"{CMAES_FACTOR:g}x CMA-ES (bar)")
-    floor = frame[frame["rule"] == FLOOR_ROW].sort_values("level")
+    floor = frame[frame["rule"] == FLOOR_ROW].sort_values("noise_level")
     if len(floor):  # a band from the axis' bottom up to the floor's mean: no mismatch minimiser lands below, on average
         mean = 1e3 * floor["mean_m"]
         bottom = 0.3 * 1e3 * float(frame["mean_m"][frame["mean_m"] > 0].min())  # below every mean: a log axis
-        ax.fill_between(floor["level"], bottom, mean, color="grey", alpha=0.25, label=f"below the {FLOOR_ROW}")
-        ax.plot(floor["level"], mean, color="grey", lw=1.0)
+        ax.fill_between(floor["noise_level"], bottom, mean, color="grey", alpha=0.25, label=f"below the {FLOOR_ROW}")
+        ax.plot(floor["noise_level"], mean, color="grey", lw=1.0)
         ax.set_ylim(bottom=bottom)
     ax.set_yscale("log")
-    ax.set_xticks(sorted(frame["level"].unique()))
+    ax.set_xticks(sorted(frame["noise_level"].unique()))
     ax.set_xlabel("noise level n (pixels)")
     ax.set_ylabel("mean ||theta~ - theta*|| (1e-3 m), +- std")
     ax.set_title("Table 4: Table 2 per gradient rule (same noise draws)", fontsize=10)

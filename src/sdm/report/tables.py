@@ -135,17 +135,17 @@ def table2_frame(distances: pd.DataFrame, avg_dist_mm: dict[int, float]) -> pd.D
         ``mean, std, q1, q2, q3`` our value and ``paper_<stat>`` (1e-3 m), and ``mean_ratio``
         (ours / paper). ``std`` is the sample standard deviation; quartiles interpolate linearly.
     """
-    require_columns(distances, ("level", "distance"), "noise distances")
+    require_columns(distances, ("noise_level", "distance"), "noise distances")
     if distances.empty:
         raise SDMInputError("noise distances: no run")
     rows = []
-    for level, group in distances.groupby("level", sort=True):
+    for noise_level, group in distances.groupby("noise_level", sort=True):
         values = 1000.0 * group["distance"].to_numpy(dtype=float)
-        theirs = paper.TABLE2.get(int(level), {})
+        theirs = paper.TABLE2.get(int(noise_level), {})
         row = {
-            "level": int(level),
+            "noise_level": int(noise_level),
             "runs": int(values.size),
-            "avg_dist_mm": 0.0 if int(level) == 0 else float(avg_dist_mm.get(int(level), math.nan)),
+            "avg_dist_mm": 0.0 if int(noise_level) == 0 else float(avg_dist_mm.get(int(noise_level), math.nan)),
             "paper_avg_dist_mm": theirs.get("avg_dist", math.nan),
         }
         ours = {
@@ -228,11 +228,11 @@ TABLE1_FORMAT = TableFormat(
 
 TABLE2_FORMAT = TableFormat(
     columns=(
-        "level", "runs", "avg_dist_mm", "paper_avg_dist_mm",
+        "noise_level", "runs", "avg_dist_mm", "paper_avg_dist_mm",
         "mean", "paper_mean", "std", "paper_std", "q1", "paper_q1", "q2", "paper_q2", "q3", "paper_q3",
     ),
     headers={
-        "level": "noise level",
+        "noise_level": "noise level",
         "runs": "runs",
         "avg_dist_mm": "Avg. Dist. (ours)",
         "paper_avg_dist_mm": "Avg. Dist. (paper)",

@@ -28,7 +28,7 @@ def best_methods(table3: pd.DataFrame, methods: Sequence[str]) -> pd.DataFrame:
     """Per noise level, the row of Table 3 (``method, label, level, mean_m``) with the lowest mean distance
     among ``methods`` (``sdm`` and the configured baselines)."""
     rows = table3[table3["method"].isin(list(methods))]
-    return rows.loc[rows.groupby("level")["mean_m"].idxmin()].set_index("level")
+    return rows.loc[rows.groupby("noise_level")["mean_m"].idxmin()].set_index("noise_level")
 
 
 def recommended_schedule(table4: pd.DataFrame, rules: Sequence[str]) -> str | None:
@@ -49,27 +49,27 @@ def _mm(metres) -> float | None:
 
 def reproduction_facts(table1: pd.DataFrame, table2: pd.DataFrame) -> dict:
     """Does the run reproduce the paper: the acceptance criteria of the report (``sdm.report.reproduction``) as
-    data. ``level`` is ``"yes"`` when every criterion holds, ``"partly"`` when the noise-free one and at least one
+    data. ``verdict`` is ``"yes"`` when every criterion holds, ``"partly"`` when the noise-free one and at least one
     noisy one hold, ``"no"`` otherwise."""
     results = checks(table1, table2)
-    by_level = table2.set_index("level").sort_index()
+    by_level = table2.set_index("noise_level").sort_index()
     noisy = by_level[(by_level.index > 0) & by_level.index.isin(list(paper.TABLE2))]
     noise_free = next((check for check in results if "level 0" in check.name), None)
     noisy_passed = [check.passed for check in results if check.name.startswith("Table 2") and check is not noise_free]
     best = table1[table1["best"]].iloc[0]
     if all(check.passed for check in results):
-        level = "yes"
+        verdict = "yes"
     elif noise_free is not None and noise_free.passed and any(noisy_passed):
-        level = "partly"
+        verdict = "partly"
     else:
-        level = "no"
+        verdict = "no"
     return {
-        "level": level,
+        "verdict": verdict,
         "noise_free": None if 0 not in by_level.index else {
             "mm": float(by_level.loc[0, "mean"]), "paper_mm": float(by_level.loc[0, "paper_mean"]),
             "bar_mm": NOISE_FREE_MAX, "met": bool(noise_free.passed)},
         "noisy": None if noisy.empty else {
-            "levels": [int(level) for level in noisy.index], "low": float(noisy["mean_ratio"].min()),
+            "levels": [int(noise_level) for noise_level in noisy.index], "low": float(noisy["mean_ratio"].min()),
             "high": float(noisy["mean_ratio"].max()), "band": list(NOISY_RATIO), "within": all(noisy_passed)},
         "tuning": {"n_epoch": int(best["n_epoch"]), "lr": float(best["lr"]), "paper_n_epoch": paper.TABLE1_BEST[0],
                    "paper_lr": paper.TABLE1_BEST[1],
@@ -84,27 +84,27 @@ def search_rows(table3: pd.DataFrame | None, table4: pd.DataFrame | None) -> pd.
     2's), else Table 3's paired runs; None without CMA-ES."""
     if table4 is not None and (table4["rule"] == CMAES_ROW).any():
         rows = table4[table4["rule"] == CMAES_ROW]
-        return pd.DataFrame({"level": rows["level"].astype(int), "search_m": rows["mean_m"],
+        return pd.DataFrame({"noise_level": rows["noise_level"].astype(int), "search_m": rows["mean_m"],
                              "sdm_m": rows["paper_rule_mean_m"], "runs": rows["runs"].astype(int)})
     if table3 is None or not (table3["method"] == SEARCH).any():
         return None
-    search = table3[table3["method"] == SEARCH].set_index("level")
-    sdm = table3[table3["method"] == "sdm"].set_index("level")
-    levels = [level for level in search.index if level in sdm.index]
-    return pd.DataFrame({"level": [int(level) for level in levels], "search_m": search.loc[levels, "mean_m"].values,
-                         "sdm_m": sdm.loc[levels, "mean_m"].values,
-                         "runs": search.loc[levels, "runs"].astype(int).values})
+    search = table3[table3["method"] == SEARCH].set_index("noise_level")
+    sdm = table3[table3["method"] == "sdm"].set_index("noise_level")
+    noise_levels = [noise_level for noise_level in search.index if noise_level in sdm.index]
+    return pd.DataFrame({"noise_level": [int(noise_level) for noise_level in noise_levels], "search_m": search.loc[noise_levels, "mean_m"].values,
+                         "sdm_m": sdm.loc[noise_levels, "mean_m"].values,
+                         "runs": search.loc[noise_levels, "runs"].astype(int).values})
 
 
 def search_facts(rows: pd.DataFrame | None, table3: pd.DataFrame | None) -> dict | None:
     """SDM (the paper's rule) against the black-box search on the same runs: the levels where each is closer, the
-    level of the largest ratio, and each one's measured seconds per run (Table 3). ``level``: ``"yes"`` (SDM closer
+    level of the largest ratio, and each one's measured seconds per run (Table 3). ``verdict``: ``"yes"`` (SDM closer
     at every level), ``"partly"``, ``"no"``."""
     if rows is None or rows.empty:
         return None
     ratio = rows["sdm_m"] / rows["search_m"]
     worst = rows.loc[ratio.idxmax()]
-    search_closer = [int(level) for level, r in zip(rows["level"], ratio) if r > 1]
+    search_closer = [int(noise_level) for noise_level, r in zip(rows["noise_level"], ratio) if r > 1]
     seconds = {}
     if table3 is not None and "seconds_per_run" in table3:
         for method in ("sdm", SEARCH):
@@ -112,10 +112,10 @@ def search_facts(rows: pd.DataFrame | None, table3: pd.DataFrame | None) -> dict
             seconds[method] = float(values.mean()) if len(values) else None
     return {
         "method": SEARCH, "runs": int(rows["runs"].max()),
-        "level": "no" if len(search_closer) == len(rows) else "partly" if search_closer else "yes",
+        "verdict": "no" if len(search_closer) == len(rows) else "partly" if search_closer else "yes",
         "search_closer_at": search_closer,
-        "sdm_closer_at": [int(level) for level, r in zip(rows["level"], ratio) if r <= 1],
-        "worst": {"level": int(worst["level"]), "sdm_mm": _mm(worst["sdm_m"]), "search_mm": _mm(worst["search_m"]),
+        "sdm_closer_at": [int(noise_level) for noise_level, r in zip(rows["noise_level"], ratio) if r <= 1],
+        "worst": {"noise_level": int(worst["noise_level"]), "sdm_mm": _mm(worst["sdm_m"]), "search_mm": _mm(worst["search_m"]),
                   "ratio": float(ratio.max())},
         "seconds_per_run": seconds.get(SEARCH), "sdm_seconds_per_run": seconds.get("sdm"),
     }
@@ -131,9 +131,9 @@ def schedule_facts(table4: pd.DataFrame | None, rules: Sequence[str]) -> dict | 
     rule = recommended_schedule(table4, rules)
     if rule is None:
         return {"name": None}
-    rows = table4[table4["rule"] == rule].sort_values("level")
+    rows = table4[table4["rule"] == rule].sort_values("noise_level")
     judged = rows[rows["bar_m"].notna()]
-    noisy = rows.loc[rows["level"] > 0, "ratio_to_paper_rule"]
+    noisy = rows.loc[rows["noise_level"] > 0, "ratio_to_paper_rule"]
     facts = {"name": rule, "runs": int(rows["runs"].max()), "meets_bar": int(judged["meets_bar"].sum()),
              "judged": len(judged), "to_paper_rule": [float(noisy.min()), float(noisy.max())] if len(noisy) else None,
              "factor": CMAES_FACTOR, "to_search": None}
@@ -142,8 +142,8 @@ def schedule_facts(table4: pd.DataFrame | None, rules: Sequence[str]) -> dict | 
         worst = paired.loc[paired["ratio_to_cmaes"].idxmax()]
         facts["to_search"] = {
             "runs": int(paired["cmaes_runs"].max()), "low": float(paired["ratio_to_cmaes"].min()),
-            "high": float(worst["ratio_to_cmaes"]), "worst_level": int(worst["level"]),
-            "beyond": [int(level) for level, r in zip(paired["level"], paired["ratio_to_cmaes"]) if r > CMAES_FACTOR]}
+            "high": float(worst["ratio_to_cmaes"]), "worst_level": int(worst["noise_level"]),
+            "beyond": [int(noise_level) for noise_level, r in zip(paired["noise_level"], paired["ratio_to_cmaes"]) if r > CMAES_FACTOR]}
     return facts
 
 
@@ -151,18 +151,18 @@ def level_rows(table2: pd.DataFrame, search: pd.DataFrame | None, table4: pd.Dat
                rule: str | None) -> list[dict]:
     """The verdict's table, one row per noise level of Table 2 (millimetres): the paper's mean, ours (the paper's
     rule), the black-box search's and the recommended schedule's (None where the run has none)."""
-    by_search = search.set_index("level") if search is not None else None
-    by_rule = table4[table4["rule"] == rule].set_index("level") if rule else None
+    by_search = search.set_index("noise_level") if search is not None else None
+    by_rule = table4[table4["rule"] == rule].set_index("noise_level") if rule else None
     out = []
-    for _, row in table2.sort_values("level").iterrows():
-        level = int(row["level"])
-        found = by_search is not None and level in by_search.index
-        mine = by_rule is not None and level in by_rule.index
-        out.append({"level": level, "paper_mm": float(row["paper_mean"]), "sdm_mm": float(row["mean"]),
+    for _, row in table2.sort_values("noise_level").iterrows():
+        noise_level = int(row["noise_level"])
+        found = by_search is not None and noise_level in by_search.index
+        mine = by_rule is not None and noise_level in by_rule.index
+        out.append({"noise_level": noise_level, "paper_mm": float(row["paper_mean"]), "sdm_mm": float(row["mean"]),
                     "runs": int(row["runs"]) if "runs" in row else None,
-                    "search_mm": _mm(by_search.loc[level, "search_m"]) if found else None,
-                    "schedule_mm": _mm(by_rule.loc[level, "mean_m"]) if mine else None,
-                    "schedule_meets_bar": bool(by_rule.loc[level, "meets_bar"]) if mine else None})
+                    "search_mm": _mm(by_search.loc[noise_level, "search_m"]) if found else None,
+                    "schedule_mm": _mm(by_rule.loc[noise_level, "mean_m"]) if mine else None,
+                    "schedule_meets_bar": bool(by_rule.loc[noise_level, "meets_bar"]) if mine else None})
     return out
 
 
@@ -205,7 +205,7 @@ def facts(table1: pd.DataFrame, table2: pd.DataFrame, table3: pd.DataFrame | Non
         "reproduction": reproduction_facts(table1, table2),
         "search": search_facts(search, table3),
         "closest": None if closest is None else
-        [{"level": int(level), "method": str(row["method"]), "label": str(row["label"]), "mm": _mm(row["mean_m"])}
-         for level, row in closest.iterrows()],
+        [{"noise_level": int(noise_level), "method": str(row["method"]), "label": str(row["label"]), "mm": _mm(row["mean_m"])}
+         for noise_level, row in closest.iterrows()],
         "schedule": schedule,
     }

@@ -5,7 +5,7 @@ the *sum* of ``G`` rows of a parameter table ``theta`` of ``K`` rows ``(a, b)`` 
 
     shift(q) = sum_g theta[param_index[q, g]]        param_index: (P,) or (P, G) int64 in [0, K)
 
-A camera is a set of points that share rows. The sharing levels (:data:`LEVELS`):
+A camera is a set of points that share rows. The sharings (:data:`SHARINGS`):
 
 * ``shared``: one row for every point of every configuration (the paper's case, ``K = 1``);
 * ``configuration``: one row per configuration that owns points (each image its own camera offset);
@@ -27,12 +27,12 @@ Tensors live on the device of the set they describe; ``theta`` is float64 metres
 from __future__ import annotations
 
 from .index import NO_INDEX, check_param_index, check_theta, point_shifts
-from .levels import LEVELS, ROW_LEVELS, Sharing, camera_and_car, check_cars, per_car, per_configuration, shared, sharing
+from .kinds import SHARINGS, ROW_SHARINGS, Sharing, camera_and_car, check_cars, per_car, per_configuration, shared, sharing
 from .truth import TruthDistribution, draw_truth, render_targets, shifted_set
 from .units import DistanceSummary, Units, row_distances, summarise_distances, theta_from_totals, unit_totals, units
 
 __all__ = [
-    "LEVELS", "NO_INDEX", "ROW_LEVELS", "DistanceSummary", "Sharing", "TruthDistribution", "Units", "camera_and_car",
+    "SHARINGS", "NO_INDEX", "ROW_SHARINGS", "DistanceSummary", "Sharing", "TruthDistribution", "Units", "camera_and_car",
     "check_cars", "check_param_index", "check_theta", "draw_truth", "per_car", "per_configuration",
     "point_shifts", "render_targets", "row_distances", "shared", "shifted_set", "sharing",
     "summarise_distances", "theta_from_totals", "unit_totals", "units",

@@ -1,4 +1,4 @@
-"""theta* drawn from a seeded distribution per sharing level, and the targets rendered from it
+"""theta* drawn from a seeded distribution per sharing, and the targets rendered from it
 (:mod:`sdm.sharing`)."""
 from __future__ import annotations
 
@@ -11,7 +11,7 @@ from ..batch import ConfigurationSet
 from ..errors import SDMInputError
 from ..sky import SKY_SHIFT, shifted_target
 from .index import NO_INDEX, check_param_index, check_theta, point_shifts
-from .levels import Sharing
+from .kinds import Sharing
 
 
 # -- theta*: seeded distributions -------------------------------------------------------------------
@@ -19,7 +19,7 @@ from .levels import Sharing
 
 @dataclass(frozen=True)
 class TruthDistribution:
-    """How theta* is drawn for each sharing level (metres; every draw independent, normal, per axis).
+    """How theta* is drawn for each sharing (metres; every draw independent, normal, per axis).
 
     * ``shared``: ``centre`` itself (the paper's theta*, no draw);
     * ``configuration``: each configuration's row ``centre + camera_sd * N(0, 1)``;
@@ -33,7 +33,7 @@ class TruthDistribution:
     Attributes:
         centre: the mean shift ``(a, b)``.
         camera_sd: spread of a configuration's (camera's) shift around ``centre``, per axis.
-        car_sd: spread of a car's own shift around ``centre`` (``car`` level), per axis.
+        car_sd: spread of a car's own shift around ``centre`` (the ``car`` sharing), per axis.
         residual_sd: spread of a car's residual around its camera (``camera+car``), per axis.
     """
 
@@ -65,13 +65,13 @@ def draw_truth(sharing: Sharing, seed: int, distribution: TruthDistribution = Tr
         raise SDMInputError(f"seed must be a non-negative integer, got {seed!r}")
     device = sharing.rows.device
     centre = torch.tensor([float(v) for v in distribution.centre], dtype=torch.float64)
-    if sharing.level == "shared":
+    if sharing.name == "shared":
         return centre.expand(sharing.n_rows, 2).clone().to(device)
     draw = torch.randn((sharing.n_rows, 2), generator=torch.Generator().manual_seed(int(seed)), dtype=torch.float64)
     is_car = sharing.rows[:, 1].cpu() != NO_INDEX
-    if sharing.level == "configuration":
+    if sharing.name == "configuration":
         truth = centre + distribution.camera_sd * draw
-    elif sharing.level == "car":
+    elif sharing.name == "car":
         truth = centre + distribution.car_sd * draw
     else:
         truth = torch.where(is_car.unsqueeze(1), distribution.residual_sd * draw,

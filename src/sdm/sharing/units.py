@@ -10,7 +10,7 @@ import torch
 from ..batch import ConfigurationSet
 from ..errors import SDMInputError
 from .index import check_param_index, check_theta, point_shifts
-from .levels import _point_configs
+from .kinds import _point_configs
 
 
 # -- what one configuration sees ------------------------------------------------------------------------

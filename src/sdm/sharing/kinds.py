@@ -1,4 +1,4 @@
-"""The sharing levels (:data:`LEVELS`): which rows of ``theta`` move which points of a set, and what each
+"""The sharings (:data:`SHARINGS`): which rows of ``theta`` move which points of a set, and what each
 row stands for (:mod:`sdm.sharing`)."""
 from __future__ import annotations
 
@@ -10,13 +10,13 @@ from ..batch import ConfigurationSet
 from ..errors import SDMInputError
 from .index import NO_INDEX
 
-#: The sharing levels, from one row for everything to a row per car plus the camera.
-LEVELS = ("shared", "configuration", "car", "camera+car")
-#: The levels with rows of their own per configuration or car (Table 6's): every level but the paper's shared one.
-ROW_LEVELS = LEVELS[1:]
+#: The sharings, from one row for everything to a row per car plus the camera.
+SHARINGS = ("shared", "configuration", "car", "camera+car")
+#: The sharings with rows of their own per configuration or car (Table 6's): every sharing but the paper's shared one.
+ROW_SHARINGS = SHARINGS[1:]
 
 
-# -- the sharing levels -----------------------------------------------------------------------------
+# -- the sharings -----------------------------------------------------------------------------
 
 
 @dataclass(frozen=True)
@@ -24,7 +24,7 @@ class Sharing:
     """A parameter index with what its rows stand for.
 
     Attributes:
-        level: one of :data:`LEVELS`.
+        name: one of :data:`SHARINGS`.
         param_index: ``(P,)`` int64 (``G = 1``) or ``(P, 2)`` int64 (``camera+car``), on the set's device.
         rows: ``(K, 2)`` int64 ``(configuration, car)`` of each row; :data:`NO_INDEX` where the row spans
             configurations (``shared``) or is no car's (``configuration``, a camera row).
@@ -32,7 +32,7 @@ class Sharing:
             only when the builder was given the number of cars per configuration; else empty).
     """
 
-    level: str
+    name: str
     param_index: torch.Tensor
     rows: torch.Tensor
     hidden: torch.Tensor
@@ -160,20 +160,20 @@ def camera_and_car(data: ConfigurationSet, cars, n_cars=None) -> Sharing:
     return Sharing("camera+car", param_index, torch.cat((camera.rows, rows)), hidden)
 
 
-def sharing(level: str, data: ConfigurationSet, cars=None, n_cars=None) -> Sharing:
-    """The :class:`Sharing` of ``level`` (:data:`LEVELS`); the car levels need each point's car: ``cars``, or
+def sharing(name: str, data: ConfigurationSet, cars=None, n_cars=None) -> Sharing:
+    """The :class:`Sharing` called ``name`` (:data:`SHARINGS`); the car sharings need each point's car: ``cars``, or
     the set's own ``cars`` attribute where it has one.
 
     Raises:
-        SDMInputError: naming ``level`` if unknown, or ``cars`` if a car level is asked without it.
+        SDMInputError: naming ``name`` if unknown, or ``cars`` if a car sharing is asked without it.
     """
     cars = getattr(data, "cars", None) if cars is None else cars
-    if level not in LEVELS:
-        raise SDMInputError(f"level must be one of {', '.join(LEVELS)}, got {level!r}")
-    if level in ("car", "camera+car") and cars is None:
-        raise SDMInputError(f"cars: the {level!r} level needs each point's car")
-    if level == "shared":
+    if name not in SHARINGS:
+        raise SDMInputError(f"sharing must be one of {', '.join(SHARINGS)}, got {name!r}")
+    if name in ("car", "camera+car") and cars is None:
+        raise SDMInputError(f"cars: the {name!r} sharing needs each point's car")
+    if name == "shared":
         return shared(data)
-    if level == "configuration":
+    if name == "configuration":
         return per_configuration(data)
-    return (per_car if level == "car" else camera_and_car)(data, cars, n_cars)
+    return (per_car if name == "car" else camera_and_car)(data, cars, n_cars)
