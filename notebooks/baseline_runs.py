@@ -36,9 +36,9 @@ threads = 1
 
 # %%
 
-from sdm.baselines import baseline_noise_runs, best_settings
+from sdm.experiments.baselines import baseline_noise_runs, best_settings
 from sdm.experiments import load_split, single_thread
-from sdm.report.io import read_csv, read_json, write_csv
+from sdm.experiments.report.io import read_csv, read_json, write_csv
 
 single_thread(threads)
 train_set, _, camera = load_split(sky, read_json(split))

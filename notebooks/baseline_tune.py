@@ -34,9 +34,9 @@ threads = 1
 # %%
 from IPython.display import display
 
-from sdm.baselines import settings_grid, tune
+from sdm.experiments.baselines import settings_grid, tune
 from sdm.experiments import load_split, single_thread
-from sdm.report.io import read_json, write_csv
+from sdm.experiments.report.io import read_json, write_csv
 
 single_thread(threads)
 train_set, dev_set, camera = load_split(sky, read_json(split))

@@ -16,7 +16,7 @@
 # Table 1 of the paper: the dev loss of every (n_epoch, learning rate) cell. The cell with the lowest dev
 # loss gives the settings of the noise experiments (the paper picks n_epoch = 1, lr = 3e-4). Cells tied on the
 # lowest dev loss (the same count of pixels) are told apart by their train loss, the same measure on the
-# training configurations, then by the most epochs (SGD steps) and the smaller learning rate; Table 1 marks them (`sdm.report.tables.best_index`).
+# training configurations, then by the most epochs (SGD steps) and the smaller learning rate; Table 1 marks them (`sdm.experiments.report.tables.best_index`).
 
 # %% tags=["parameters"]
 cells = []  # input: one JSON per cell
@@ -33,8 +33,8 @@ from pathlib import Path
 
 import pandas as pd
 
-from sdm.report.io import read_csv, read_json, write_csv, write_json, write_text
-from sdm.report.tables import best_cell, table1_frame
+from sdm.experiments.report.io import read_csv, read_json, write_csv, write_json, write_text
+from sdm.experiments.report.tables import best_cell, table1_frame
 
 results = [read_json(path) for path in cells]
 records = pd.DataFrame.from_records(results)
@@ -55,7 +55,7 @@ print(f"best: n_epoch {choice['n_epoch']}, lr {choice['lr']:g}, dev loss {choice
 # theta~ during the chosen cell's run, coloured by zoom level.
 
 # %%
-from sdm.report.figures import show_figure, theta_path_figure
+from sdm.experiments.report.figures import show_figure, theta_path_figure
 
 tuned = results[chosen]
 show_figure(theta_path_figure(read_csv(best_history), shift,

@@ -28,10 +28,10 @@ threads = 1
 # %%
 import matplotlib.pyplot as plt
 
-from sdm.data import read_annotations, require_cars_on_screen
-from sdm.data.stats import PAPER_CARS_PER_IMAGE, car_table, fit_road_plane, image_table
+from sdm.experiments.data import read_annotations, require_cars_on_screen
+from sdm.experiments.data.stats import PAPER_CARS_PER_IMAGE, car_table, fit_road_plane, image_table
 from sdm.experiments import single_thread
-from sdm.report.io import write_csv, write_json
+from sdm.experiments.report.io import write_csv, write_json
 
 single_thread(threads)
 cars_by_image, camera = read_annotations(source_kind, annotations)

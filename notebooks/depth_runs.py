@@ -48,7 +48,7 @@ from IPython.display import display
 
 from sdm.errors import SDMInputError
 from sdm.experiments import depth_noise_runs, single_thread, tuned_training
-from sdm.report.io import read_json, write_csv
+from sdm.experiments.report.io import read_json, write_csv
 from sdm.train import parse_schedule
 
 single_thread(threads)

@@ -17,7 +17,7 @@
 # point (its XY-adjustments and the kernel D). Figure 3: the backward pass on one point (which target
 # pixels pull it, and where). Figure 4: a target at noise levels 0-4. They need one configuration of the
 # split and nothing trained, so they wait for no tuning or noise run (theta~'s path during the tuned run is
-# drawn by the stage `best`, the distances per noise level by `tables`). The drawing code is `sdm.report.figures`; the single-point forward and backward are
+# drawn by the stage `best`, the distances per noise level by `tables`). The drawing code is `sdm.experiments.report.figures`; the single-point forward and backward are
 # `sdm.mapping.explain_point`.
 
 # %% tags=["parameters"]
@@ -39,10 +39,10 @@ import torch
 from IPython.display import Image, display
 
 from sdm import SDMInputError
-from sdm.data import SkyFile
+from sdm.experiments.data import SkyFile
 from sdm.experiments import single_thread
-from sdm.report import figures
-from sdm.report.io import read_json
+from sdm.experiments.report import figures
+from sdm.experiments.report.io import read_json
 
 single_thread(threads)
 dataset = SkyFile(sky)

@@ -32,15 +32,15 @@ split = "results/split/split.json"  # input
 runs_files = ["results/floor/level0.csv"]  # output: one per level of `levels`, one row per run
 noise_levels = [0]  # the noise levels
 runs = 2  # the runs 0..runs-1 (paired with Table 2's runs of the same indices)
-settings = {}  # sdm.baselines.floor.FloorSettings fields (restarts, budget)
+settings = {}  # sdm.experiments.baselines.floor.FloorSettings fields (restarts, budget)
 seed = 0  # noise seed (as noise.seed for Table 2): run seeds come from (seed, level, run)
 shift = [0.517, 0.303]
 threads = 1
 
 # %%
-from sdm.baselines.floor import FloorSettings, floor_runs
+from sdm.experiments.baselines.floor import FloorSettings, floor_runs
 from sdm.experiments import load_split, single_thread
-from sdm.report.io import read_json, write_csv
+from sdm.experiments.report.io import read_json, write_csv
 
 single_thread(threads)
 train_set, _, camera = load_split(sky, read_json(split))

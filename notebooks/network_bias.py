@@ -16,7 +16,7 @@
 # A network trained with a loss settles, on average, where the loss's mean gradient over its training
 # configurations vanishes. Per noise level and loss (SDM's two rules, the soft silhouette), the gradient at each
 # test configuration's own theta* (its bias) and its change per metre near theta* (its stiffness) give that
-# place's offset from theta*, as `rule_bias` measures it for the shared shift (`sdm.network.loss_bias`;
+# place's offset from theta*, as `rule_bias` measures it for the shared shift (`sdm.experiments.network.loss_bias`;
 # docs/method/network.md).
 
 # %% tags=["parameters"]
@@ -36,7 +36,7 @@ from IPython.display import display
 
 from sdm.experiments import single_thread
 from sdm.io import write_csv
-from sdm.network import BIAS_LOSSES, loss_bias, network_settings, read_sets
+from sdm.experiments.network import BIAS_LOSSES, loss_bias, network_settings, read_sets
 
 single_thread(threads)
 settings = network_settings(train, seed)

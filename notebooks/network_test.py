@@ -17,7 +17,7 @@
 # followed by k SDM steps per configuration; beside them, the searches that use no network (CMA-ES per
 # configuration and SDM per configuration from zero, Table 6's protocol) and doing nothing (theta*'s mean, the
 # training set's mean theta*, the searches' shared start). One row per (method, run, configuration): its error
-# and distance to theta* and its CPU seconds (`sdm.network.test_methods`; docs/method/network.md).
+# and distance to theta* and its CPU seconds (`sdm.experiments.network.test_methods`; docs/method/network.md).
 
 # %% tags=["parameters"]
 sky = "results/sky/sky.bin"  # input
@@ -44,8 +44,8 @@ from IPython.display import display
 
 from sdm.experiments import single_thread
 from sdm.io import write_csv
-from sdm.network import load_weights, read_sets, refine_settings, test_methods
-from sdm.objects import search_settings
+from sdm.experiments.network import load_weights, read_sets, refine_settings, test_methods
+from sdm.experiments.objects import search_settings
 
 single_thread(threads)
 sets = read_sets(sky, sizes, seed, noise_levels, camera_sd, parts=["train", "test"], test_level=noise_level)

@@ -13,7 +13,7 @@
 # %% [markdown]
 # # Table 7: a network trained with one loss, in one training run
 #
-# A small CNN (`sdm.network.ShiftNet`) reads a configuration's target and its points at zero shift and outputs
+# A small CNN (`sdm.experiments.network.ShiftNet`) reads a configuration's target and its points at zero shift and outputs
 # the configuration's own shift. Every loss trains the same architecture on the same configurations; run `run` of
 # every loss starts from the same weights and draws the same shuffles and training noise (`training_seed`), so
 # the runs pair across losses. The loss is the SDM layer's (its backward is the dynamic gradient flow, no labels),
@@ -28,8 +28,8 @@ sizes = [3000, 500, 748]  # train, dev, test configurations
 seed = 0  # the split, theta*, the noise levels, the dev and test noise; the training runs' seeds
 noise_levels = [0, 1, 2, 3, 4]  # noise levels mixed over train and dev
 camera_sd = 0.15  # theta*'s spread per axis around the paper's shift, metres
-loss = "sdm_paper"  # the training loss (sdm.network.LOSSES)
-run = 0  # the training run: its weights, shuffles and training noise (sdm.network.training_seed)
+loss = "sdm_paper"  # the training loss (sdm.experiments.network.LOSSES)
+run = 0  # the training run: its weights, shuffles and training noise (sdm.experiments.network.training_seed)
 train = {"epochs": 16, "per_epoch": 1280, "batch_size": 16, "lr": 3.0e-3, "s": 2, "sigma": 0.5, "max_points": 256}
 threads = 1
 
@@ -38,7 +38,7 @@ from IPython.display import display
 
 from sdm.experiments import single_thread
 from sdm.io import write_csv
-from sdm.network import network_settings, parameter_count, read_sets, save_weights, train_network, training_seed
+from sdm.experiments.network import network_settings, parameter_count, read_sets, save_weights, train_network, training_seed
 from sdm.sharing import TruthDistribution
 
 single_thread(threads)

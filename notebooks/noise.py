@@ -43,7 +43,7 @@ threads = 1
 import time
 
 from sdm.experiments import noise_runs, single_thread, tuned_training
-from sdm.report.io import read_json, write_csv, write_json
+from sdm.experiments.report.io import read_json, write_csv, write_json
 
 single_thread(threads)
 run_indices = list(range(first_run, first_run + runs))

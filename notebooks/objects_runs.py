@@ -18,9 +18,9 @@
 # a residual per car, drawn from the documented distribution (`sdm.sharing.TruthDistribution`); their targets
 # are rendered from those shifts and get Table 2's noise. SDM (the paper's rule and the recommended schedule),
 # the black-box searches, the soft-silhouette baseline and the floor all fit the same targets of a run
-# (`sdm.objects.objects_runs`; docs/method/objects.md), on a screen `scale` times finer than the Sky screen
+# (`sdm.experiments.objects.objects_runs`; docs/method/objects.md), on a screen `scale` times finer than the Sky screen
 # (`sdm.sky.rescaled_configuration`). On the first run every unit's exact-match set is scanned: what its pixels
-# identify (`sdm.identifiability.exact_sets`). One row per (run, method, unit), each naming its scale; the stage
+# identify (`sdm.experiments.identifiability.exact_sets`). One row per (run, method, unit), each naming its scale; the stage
 # `table6` gathers the files.
 
 # %% tags=["parameters"]
@@ -39,8 +39,8 @@ cmaes = {"evaluations_per_unknown": 150}
 floor = {"evaluations_per_unknown": 50, "restarts": 2}
 silhouette = {"lr": 0.1, "sigma": 0.5, "batch_size": 8, "steps": 27}
 screen = {"scale": 1, "disc": "pixels"}  # the screen scale (128 x 256 is 1) and the disc rule (sdm.sky)
-methods = ["sdm_paper", "sdm_schedule", "cmaes", "cmaes_car", "cmaes_reg", "silhouette", "floor"]  # sdm.objects.METHODS
-gate = 3.5  # the prior gate scored beside every method, prior standard deviations (sdm.gate.prior_gate)
+methods = ["sdm_paper", "sdm_schedule", "cmaes", "cmaes_car", "cmaes_reg", "silhouette", "floor"]  # sdm.experiments.objects.METHODS
+gate = 3.5  # the prior gate scored beside every method, prior standard deviations (sdm.experiments.gate.prior_gate)
 identifiability = {"reach": 0.6, "step": 0.01}  # the exact-match scan at scale 1, metres (divided by the scale)
 seed = 0  # noise.seed: run r at level n draws theta*, its noise and its seeds from (seed, n, r)
 s = 4
@@ -52,11 +52,11 @@ threads = 1
 import torch
 from IPython.display import display
 
-from sdm.data import SkyFile
+from sdm.experiments.data import SkyFile
 from sdm.experiments import single_thread
 from sdm.io import read_json, write_csv
 from sdm.batch import ConfigurationSet
-from sdm.objects import objects_runs, settings_from_config
+from sdm.experiments.objects import objects_runs, settings_from_config
 from sdm.sky import rescaled_configuration, scaled_camera
 
 single_thread(threads)

@@ -13,11 +13,11 @@
 # %% [markdown]
 # # Table 6's scaling: error against CPU time with K cars per image
 #
-# Synthetic images with exactly K visible cars each (`sdm.data.set_with_cars`), one shift per car drawn as
+# Synthetic images with exactly K visible cars each (`sdm.experiments.data.set_with_cars`), one shift per car drawn as
 # Table 6's (`sdm.sharing.TruthDistribution`). SDM's rows train with several epoch budgets and CMA-ES per
 # configuration searches with several evaluation budgets, from the same shared start; each gives a point
-# (CPU seconds per configuration, distance per car) of its curve (`sdm.objects.scaling_runs`), with the do-nothing
-# references and, on the first run, each car's exact-match set (`sdm.identifiability.exact_sets`). The images are
+# (CPU seconds per configuration, distance per car) of its curve (`sdm.experiments.objects.scaling_runs`), with the do-nothing
+# references and, on the first run, each car's exact-match set (`sdm.experiments.identifiability.exact_sets`). The images are
 # built on the screen `screen["scale"]` times finer than the Sky screen. The stage `table6` draws the curves.
 
 # %% tags=["parameters"]
@@ -32,7 +32,7 @@ cmaes = {"evaluations_per_unknown": 150}
 floor = {"evaluations_per_unknown": 50, "restarts": 2}
 silhouette = {"lr": 0.1, "sigma": 0.5, "batch_size": 8, "steps": 27}
 screen = {"scale": 1, "disc": "pixels"}  # the screen scale (128 x 256 is 1) and the disc rule (sdm.sky)
-gate = 3.5  # the prior gate scored beside every method, prior standard deviations (sdm.gate.prior_gate)
+gate = 3.5  # the prior gate scored beside every method, prior standard deviations (sdm.experiments.gate.prior_gate)
 identifiability = {"reach": 0.6, "step": 0.01}  # the exact-match scan at scale 1, metres (divided by the scale)
 seed = 0
 s = 4
@@ -44,10 +44,10 @@ threads = 1
 from IPython.display import display
 
 from sdm.camera import APOLLO_CAMERA_5
-from sdm.data import set_with_cars
+from sdm.experiments.data import set_with_cars
 from sdm.experiments import single_thread
 from sdm.io import write_csv
-from sdm.objects import scaling_runs, settings_from_config
+from sdm.experiments.objects import scaling_runs, settings_from_config
 from sdm.sky import disc_radius, scaled_camera
 
 single_thread(threads)

@@ -15,8 +15,8 @@
 #
 # Every number of Tables 1 and 2 beside the paper's, checked against the acceptance criteria
 # (Table 2's noise-free mean at most 1e-3 m; each noisy mean within 0.5x to 2x of the
-# paper's; Table 1's pick beside the paper's). The text is built by `sdm.report.reproduction` from the
-# measured tables only. The verdict's facts (`verdict`) are built by `sdm.report.verdict` from the CSVs of
+# paper's; Table 1's pick beside the paper's). The text is built by `sdm.experiments.report.reproduction` from the
+# measured tables only. The verdict's facts (`verdict`) are built by `sdm.experiments.report.verdict` from the CSVs of
 # Tables 1-4: ours against the paper's Table 2, SDM against CMA-ES (the black-box search) on the same runs, Table
 # 3's closest method per level and Table 4's recommended schedule. `make snapshot` puts them into the README's words.
 
@@ -56,11 +56,11 @@ import pandas as pd
 from IPython.display import Markdown, display
 
 from sdm.experiments import flow_at_true_shift, load_split, single_thread
-from sdm.report.io import read_csv, read_json, write_json, write_text
-from sdm.report.reproduction import build_report
-from sdm.report.research import beyond_the_paper
-from sdm.report.tables import markdown_page
-from sdm.report.verdict import data_facts, facts
+from sdm.experiments.report.io import read_csv, read_json, write_json, write_text
+from sdm.experiments.report.reproduction import build_report
+from sdm.experiments.report.research import beyond_the_paper
+from sdm.experiments.report.tables import markdown_page
+from sdm.experiments.report.verdict import data_facts, facts
 
 single_thread(threads)
 train_set, _, camera = load_split(sky, read_json(split))

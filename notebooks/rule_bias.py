@@ -38,7 +38,7 @@ import pandas as pd
 from IPython.display import display
 
 from sdm.experiments import load_split, rule_bias, single_thread
-from sdm.report.io import read_json, write_csv
+from sdm.experiments.report.io import read_json, write_csv
 
 single_thread(threads)
 train_set, _, camera = load_split(sky, read_json(split))

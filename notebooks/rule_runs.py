@@ -45,7 +45,7 @@ import time
 from IPython.display import display
 
 from sdm.experiments import rule_noise_runs, single_thread, tuned_training
-from sdm.report.io import read_json, write_csv
+from sdm.experiments.report.io import read_json, write_csv
 
 single_thread(threads)
 train_set, camera, settings = tuned_training(sky, read_json(split), read_json(best), s, batch_size, lr_decay, seed)

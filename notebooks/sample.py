@@ -14,8 +14,8 @@
 # # Stage 2: sample the images of the Sky dataset
 #
 # "The Sky dataset is built only upon 3D annotations of their 4,248 images which are chosen randomly"
-# (paper, section 3). The sample is drawn with `sdm.data.sample_indices` (the sampling of
-# `sdm.data.build_sky_dataset`) from the seed in the config.
+# (paper, section 3). The sample is drawn with `sdm.experiments.data.sample_indices` (the sampling of
+# `sdm.experiments.data.build_sky_dataset`) from the seed in the config.
 
 # %% tags=["parameters"]
 images = "results/data/images.csv"  # input: one row per image
@@ -26,8 +26,8 @@ threads = 1
 
 # %%
 
-from sdm.data import sample_indices
-from sdm.report.io import read_csv, write_csv
+from sdm.experiments.data import sample_indices
+from sdm.experiments.report.io import read_csv, write_csv
 
 table = read_csv(images)
 chosen = table.iloc[sample_indices(len(table), n_images, seed, n_sample_name="config key 'sky.n_images'",

@@ -20,8 +20,8 @@
 # 3. **Q**: one 3D point per active pixel of E' (the pixel centre back-projected at its depth);
 # 4. **L**, the target: the occupancy of Q moved by theta* = (a, b, 0).
 #
-# The solver sees Q and L, never the shift. The construction is `sdm.data.build_configurations` (one
-# `sdm.sky.build_configuration` per image); the file is written by `sdm.data.write_sky_file`.
+# The solver sees Q and L, never the shift. The construction is `sdm.experiments.data.build_configurations` (one
+# `sdm.sky.build_configuration` per image); the file is written by `sdm.experiments.data.write_sky_file`.
 
 # %% tags=["parameters"]
 annotations = "results/data/synthetic_apollo"  # folder or csv
@@ -35,10 +35,10 @@ threads = 1
 # %%
 import matplotlib.pyplot as plt
 
-from sdm.data import build_configurations, read_annotations, write_sky_file
-from sdm.data.stats import PAPER_TARGET_DEPTH, configuration_table, summarize
+from sdm.experiments.data import build_configurations, read_annotations, write_sky_file
+from sdm.experiments.data.stats import PAPER_TARGET_DEPTH, configuration_table, summarize
 from sdm.experiments import single_thread
-from sdm.report.io import read_csv, write_json
+from sdm.experiments.report.io import read_csv, write_json
 
 single_thread(threads)
 cars_by_image, camera = read_annotations(source_kind, annotations)

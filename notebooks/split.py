@@ -27,9 +27,9 @@ seed = 0
 threads = 1
 
 # %%
-from sdm.data import SkyFile
+from sdm.experiments.data import SkyFile
 from sdm.experiments import split_indices
-from sdm.report.io import write_json
+from sdm.experiments.report.io import write_json
 
 dataset = SkyFile(sky)
 assert n_train + n_dev == n_selected

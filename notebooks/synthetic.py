@@ -17,7 +17,7 @@
 # ApolloCar3D's own layout (`car_poses/<image>.json`, `camera/Camera_5.txt`). Its scenes are cars on a
 # road plane seen from a roof-mounted camera, calibrated on the real figures the paper gives
 # (docs/method/paper.md) (over 60K cars on 5,277 images, a mean target depth of about 51 m; docs/method/paper.md, Real layouts and the synthetic default).
-# The generator is `sdm.data.write_synthetic_apollo`; this notebook only runs it and looks at what it wrote.
+# The generator is `sdm.experiments.data.write_synthetic_apollo`; this notebook only runs it and looks at what it wrote.
 # With `data.source: apollo` or `pku` in `config.yaml` this stage does not run.
 
 # %% tags=["parameters"]
@@ -29,7 +29,7 @@ threads = 1
 # %%
 import json
 
-from sdm.data.synthetic import write_synthetic_apollo
+from sdm.experiments.data.synthetic import write_synthetic_apollo
 from sdm.experiments import single_thread
 
 single_thread(threads)

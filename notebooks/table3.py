@@ -35,7 +35,7 @@
 # (`sdm_timings`: per chunk, the wall seconds of `sdm.experiments.noise_runs` over the chunk's runs, trained
 # together as one program on one thread; neither the notebook's start nor reading the data counted),
 # summed per level and divided by the level's runs (drawing the noisy targets included). The baselines'
-# seconds are the `seconds` column of `sdm.baselines.baseline_noise_runs`: their fits' wall time per run, on one
+# seconds are the `seconds` column of `sdm.experiments.baselines.baseline_noise_runs`: their fits' wall time per run, on one
 # thread as well.
 
 # %% tags=["parameters"]
@@ -67,13 +67,13 @@ from IPython.display import Markdown, display
 
 from sdm.errors import SDMInputError
 from sdm.experiments import single_thread
-from sdm.report.baselines import (
+from sdm.experiments.report.baselines import (
     FLOOR, RUN_COLUMNS, TABLE3_FORMAT, TUNING_FORMAT, baselines_figure, floor_frame, floor_summary, table2_runs, table3_display,
     table3_frame, table3_summary, tuning_frame, write_table3,
 )
-from sdm.report.figures import show_figure
-from sdm.report.io import read_csv, read_json, write_csv, write_text
-from sdm.report.tables import to_markdown
+from sdm.experiments.report.figures import show_figure
+from sdm.experiments.report.io import read_csv, read_json, write_csv, write_text
+from sdm.experiments.report.tables import to_markdown
 
 single_thread(threads)
 if len(tuning_files) != len(methods):

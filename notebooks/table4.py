@@ -43,14 +43,14 @@ import pandas as pd
 from IPython.display import Markdown, display
 
 from sdm.experiments import single_thread
-from sdm.report.figures import show_figure
-from sdm.report.io import read_csv, read_json, write_text
-from sdm.report.research import (
+from sdm.experiments.report.figures import show_figure
+from sdm.experiments.report.io import read_csv, read_json, write_text
+from sdm.experiments.report.research import (
     CMAES_ROW, TABLE4_FORMAT, bias_summary, gathered_runs, reference_rows, rule_times, rules_against_baselines,
     rules_figure, table4_display,
     table4_frame, table4_summary as summary_of_table4, write_table4,
 )
-from sdm.report.tables import to_markdown
+from sdm.experiments.report.tables import to_markdown
 
 single_thread(threads)
 expected = {(name, noise_level, run) for name in names for noise_level in noise_levels for run in range(runs)}

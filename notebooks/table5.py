@@ -46,14 +46,14 @@ from IPython.display import Markdown, display
 import pandas as pd
 
 from sdm.experiments import depth_bias, load_split, single_thread
-from sdm.report.figures import show_figure
-from sdm.report.io import read_json, write_csv, write_text
-from sdm.report.depth import (
+from sdm.experiments.report.figures import show_figure
+from sdm.experiments.report.io import read_json, write_csv, write_text
+from sdm.experiments.report.depth import (
     TABLE5_FORMAT, depth_figure, table5_bias_summary, table5_display, table5_frame,
     table5_summary as summary_of_table5, write_table5,
 )
-from sdm.report.research import gathered_runs
-from sdm.report.tables import to_markdown
+from sdm.experiments.report.research import gathered_runs
+from sdm.experiments.report.tables import to_markdown
 from sdm.train import TrainSettings, parse_schedule
 
 single_thread(threads)

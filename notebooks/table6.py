@@ -17,7 +17,7 @@
 # cars per image): per screen scale, sharing level, noise level and method, the distance per unit to theta* (mean,
 # median, Q3) against doing nothing, the exact-match set's median extent and the CPU time per configuration,
 # Table 2's runs quoted as the shared level; the figure of the means; the scaling figure (error against CPU time,
-# one curve per K); the summary in plain words (`sdm.report.objects`; docs/method/objects.md); and every run's
+# one curve per K); the summary in plain words (`sdm.experiments.report.objects`; docs/method/objects.md); and every run's
 # per-unit records in one compressed file, so that any paired comparison can be checked without rerunning.
 
 # %% tags=["parameters"]
@@ -42,9 +42,9 @@ from pathlib import Path
 from IPython.display import Image, Markdown, display
 
 from sdm.io import write_bytes, write_json, write_text
-from sdm.report import objects as report
-from sdm.report import scaling as scaling_report
-from sdm.report.io import read_csv
+from sdm.experiments.report import objects as report
+from sdm.experiments.report import scaling as scaling_report
+from sdm.experiments.report.io import read_csv
 
 frames = [read_csv(path) for path in runs_files]
 noise_levels = sorted({int(noise_level) for frame in frames for noise_level in frame["noise_level"]})

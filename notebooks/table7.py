@@ -16,7 +16,7 @@
 # Gathers `network_test` (one file per noise level) and `network_train`'s learning curves (one per loss and
 # training run): per noise level and method, the mean over the runs of the test set's distance to theta*, its
 # spread, the paired difference to the SDM-trained network of the same run, and the CPU time per configuration;
-# the learning curves; the summary in plain words, a ranking only beyond the runs' spread (`sdm.report.network`;
+# the learning curves; the summary in plain words, a ranking only beyond the runs' spread (`sdm.experiments.report.network`;
 # docs/method/network.md).
 
 # %% tags=["parameters"]
@@ -43,9 +43,9 @@ import pandas as pd
 from IPython.display import Image, Markdown, display
 
 from sdm.io import write_csv, write_json, write_text
-from sdm.report.io import read_csv
-from sdm.network import refine_settings, refine_steps
-from sdm.report import network as report
+from sdm.experiments.report.io import read_csv
+from sdm.experiments.network import refine_settings, refine_steps
+from sdm.experiments.report import network as report
 
 frames = [read_csv(path) for path in test_files]
 curve_frames = [read_csv(path) for path in curves]

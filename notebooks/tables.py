@@ -43,9 +43,9 @@ from pathlib import Path
 import pandas as pd
 from IPython.display import Markdown, display
 
-from sdm.data.stats import avg_dist_mm
-from sdm.report.io import read_csv, read_json, write_csv
-from sdm.report.tables import TABLE1_FORMAT, TABLE2_FORMAT, table1_frame, table2_frame, to_markdown, write_table
+from sdm.experiments.data.stats import avg_dist_mm
+from sdm.experiments.report.io import read_csv, read_json, write_csv
+from sdm.experiments.report.tables import TABLE1_FORMAT, TABLE2_FORMAT, table1_frame, table2_frame, to_markdown, write_table
 
 all_runs = pd.concat([read_csv(path) for path in chunks]).sort_values(["noise_level", "run"]).reset_index(drop=True)
 expected = {(noise_level, run) for noise_level in noise_levels for run in range(runs)}
@@ -71,6 +71,6 @@ display(Markdown(to_markdown(table2, TABLE2_FORMAT)))
 # Table 2's runs, per noise level, beside the paper's mean and quartiles.
 
 # %%
-from sdm.report.figures import distances_figure, show_figure
+from sdm.experiments.report.figures import distances_figure, show_figure
 
 show_figure(distances_figure(read_csv(distances)), distances_plot)

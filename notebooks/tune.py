@@ -36,8 +36,8 @@ threads = 1
 import matplotlib.pyplot as plt
 
 from sdm.experiments import load_split, settings_for, single_thread, tune_cell
-from sdm.report.figures import theta_path_figure
-from sdm.report.io import read_json, write_csv, write_json
+from sdm.experiments.report.figures import theta_path_figure
+from sdm.experiments.report.io import read_json, write_csv, write_json
 
 single_thread(threads)
 train_set, dev_set, camera = load_split(sky, read_json(split))

@@ -1,4 +1,4 @@
-"""One-run references of the batched baseline helpers in :mod:`sdm.baselines.common`.
+"""One-run references of the batched baseline helpers in :mod:`sdm.experiments.baselines.common`.
 
 The library fits runs many at a time (``subsample_runs``, ``sampled_pairs``); these are what one run
 draws alone, written plainly, so the tests can hold each batched run equal to them.
@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import torch
 
-from sdm.baselines.common import active_pixels, on_screen, pad_points, pad_rows, project_shifted
+from sdm.experiments.baselines.common import active_pixels, on_screen, pad_points, pad_rows, project_shifted
 from sdm.batch import ConfigurationSet
 from sdm.camera import Camera
 

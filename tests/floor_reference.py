@@ -1,4 +1,4 @@
-"""Brute-force references for the floor (sdm.baselines.floor): every cell of the pixel mismatch in a window.
+"""Brute-force references for the floor (sdm.experiments.baselines.floor): every cell of the pixel mismatch in a window.
 
 The count is a step function of ``theta`` that changes only where some point's column (a function of
 ``a`` alone) or row (of ``b`` alone) crosses a pixel border: at ``a = (k - col_0) / g_c`` and
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from sdm.baselines.mismatch import PixelMismatch, _projection
+from sdm.experiments.baselines.mismatch import PixelMismatch, _projection
 
 
 def borders(train_set, axis: int, low: float, high: float) -> np.ndarray:

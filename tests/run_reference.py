@@ -1,7 +1,7 @@
 """Single-run references of the paired runs: one run at a time, each trained or fitted alone.
 
 :func:`sdm.experiments.paired_runs` runs every table's runs in groups (Table 2's ``noise_runs``,
-Table 4's ``rule_noise_runs``, Table 5's ``depth_noise_runs``, Table 3's ``sdm.baselines.baseline_noise_runs``);
+Table 4's ``rule_noise_runs``, Table 5's ``depth_noise_runs``, Table 3's ``sdm.experiments.baselines.baseline_noise_runs``);
 these loops are what it replaced, kept here so that the tests can hold the driver to them: the run's
 seed from :func:`~sdm.experiments.run_seed`, its noisy targets drawn alone, then :func:`sdm.train`
 (or the method's ``fit``) on that run only. Rows as the driver's tables have them.
@@ -12,7 +12,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from sdm.baselines import fit
+from sdm.experiments.baselines import fit
 from sdm.depth import depth_targets
 from sdm.experiments import noisy_targets, run_seed
 from sdm.metrics import distance
@@ -30,7 +30,7 @@ def noise_run(train_set, noise_level, run, settings, shift=SKY_SHIFT, camera=Non
 
 
 def baseline_noise_run(name, train_set, noise_level, run, settings, seed, shift=SKY_SHIFT, camera=None) -> dict:
-    """Table 3's run ``(level, run)`` of method ``name`` alone (``sdm.baselines.fit`` on Table 2's noisy targets)."""
+    """Table 3's run ``(level, run)`` of method ``name`` alone (``sdm.experiments.baselines.fit`` on Table 2's noisy targets)."""
     seed_run = run_seed(seed, noise_level, run)
     noisy = train_set.with_targets(noisy_targets(train_set.targets, noise_level, seed_run))
     result = fit(name, noisy, settings, seed_run, camera)

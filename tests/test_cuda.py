@@ -102,7 +102,7 @@ def test_every_rule_flows_alike_on_cuda_and_cpu():
 def test_every_network_loss_trains_on_cuda(loss):
     """Table 7's training runs on the GPU under its deterministic mode: twice the same weights, and shifts near
     the CPU's (float32 convolutions round otherwise on the GPU, so not to the bit)."""
-    from sdm.network import NetworkSettings, mixed_noise_levels, predict, shift_set, train_network
+    from sdm.experiments.network import NetworkSettings, mixed_noise_levels, predict, shift_set, train_network
 
     data = configuration_set(48, seed=6)
     settings = NetworkSettings(epochs=2, batch_size=16, s=1, max_points=64)

@@ -12,9 +12,9 @@ import pytest
 
 import sdm.errors
 import sdm.io
-import sdm.report.io
+import sdm.experiments.report.io
 from sdm.camera import APOLLO_CAMERA_5
-from sdm.data import write_sky_file, write_synthetic_apollo
+from sdm.experiments.data import write_sky_file, write_synthetic_apollo
 from sdm.sky import SKY_SHIFT
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -45,14 +45,14 @@ def write_everything(folder: Path) -> dict[str, Path]:
     """One file (or folder) from every writer the workflow uses."""
     import matplotlib.pyplot as plt
 
-    from sdm.report.figures import save_figure
+    from sdm.experiments.report.figures import save_figure
 
     figure, ax = plt.subplots()
     ax.plot([0, 1], [1, 0])
     return {
         "text": sdm.io.write_text(folder / "a.md", "# a\n"),
-        "json": sdm.report.io.write_json(folder / "b.json", {"x": 1}),
-        "csv": sdm.report.io.write_csv(folder / "c.csv", pd.DataFrame({"x": [1, 2]})),
+        "json": sdm.experiments.report.io.write_json(folder / "b.json", {"x": 1}),
+        "csv": sdm.experiments.report.io.write_csv(folder / "c.csv", pd.DataFrame({"x": [1, 2]})),
         "bytes": sdm.io.write_bytes(folder / "d.bin", b"\x00\x01"),
         "png": save_figure(figure, folder / "e.png", pdf=True),
         "pdf": folder / "e.pdf",
@@ -126,7 +126,7 @@ def test_the_temporary_keeps_the_suffix_and_is_hidden(tmp_path):
 
 def test_there_is_one_atomic_writer():
     """No other module creates temporary files and renames them into place (the synthetic folder is a folder)."""
-    assert sdm.report.io.write_atomic is sdm.io.write_atomic
+    assert sdm.experiments.report.io.write_atomic is sdm.io.write_atomic
     offenders = []
     for path in [*(ROOT / "src").rglob("*.py"), *(ROOT / "workflow" / "scripts").glob("*.py")]:
         if path.name == "io.py" and path.parent.name == "sdm":
@@ -143,7 +143,7 @@ def test_a_csv_is_written_with_its_checksum_and_read_back_checked(tmp_path):
     assert path.read_bytes() == frame.to_csv(index=False).encode()
     digest, rows = (tmp_path / "runs.csv.sha256").read_text().split()[:2]
     assert rows == "3" and len(digest) == 64
-    pd.testing.assert_frame_equal(sdm.report.io.read_csv(path), pd.read_csv(path))
+    pd.testing.assert_frame_equal(sdm.experiments.report.io.read_csv(path), pd.read_csv(path))
 
 
 @pytest.mark.parametrize("cut", [14, 3, 40], ids=["last-value", "last-digits", "mid-row"])
@@ -155,7 +155,7 @@ def test_a_cut_csv_is_refused_naming_it_and_removed_for_its_job_to_rerun(tmp_pat
     path.write_bytes(path.read_bytes()[:-cut])
     with pytest.raises(sdm.errors.SDMInputError, match=r"level2_chunk0\.csv: damaged result: its bytes do not match "
                        r"level2_chunk0\.csv\.sha256 \(written with 4 rows"):
-        sdm.report.io.read_csv(path)
+        sdm.experiments.report.io.read_csv(path)
     assert not path.exists() and not (tmp_path / "level2_chunk0.csv.sha256").exists()
 
 
@@ -174,7 +174,7 @@ def test_a_csv_rewritten_leaves_no_stale_checksum(tmp_path):
 
 
 def test_no_stage_notebook_reads_a_csv_unchecked():
-    """The stages read their CSVs through sdm.report.io.read_csv (checksum first), never pandas' reader directly."""
+    """The stages read their CSVs through sdm.experiments.report.io.read_csv (checksum first), never pandas' reader directly."""
     notebooks = sorted((ROOT / "notebooks").glob("*.py"))
     assert len(notebooks) > 20
     unchecked = [path.name for path in notebooks if "pd.read_csv(" in path.read_text()]

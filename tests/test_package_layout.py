@@ -40,19 +40,19 @@ OVERSIZED_C_FUNCTIONS: dict[str, int] = {}
 #: Imports inside a function, each ``(file, function, module)``: optional dependencies, imported where they are
 #: needed so that the layer and the tables that do not use them run without them (pyproject.toml's extras).
 OPTIONAL_IMPORTS = {
-    ("baselines/pycma.py", "import_cma", "cma"),  # pycma: the `baselines` extra
-    ("baselines/sinkhorn.py", "fit_runs", "geomloss"),  # the `baselines` extra
-    ("baselines/common.py", "to_frame", "pandas"),  # the `experiments` extra
+    ("experiments/baselines/pycma.py", "import_cma", "cma"),  # pycma: the `baselines` extra
+    ("experiments/baselines/sinkhorn.py", "fit_runs", "geomloss"),  # the `baselines` extra
+    ("experiments/baselines/common.py", "to_frame", "pandas"),  # the `experiments` extra
     ("train/settings.py", "to_frame", "pandas"),  # the layer's History as a table, for the experiments
-    ("report/figures.py", "show_figure", "IPython.display"),  # a notebook's display, only inside one
-    ("report/figures.py", "_in_notebook", "IPython"),
-    ("report/tables.py", "markdown_page", "mistune"),  # the HTML pages of the tables
-    ("report/baselines.py", "baselines_figure", ".figures"),  # matplotlib, only where a figure is drawn
-    ("report/network.py", "plot_curves", ".figures"),
-    ("report/objects.py", "plot_table6", ".figures"),
-    ("report/scaling.py", "plot_scaling", ".figures"),
-    ("report/research.py", "rules_figure", ".figures"),
-    ("report/depth.py", "depth_figure", ".figures"),
+    ("experiments/report/figures.py", "show_figure", "IPython.display"),  # a notebook's display, only inside one
+    ("experiments/report/figures.py", "_in_notebook", "IPython"),
+    ("experiments/report/tables.py", "markdown_page", "mistune"),  # the HTML pages of the tables
+    ("experiments/report/baselines.py", "baselines_figure", ".figures"),  # matplotlib, only where a figure is drawn
+    ("experiments/report/network.py", "plot_curves", ".figures"),
+    ("experiments/report/objects.py", "plot_table6", ".figures"),
+    ("experiments/report/scaling.py", "plot_scaling", ".figures"),
+    ("experiments/report/research.py", "rules_figure", ".figures"),
+    ("experiments/report/depth.py", "depth_figure", ".figures"),
 }
 
 #: Imports inside a function that are no optional dependency: to move to the top of their module.
@@ -69,8 +69,11 @@ def _module(relative: str) -> str:
 
 
 def _part(module: str) -> str:
-    """The part of the package a module belongs to: ``sdm`` itself, or its first name below ``sdm``."""
+    """The part of the package a module belongs to: ``sdm`` itself, its first name below ``sdm``, or below
+    ``sdm.experiments`` the experiment part (``experiments.objects``; ``experiments`` for its ``__init__``)."""
     parts = module.split(".")
+    if len(parts) > 2 and parts[1] == "experiments":
+        return f"experiments.{parts[2]}"
     return parts[1] if len(parts) > 1 else "sdm"
 
 
@@ -135,7 +138,7 @@ def test_the_arrows_between_the_parts_point_one_way():
 def test_the_cycle_check_finds_a_planted_cycle():
     """The negative control: an arrow back from the layer to the experiments closes a loop."""
     arrows = _arrows()
-    arrows["sky"] = arrows["sky"] | {"objects"}
+    arrows["sky"] = arrows["sky"] | {"experiments.objects"}
     found = _cycle(arrows)
     assert found is not None and found[0] == found[-1]
 

@@ -13,7 +13,7 @@ file exists, else the defaults), fitted
 in this one process on one thread (``torch.set_num_threads(1)``). Prints seconds per run of each
 (wall time, and the process's CPU time, which other processes' load disturbs less), their ratios,
 and the largest difference between the two ways' thetas over the runs both did
-(metres; 0 means bit-identical). ``cmaes`` is measured only if ``sdm.baselines.cmaes`` has ``fit_runs``.
+(metres; 0 means bit-identical). ``cmaes`` is measured only if ``sdm.experiments.baselines.cmaes`` has ``fit_runs``.
 Timings on a shared machine are inflated; the ratio, taken in one process, is the figure to quote.
 
 Measured 2026-11-23 (default data, level 2, R = 60, sequential on the first 10, a 2-core machine
@@ -36,7 +36,7 @@ from pathlib import Path
 import pandas as pd
 import torch
 
-from sdm.baselines import METHODS, best_settings
+from sdm.experiments.baselines import METHODS, best_settings
 from sdm.experiments import load_split, noisy_targets, run_seed
 
 

@@ -8,10 +8,10 @@ Protocol: the training set of the split; the tuned settings (the row of the tuni
 
 * ``reference``: every evaluation by :meth:`PixelMismatch.reference` (the count as committed before
   the fast one: a fresh ``N x H x W`` bitmap per call), each run building its own objective;
-* ``fit_runs (torch count)``: :func:`sdm.baselines.cmaes.fit_runs` over chunks of ``--chunk`` runs,
+* ``fit_runs (torch count)``: :func:`sdm.experiments.baselines.cmaes.fit_runs` over chunks of ``--chunk`` runs,
   the grouped count in torch, one candidate at a time (``sdm.mapping.native.disabled``: the path
   without a C compiler or with ``SDM_NATIVE=0``);
-* ``fit``: :func:`sdm.baselines.cmaes.fit` per run (compiled count, own set-up per run);
+* ``fit``: :func:`sdm.experiments.baselines.cmaes.fit` per run (compiled count, own set-up per run);
 * ``fit_runs``: the same chunks with the compiled count (a generation per call, set-up shared).
 
 Asserts that the four give the same theta and evaluation count for every run, then prints the
@@ -29,8 +29,8 @@ import time
 import pandas as pd
 import torch
 
-from sdm.baselines import cmaes, mismatch
-from sdm.baselines.common import FitResult
+from sdm.experiments.baselines import cmaes, mismatch
+from sdm.experiments.baselines.common import FitResult
 from sdm.experiments import load_split, noisy_targets, run_seed
 from sdm.mapping import native
 

@@ -13,7 +13,7 @@ Prints, in one run, where ``torch.cuda.is_available()`` (else one line saying so
     cell n_epoch 2, lr 1e-4) on the GPU, packed ``--group-sizes`` runs at a time
     (:func:`sdm.experiments.noise_runs`), wall seconds; and their theta against the same runs on the CPU
     (the compiled kernel, one thread; the largest difference, metres);
-  * one epoch of Table 7's network training per loss (:func:`sdm.network.train_network`: 3,000 configurations,
+  * one epoch of Table 7's network training per loss (:func:`sdm.experiments.network.train_network`: 3,000 configurations,
     batch 16, 187 steps, zoom 0) on the GPU and on the CPU (one thread, as a workflow job runs it), wall
     seconds and the ratio; every loss first trains two steps on the GPU, so that the device's set-up is
     nobody's epoch.
@@ -38,10 +38,10 @@ import torch
 
 from bench_sdm import TABLE2_LEVELS, TABLE2_SETTINGS, Clock, step_ms
 from sdm.batch import ConfigurationSet
-from sdm.data import build_sky_dataset
-from sdm.data.synthetic import synthetic_images
+from sdm.experiments.data import build_sky_dataset
+from sdm.experiments.data.synthetic import synthetic_images
 from sdm.experiments import noise_runs
-from sdm.network import LOSSES, NetworkSettings, mixed_noise_levels, shift_set, train_network
+from sdm.experiments.network import LOSSES, NetworkSettings, mixed_noise_levels, shift_set, train_network
 
 #: Table 7's training: the default config's research.network.train (16 epochs there; one here) and sizes.
 NETWORK_SETTINGS = NetworkSettings(epochs=1, batch_size=16, lr=(("default", 1e-3),), s=2, sigma=0.5, max_points=256)

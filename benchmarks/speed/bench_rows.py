@@ -5,9 +5,9 @@
 Protocol: one thread, one process. For each ``K`` of ``--cars``: ``--configs`` images of ``K`` cars on a
 screen grid (``tests/sharing_scenes.py``: discs apart, depths 12-60 m), one row per car, theta* drawn
 from :class:`sdm.sharing.TruthDistribution` (seed 0), noise-free targets rendered from it; then
-``--default`` images of the default synthetic data (:func:`sdm.data.synthetic.synthetic_images`, seed 0;
+``--default`` images of the default synthetic data (:func:`sdm.experiments.data.synthetic.synthetic_images`, seed 0;
 overlapping discs, the cars per point by the ``rmin`` winner) the same way. CMA-ES per configuration
-(:func:`sdm.baselines.rows.fit_configurations`, default settings) and, with ``--floor``, the floor per
+(:func:`sdm.experiments.baselines.rows.fit_configurations`, default settings) and, with ``--floor``, the floor per
 configuration. Prints per ``K``: the unknowns, CPU seconds per configuration (mean, max), counts per
 configuration, the share of configurations at mismatch 0, and the per-car distance (mean, median, Q3).
 The machine's load inflates the seconds (process time counts only the time the run had the core). numpy's
@@ -33,8 +33,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
 from sharing_scenes import car_grid_scene, set_with_cars  # noqa: E402
 
 from sdm import sharing  # noqa: E402
-from sdm.baselines import rows  # noqa: E402
-from sdm.data.synthetic import synthetic_images  # noqa: E402
+from sdm.experiments.baselines import rows  # noqa: E402
+from sdm.experiments.data.synthetic import synthetic_images  # noqa: E402
 from sdm.sky import build_configuration  # noqa: E402
 
 

@@ -39,8 +39,8 @@ import time
 import torch
 
 from sdm.batch import ConfigurationSet
-from sdm.data import build_sky_dataset
-from sdm.data.synthetic import synthetic_images
+from sdm.experiments.data import build_sky_dataset
+from sdm.experiments.data.synthetic import synthetic_images
 from sdm.experiments import NOISE_GROUP_SIZE, noise_runs
 from sdm.mapping import SpatialDomainMapping, native
 from sdm.sky import shift_vector

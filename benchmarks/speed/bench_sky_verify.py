@@ -23,8 +23,8 @@ import numpy as np
 import torch
 
 from sdm.batch import ConfigurationSet
-from sdm.data import SkyFile, build_sky_dataset, read_apollo_camera, read_apollo_folder, write_sky_file
-from sdm.data import write_synthetic_apollo
+from sdm.experiments.data import SkyFile, build_sky_dataset, read_apollo_camera, read_apollo_folder, write_sky_file
+from sdm.experiments.data import write_synthetic_apollo
 from sdm.sky import SKY_SHIFT
 
 

@@ -19,9 +19,9 @@ import time
 import pandas as pd
 import torch
 
-from sdm.baselines import baseline_noise_runs, best_settings
+from sdm.experiments.baselines import baseline_noise_runs, best_settings
 from sdm.experiments import load_split
-from sdm.report.research import CMAES_FACTOR
+from sdm.experiments.report.research import CMAES_FACTOR
 
 
 def main(argv=None) -> int:

@@ -16,7 +16,7 @@
 #
 # ApolloCar3D cannot be downloaded here, so the workflow's default input is a
 # seeded synthetic annotation set in ApolloCar3D's own layout
-# (`sdm.data.write_synthetic_apollo`). This notebook puts its statistics next
+# (`sdm.experiments.data.write_synthetic_apollo`). This notebook puts its statistics next
 # to those of the 57 real frames in `data/apollocar3d-sample` and next to
 # the figures the paper gives about ApolloCar3D as a whole:
 #
@@ -47,8 +47,8 @@ import numpy as np
 import pandas as pd
 import torch
 
-from sdm.data import build_sky_dataset, read_apollo_camera, read_apollo_folder, write_synthetic_apollo
-from sdm.data import stats
+from sdm.experiments.data import build_sky_dataset, read_apollo_camera, read_apollo_folder, write_synthetic_apollo
+from sdm.experiments.data import stats
 from sdm.sky import SKY_SHIFT, build_configuration
 
 torch.set_num_threads(1)

@@ -18,7 +18,7 @@ import sys
 import pandas as pd
 import torch
 
-from sdm.data import SkyFile
+from sdm.experiments.data import SkyFile
 from sdm.io import read_json
 from sdm.representation import screen_pixels
 from sdm.sky import rescaled_configuration, scaled_camera, shift_vector

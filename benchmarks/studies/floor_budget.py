@@ -1,10 +1,10 @@
-"""The floor per noise level (sdm.baselines.floor), its stability under doubling and its cost.
+"""The floor per noise level (sdm.experiments.baselines.floor), its stability under doubling and its cost.
 
     PYTHONPATH=src python benchmarks/studies/floor_budget.py results/sky/sky.bin results/split/split.json \
         [--levels 0 1 2 3 4] [--runs 5] [--seed 0] [--restarts 4] [--budget 2400] [--csv out.csv]
 
 Protocol: the training set of the split; the paired runs ``(level, r)``, r = 0..R-1, of every table
-(:func:`sdm.baselines.floor.floor_runs`, noise seed ``--seed`` as ``noise.seed``); one thread. Per
+(:func:`sdm.experiments.baselines.floor.floor_runs`, noise seed ``--seed`` as ``noise.seed``); one thread. Per
 level: the mean distance to theta* of the floor (the minimal region's centre), of the search's own
 best point and of the half-budget floor (the same search after its first ``restarts / 2`` CMA-ES
 runs), the change of the mean when the budget doubles from half to full, the mean extents, how
@@ -21,7 +21,7 @@ import time
 import pandas as pd
 import torch
 
-from sdm.baselines.floor import FloorSettings, floor_runs
+from sdm.experiments.baselines.floor import FloorSettings, floor_runs
 from sdm.experiments import load_split
 
 #: CMA-ES (budget 240) mean distance per level in the default run's Table 3, 1e-3 m (60 runs).

@@ -111,7 +111,7 @@ def main(argv=None) -> int:
               f"{(time.process_time() - cpu) / max(len(noise_levels) * args.runs, 1):.3f} CPU s per run (with the flow at theta*"
               f" unless --no-flow)", file=sys.stderr, flush=True)
     if args.cmaes:
-        from sdm.baselines import baseline_noise_runs as baseline_runs, best_settings
+        from sdm.experiments.baselines import baseline_noise_runs as baseline_runs, best_settings
 
         chosen = best_settings("cmaes", pd.read_csv(args.cmaes))
         for noise_level in noise_levels:

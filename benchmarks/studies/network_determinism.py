@@ -1,6 +1,6 @@
 """Where Table 7's trained networks move: the same training under other CPU kernels and thread counts.
 
-Trains one network per loss (:func:`sdm.network.train_network`, a small set: ``--configs`` training
+Trains one network per loss (:func:`sdm.experiments.network.train_network`, a small set: ``--configs`` training
 configurations of the default synthetic Sky data, ``--epochs`` epochs) in a fresh process for each setting:
 
   * ``ATEN_CPU_CAPABILITY`` (torch's CPU kernels: ``default``, ``avx2``, ``avx512``; a machine runs the best its
@@ -36,9 +36,9 @@ ROOT = Path(__file__).resolve().parents[2]
 TRAIN = """
 import sys, torch
 from sdm.batch import ConfigurationSet
-from sdm.data import build_sky_dataset
-from sdm.data.synthetic import synthetic_images
-from sdm.network import NetworkSettings, mixed_noise_levels, predict, shift_set, train_network
+from sdm.experiments.data import build_sky_dataset
+from sdm.experiments.data.synthetic import synthetic_images
+from sdm.experiments.network import NetworkSettings, mixed_noise_levels, predict, shift_set, train_network
 
 out, configs, epochs, threads, mkldnn, *losses = sys.argv[1:]
 configs, epochs = int(configs), int(epochs)
@@ -60,7 +60,7 @@ torch.save(saved, out)
 #: One Table 7 training in its own process: argv = out.pt sky threads losses...; config.yaml's research.network.
 TABLE7 = """
 import sys, torch, yaml
-from sdm.network import distances, network_settings, predict, read_sets, train_network, training_seed
+from sdm.experiments.network import distances, network_settings, predict, read_sets, train_network, training_seed
 from sdm.sharing import TruthDistribution
 
 out, sky, threads, *losses = sys.argv[1:]
@@ -106,7 +106,7 @@ def step_time(repeats: int = 40) -> None:
 
     import torch
 
-    from sdm.network import ShiftNet
+    from sdm.experiments.network import ShiftNet
 
     torch.set_num_threads(1)
     torch.manual_seed(0)

@@ -5,14 +5,14 @@
         [--methods sdm_paper sdm_schedule cmaes cmaes_car floor] [--sigma0 S] [--penalty W] [--rows LR N_EPOCH S]
         [--gate G] [--first-level {s,prior}] [--tails]
 
-Protocol: :func:`sdm.objects.objects_runs` with the config's ``research.objects`` settings on training
+Protocol: :func:`sdm.experiments.objects.objects_runs` with the config's ``research.objects`` settings on training
 configurations ``first .. first + configurations - 1`` (Table 6 takes the first ones), rebuilt on the screen
 scaled ``--scale`` times (:func:`sdm.sky.rescaled_configuration`), runs ``0 .. runs - 1`` seeded from ``--seed``
 (Table 6 from ``noise.seed``). ``--sigma0`` replaces every search's initial step (metres), ``--penalty`` the regularised
 search's weight, ``--rows`` SDM's rows' schedule, ``--first-level`` where its rows start
-(:attr:`sdm.objects.ObjectsSettings.first_level`), ``--gate`` the prior gate (standard deviations) scored
+(:attr:`sdm.experiments.objects.ObjectsSettings.first_level`), ``--gate`` the prior gate (standard deviations) scored
 beside every method. Prints Table 6's rows
-(:func:`sdm.report.objects.table6`: each method's mean against its start's, 1e-3 m, as it is and after the prior
+(:func:`sdm.experiments.report.objects.table6`: each method's mean against its start's, 1e-3 m, as it is and after the prior
 gate) and the CPU seconds; with
 ``--tails``, per level and method, where its mean comes from: its median over its start's median, the share of units
 that end farther than their start, the mean of the others over the start's mean, and the share of the method's summed
@@ -29,13 +29,13 @@ import pandas as pd
 import torch
 import yaml
 
-import sdm.objects as objects
+import sdm.experiments.objects as objects
 import sdm.sharing as S
 from sdm.batch import ConfigurationSet
-from sdm.data import SkyFile
+from sdm.experiments.data import SkyFile
 from sdm.experiments import single_thread
 from sdm.io import read_json
-from sdm.report.objects import table6
+from sdm.experiments.report.objects import table6
 from sdm.sky import rescaled_configuration, scaled_camera
 
 
@@ -106,7 +106,7 @@ def main(argv=None) -> int:
 
 
 def tails(records: pd.DataFrame) -> pd.DataFrame:
-    """Per (level, method) of :func:`sdm.objects.objects_runs`' records: ``median_of_start`` (its median distance over
+    """Per (level, method) of :func:`sdm.experiments.objects.objects_runs`' records: ``median_of_start`` (its median distance over
     its start's median), ``farther`` (the share of units ending farther than their start), ``rest_of_start`` (the
     mean of the other units over the start's mean on all units) and ``farther_share`` (the share of its summed
     distance the farther units carry)."""

@@ -7,11 +7,11 @@ Protocol: training configurations ``first .. first + configurations - 1`` of SKY
 first ``research.objects.configurations``, so none of these is in a table), rebuilt on the screen scaled ``scale``
 times (:func:`sdm.sky.rescaled_configuration`, disc rule ``--disc``). One shift per car drawn from
 ``research.objects.truth`` with ``run_seed(--seed, 0, r)`` (Table 6 draws from ``noise.seed``), targets rendered
-noise-free. For every car that owns points, :func:`sdm.identifiability.exact_sets` scans a square of half-width
+noise-free. For every car that owns points, :func:`sdm.experiments.identifiability.exact_sets` scans a square of half-width
 ``0.6 / scale`` m at ``0.01 / scale`` m steps. Per scale it prints the median extent per axis over the cars (and
 by depth), the mean distance of a set's points from theta*, theta*'s mean distance from the prior mean (doing
 nothing), the share of sets the scan clips, the points per car and the CPU seconds of SDM's paper-rule rows
-(:func:`sdm.objects.sdm_rows` from the prior mean, once per run) per configuration, as a Markdown table.
+(:func:`sdm.experiments.objects.sdm_rows` from the prior mean, once per run) per configuration, as a Markdown table.
 """
 from __future__ import annotations
 
@@ -23,12 +23,12 @@ from dataclasses import replace
 import torch
 import yaml
 
-import sdm.objects as objects
+import sdm.experiments.objects as objects
 from sdm import sharing as S
 from sdm.batch import ConfigurationSet
-from sdm.data import SkyFile
+from sdm.experiments.data import SkyFile
 from sdm.experiments import run_seed, single_thread
-from sdm.identifiability import exact_sets
+from sdm.experiments.identifiability import exact_sets
 from sdm.io import read_json
 from sdm.sky import rescaled_configuration, scaled_camera
 

@@ -2,13 +2,13 @@
 
     PYTHONPATH=src python benchmarks/studies/objects_refinement.py SKY SPLIT [--config config.yaml] [--sharing configuration]
 
-Protocol: Table 6's runs (:func:`sdm.objects.objects_runs`, method ``sdm_schedule`` only) with the settings of the
+Protocol: Table 6's runs (:func:`sdm.experiments.objects.objects_runs`, method ``sdm_schedule`` only) with the settings of the
 config's ``research.objects`` section, on the first ``configurations`` training configurations of SKY and SPLIT
 (those of ``make run``), runs ``0..runs-1`` of every noise level. Each variant swaps the schedule's
 :class:`sdm.train.Refinement` for one with other ``pass_steps`` and, for the damped ones, each pass at
 ``sqrt(last_width / width)`` of its halving rate (the schedule's former rates). A measurement knob, as
 ``benchmarks/studies/flow_rules.py --pass-rates``: the library names its schedules, so the variant replaces
-``sdm.objects.parse_schedule`` in this process only. Prints the mean distance per unit (1e-3 m) per level.
+``sdm.experiments.objects.parse_schedule`` in this process only. Prints the mean distance per unit (1e-3 m) per level.
 """
 from __future__ import annotations
 
@@ -18,10 +18,10 @@ import sys
 import torch
 import yaml
 
-import sdm.objects as objects
+import sdm.experiments.objects as objects
 import sdm.sharing as S
 from sdm.batch import ConfigurationSet
-from sdm.data import SkyFile
+from sdm.experiments.data import SkyFile
 from sdm.experiments import single_thread
 from sdm.io import read_json
 from sdm.train import Refinement, parse_schedule

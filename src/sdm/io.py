@@ -17,7 +17,7 @@ JSON, CSV, the rendered notebooks) goes through :func:`write_atomic`:
    temporary file is removed and the destination is left as it was.
 
 A CSV (:func:`write_csv`) gets a checksum file beside it, ``name.csv.sha256``: the SHA-256 of its bytes and its row
-count, which its reader checks (:func:`csv_damage`; :func:`sdm.report.io.read_csv`), so a result cut or changed
+count, which its reader checks (:func:`csv_damage`; :func:`sdm.experiments.report.io.read_csv`), so a result cut or changed
 after it was written is named, not read.
 
 It also says where :mod:`sdm` keeps what it can rebuild (:func:`cache_dir`: the

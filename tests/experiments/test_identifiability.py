@@ -1,4 +1,4 @@
-"""The exact-match set of a unit's shifts (sdm.identifiability) on scenes where it is known analytically."""
+"""The exact-match set of a unit's shifts (sdm.experiments.identifiability) on scenes where it is known analytically."""
 from __future__ import annotations
 
 import math
@@ -10,7 +10,7 @@ from sdm import sharing as S
 from sdm.batch import ConfigurationSet
 from sdm.camera import APOLLO_CAMERA_5
 from sdm.errors import SDMInputError
-from sdm.identifiability import exact_sets, scan_offsets
+from sdm.experiments.identifiability import exact_sets, scan_offsets
 from sdm.sky import CIRCLE_RADIUS, SKY_SHIFT, build_configuration, circle_offsets, rescaled_configuration, scaled_camera
 
 from sharing_scenes import car_grid_scene

@@ -1,11 +1,11 @@
-"""SDM inside a network (sdm.network): the gradient that reaches the weights, training, determinism, bad input."""
+"""SDM inside a network (sdm.experiments.network): the gradient that reaches the weights, training, determinism, bad input."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 import torch
 
-from sdm import network as N
+from sdm.experiments import network as N
 from sdm.batch import ConfigurationSet
 from sdm.errors import SDMInputError
 from sdm.mapping.layer import SpatialDomainMapping
@@ -197,7 +197,7 @@ def _curves(losses, runs: int, seconds: float = 10.0) -> list:
 def test_table7_gives_each_network_its_runs_mean_spread_and_paired_difference():
     """Per (level, method): the runs' mean and sample sd, and each run's difference to the SDM-trained network of
     the same run: a run that is bad for every loss (run 2) moves the means and not the paired differences."""
-    from sdm.report.network import table7
+    from sdm.experiments.report.network import table7
 
     means = {"net:sdm_closed_centred_r1": [0.050, 0.060, 0.090], "net:silhouette": [0.052, 0.063, 0.094],
              "net+k:sdm_closed_centred_r1": [0.02, 0.02, 0.02], "net+k:silhouette": [0.03, 0.01, 0.02],
@@ -226,7 +226,7 @@ def test_table7_gives_each_network_its_runs_mean_spread_and_paired_difference():
     ([0.048, 0.058, 0.080], "farther at level 0", "missed"),
 ])
 def test_table7_words_rank_only_beyond_the_runs_spread(silhouette, word, moonshot):
-    from sdm.report.network import table7, table7_summary, verdict_facts
+    from sdm.experiments.report.network import table7, table7_summary, verdict_facts
 
     means = {"net:sdm_closed_centred_r1": [0.050, 0.060, 0.090], "net:silhouette": silhouette, "train_mean": 0.2}
     table = table7([_frame(means, 0, {})], _curves(("sdm_closed_centred_r1", "silhouette"), 3))
@@ -241,7 +241,7 @@ def test_table7_words_rank_only_beyond_the_runs_spread(silhouette, word, moonsho
 
 def test_table7_words_follow_the_numbers():
     """The summary's bars read the table: met where the numbers meet them, missed where they do not."""
-    from sdm.report.network import table7, table7_summary, verdict_facts
+    from sdm.experiments.report.network import table7, table7_summary, verdict_facts
 
     nets = {"net:sdm_closed_centred_r1": [0.05, 0.05], "net:silhouette": [0.08, 0.08], "net:chamfer": [0.09, 0.09],
             "net:supervised": [0.03, 0.03], "net+k:sdm_closed_centred_r1": [0.02, 0.02], "cmaes": 0.015, "sdm_zero": 0.04}
@@ -329,7 +329,7 @@ def test_loss_bias_weighs_every_configuration_alike_whatever_the_batch(sets, kin
 def test_every_method_is_scored_per_run_with_its_error_and_the_training_sets_mean(sets):
     """test_methods: a network's rows carry their run; the error per axis is theta - theta* and its norm the
     distance; the training set's mean theta* is scored for every configuration; the searches have no run."""
-    from sdm.objects import search_settings
+    from sdm.experiments.objects import search_settings
 
     train, dev = sets
     searches = search_settings({"lr": 1e-4, "n_epoch": 2}, {"lr": 5e-3, "n_epoch": 1, "s": 2},

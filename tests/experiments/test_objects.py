@@ -1,4 +1,4 @@
-"""Table 6's driver (sdm.objects) and its report (sdm.report.objects) on a few configurations."""
+"""Table 6's driver (sdm.experiments.objects) and its report (sdm.experiments.report.objects) on a few configurations."""
 from __future__ import annotations
 
 from dataclasses import replace
@@ -7,12 +7,12 @@ import pandas as pd
 import pytest
 import torch
 
-from sdm.baselines.rows import RowsCMAESSettings, RowsFloorSettings
-from sdm.baselines.silhouette import SilhouetteSettings
+from sdm.experiments.baselines.rows import RowsCMAESSettings, RowsFloorSettings
+from sdm.experiments.baselines.silhouette import SilhouetteSettings
 from sdm.errors import SDMInputError
-from sdm.objects import EXACT_SET, METHODS, REFERENCES, ObjectsSettings, objects_runs, scaling_runs
-from sdm.report.objects import read_units_archive, table6, table6_summary, tail_words, units_archive, verdict_facts
-from sdm.report.scaling import scaling_table, scaling_words
+from sdm.experiments.objects import EXACT_SET, METHODS, REFERENCES, ObjectsSettings, objects_runs, scaling_runs
+from sdm.experiments.report.objects import read_units_archive, table6, table6_summary, tail_words, units_archive, verdict_facts
+from sdm.experiments.report.scaling import scaling_table, scaling_words
 from sdm.train import TrainSettings
 
 from sdm.batch import ConfigurationSet
@@ -96,7 +96,7 @@ def test_table6_and_its_words(data):
 
 
 def test_scaling_gives_one_point_per_budget(data):
-    from sdm.data import set_with_cars
+    from sdm.experiments.data import set_with_cars
 
     cars = set_with_cars(16, 2, seed=0)
     frame = scaling_runs(cars, 2, 0, [0], seed=1, settings=SETTINGS, epochs=[1, 2], budgets=[5])
@@ -166,7 +166,7 @@ def test_two_screens_give_two_blocks_each_naming_its_scale(data):
 
 def test_the_units_archive_holds_every_record(data, tmp_path):
     runs = objects_runs(data, "configuration", 0, [0], seed=9, settings=SETTINGS, methods=["sdm_paper"])
-    from sdm.data import set_with_cars
+    from sdm.experiments.data import set_with_cars
 
     scaled = scaling_runs(set_with_cars(16, 1, seed=0), 1, 0, [0], seed=1, settings=SETTINGS, epochs=[1], budgets=[5])
     archive = units_archive([runs.assign(scale=1)], [scaled.assign(scale=1)])
@@ -180,7 +180,7 @@ def test_the_units_archive_holds_every_record(data, tmp_path):
 
 
 def test_scaling_reports_the_exact_sets_and_the_crossover():
-    from sdm.data import set_with_cars
+    from sdm.experiments.data import set_with_cars
 
     cars = set_with_cars(16, 2, seed=0)
     frame = scaling_runs(cars, 2, 0, [0, 1], seed=1, settings=SETTINGS, epochs=[1], budgets=[5], scan=(0.3, 0.02))
@@ -199,7 +199,7 @@ def test_scaling_reports_the_exact_sets_and_the_crossover():
      "at every K measured (2-8). The best peer ends farther than doing nothing at K = 8."),
 ])
 def test_the_crossover_in_words(rows, expected):
-    from sdm.report.scaling import _crossover
+    from sdm.experiments.report.scaling import _crossover
 
     assert expected in _crossover(rows)
 
@@ -228,7 +228,7 @@ def test_tail_words_say_which_cars_make_the_mean():
 
 
 def test_the_prior_gate_returns_exactly_the_rows_beyond_it_to_their_start():
-    from sdm.gate import prior_gate
+    from sdm.experiments.gate import prior_gate
 
     start = torch.tensor([[0.5, 0.3], [0.5, 0.3], [0.0, 0.0], [1.0, 1.0]], dtype=torch.float64)
     # travels 0.29 (within 2 x 0.15), 0.4 (beyond), 0.09 (beyond 2 x 0.04) and 0.3 (not beyond: kept)
@@ -245,7 +245,7 @@ def test_the_prior_gate_returns_exactly_the_rows_beyond_it_to_their_start():
 
 
 def test_each_row_is_gated_with_the_spread_its_theta_star_is_drawn_with(data):
-    from sdm.gate import prior_sd
+    from sdm.experiments.gate import prior_sd
     from sdm import sharing as S
 
     truth = S.TruthDistribution(camera_sd=0.2, car_sd=0.15, residual_sd=0.05)

@@ -26,9 +26,9 @@ from sdm.experiments import (
     DEPTH_RUN_COLUMNS, RUN_COLUMNS, depth_noise_runs, noise_runs, rule_noise_runs, run_seed,
 )
 from run_reference import depth_noise_run, noise_run
-from sdm import paper
-from sdm.report.depth import DEPTH_BAR_M, depth_figure, table5_bias_summary, table5_frame, table5_summary, write_table5
-from sdm.report.research import (
+from sdm.experiments import paper
+from sdm.experiments.report.depth import DEPTH_BAR_M, depth_figure, table5_bias_summary, table5_frame, table5_summary, write_table5
+from sdm.experiments.report.research import (
     beyond_the_paper, half_paper_mean_m, rules_against_baselines, rules_figure, table4_frame, table4_summary, rule_times,
     write_table4,
 )

@@ -1,5 +1,5 @@
 """The compiled kernel's bindings, one module per caller: the build cache (sdm.mapping.build) below them all, the
-CMA-ES count beside the baseline (sdm.baselines.cmaes_native), the noise fill beside sdm.sky (sdm.sky_native).
+CMA-ES count beside the baseline (sdm.experiments.baselines.cmaes_native), the noise fill beside sdm.sky (sdm.sky_native).
 Each binding takes its arrays by keyword and checks them before the ctypes call, naming the argument."""
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ import pytest
 import torch
 
 from scenes import configuration_set
-from sdm.baselines.mismatch import MismatchMemo, PixelMismatch
-from sdm.baselines.cmaes_native import pixel_mismatch
+from sdm.experiments.baselines.mismatch import MismatchMemo, PixelMismatch
+from sdm.experiments.baselines.cmaes_native import pixel_mismatch
 from sdm.errors import SDMInputError
 from sdm.mapping import build
 from sdm.sky import NoiseBuffer
@@ -22,24 +22,24 @@ needs_kernel = pytest.mark.skipif(not build.enabled(), reason="no C compiler: th
 
 
 def test_the_mapping_package_imports_without_the_baselines():
-    """sdm.mapping (the layer, its rules and the kernel's bindings) imports with sdm.baselines made unimportable."""
+    """sdm.mapping (the layer, its rules and the kernel's bindings) imports with sdm.experiments.baselines made unimportable."""
     script = textwrap.dedent(
         """
         import importlib.abc, sys
 
         class NoBaselines(importlib.abc.MetaPathFinder):
             def find_spec(self, name, path=None, target=None):
-                if name == "sdm.baselines" or name.startswith("sdm.baselines."):
+                if name == "sdm.experiments.baselines" or name.startswith("sdm.experiments.baselines."):
                     raise ImportError(f"{name} is blocked")
                 return None
 
         sys.meta_path.insert(0, NoBaselines())
         import sdm.mapping, sdm.mapping.native, sdm.mapping.build, sdm.mapping.research_rules
         try:
-            import sdm.baselines
+            import sdm.experiments.baselines
         except ImportError:
             print("blocked")
-        print(sorted(name for name in sys.modules if name.startswith("sdm.baselines")))
+        print(sorted(name for name in sys.modules if name.startswith("sdm.experiments.baselines")))
         """
     )
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=300)

@@ -14,7 +14,7 @@ from owner_reference import reference_cars
 from scenes import configurations
 from sdm.batch import ConfigurationSet
 from sdm.camera import APOLLO_CAMERA_5
-from sdm.data import (
+from sdm.experiments.data import (
     SkyFile, build_configurations, images_with_cars, read_annotations, set_with_cars, synthetic_images, write_sky_file,
 )
 from sdm.errors import SDMInputError

@@ -80,8 +80,8 @@ def plotting_run(tmp_path_factory):
     cells = [
         "out = 'fig.png'\n",
         "import matplotlib.pyplot as plt\n"
-        "from sdm.data import build_sky_dataset, synthetic_images\n"
-        "from sdm.report import figures\n"
+        "from sdm.experiments.data import build_sky_dataset, synthetic_images\n"
+        "from sdm.experiments.report import figures\n"
         "configurations = build_sky_dataset(synthetic_images(4, seed=0), n_sample=3, progress=True)\n",
         # a pyplot figure shown with plt.show(), as the data / sky / tune notebooks do
         "fig, ax = plt.subplots()\nax.plot([0, 1], [0, 1])\nplt.show()\n",

@@ -230,13 +230,13 @@ def test_a_library_edit_reruns_the_stages_that_run_it(touched_project, expected_
 
 
 def test_cmaes_and_flow_edits_rerun_what_docs_maintaining_md_says(touched_project, expected_plans):
-    """The two edits docs/maintaining.md spells out: sdm/baselines/cmaes.py reruns Table 3's stages (every method's
-    jobs: the notebook imports sdm.baselines, which imports every method), the floor (its search is CMA-ES's)
+    """The two edits docs/maintaining.md spells out: sdm/experiments/baselines/cmaes.py reruns Table 3's stages (every method's
+    jobs: the notebook imports sdm.experiments.baselines, which imports every method), the floor (its search is CMA-ES's)
     and what reads them (Table 4, the report), Table 6's stages (their baselines per configuration search as
-    CMA-ES does), Table 7's (sdm.network runs CMA-ES per configuration and the image losses), never Tables 1-2;
+    CMA-ES does), Table 7's (sdm.experiments.network runs CMA-ES per configuration and the image losses), never Tables 1-2;
     sdm/mapping/flow.py reruns every stage (sdm/__init__.py imports the layer)."""
     project, _ = touched_project
-    cmaes = expected_plans("src/sdm/baselines/cmaes.py")
+    cmaes = expected_plans("src/sdm/experiments/baselines/cmaes.py")
     assert set(cmaes) == {"baseline_tune", "baseline_runs", "floor_runs", "table3", "table4", "objects_runs",
                           "objects_scaling", "table6", "network_train", "network_test", "network_bias", "table7",
                           "report"}, cmaes

@@ -16,7 +16,7 @@ from code_deps import CodeDepsError, fingerprint
 RESULTS = config["results_dir"].rstrip("/")
 LOGS, BENCHMARKS = f"{RESULTS}/logs", f"{RESULTS}/benchmarks"
 
-# The Sky dataset file written by sdm.data.write_sky_file.
+# The Sky dataset file written by sdm.experiments.data.write_sky_file.
 SKY_FILE = f"{RESULTS}/sky/sky.bin"
 SPLIT_FILE = f"{RESULTS}/split/split.json"
 BEST_FILE = f"{RESULTS}/tuning/best.json"

@@ -4,8 +4,8 @@
 
 A run writes its verdict facts itself (the report stage's ``report/verdict.json``, Table 6's and Table 7's
 ``table<n>_verdict.json``), and ``make snapshot-<name>`` copies them. This script computes the same facts with the
-same library functions (``sdm.report.verdict.facts``, ``sdm.report.objects.verdict_facts``,
-``sdm.report.network.verdict_facts``) from the CSVs a snapshot holds, for a snapshot whose run wrote none or whose
+same library functions (``sdm.experiments.report.verdict.facts``, ``sdm.experiments.report.objects.verdict_facts``,
+``sdm.experiments.report.network.verdict_facts``) from the CSVs a snapshot holds, for a snapshot whose run wrote none or whose
 facts changed shape since. It writes the facts file into the snapshot's folder and records in its
 ``PROVENANCE.json`` the file's new SHA-256 and, under ``derived``, that this script made it, at which commit, from
 which files. The verdict reads the config (``config.yaml`` and the snapshot's overlay, merged as Snakemake merges
@@ -22,9 +22,9 @@ import provenance
 from code_deps import ROOT
 from provenance import PARTS
 from sdm.io import write_json
-from sdm.report import network, objects
-from sdm.report.io import read_csv
-from sdm.report.verdict import data_facts, facts
+from sdm.experiments.report import network, objects
+from sdm.experiments.report.io import read_csv
+from sdm.experiments.report.verdict import data_facts, facts
 
 #: The CSVs each snapshot's facts are computed from (relative to its folder).
 SOURCES = {

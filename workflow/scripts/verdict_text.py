@@ -2,8 +2,8 @@
 (:func:`render`).
 
 The facts are the runs' own (``report/verdict.json`` of the default run and of the real sample, Table 6's
-``table6_verdict.json``, Table 7's ``table7_verdict.json``: ``sdm.report.verdict`` and the ``verdict_facts`` of
-``sdm.report.objects`` and ``sdm.report.network``). :func:`verdict` picks what each answer needs, with the
+``table6_verdict.json``, Table 7's ``table7_verdict.json``: ``sdm.experiments.report.verdict`` and the ``verdict_facts`` of
+``sdm.experiments.report.objects`` and ``sdm.experiments.report.network``). :func:`verdict` picks what each answer needs, with the
 snapshots it comes from; :func:`render` is the only place that words them, so the wording can change while the
 tests hold the data. The verdict is a short table in millimetres, then at most five answers, one sentence each:
 does SDM reproduce the paper, does it beat black-box search on the paper's problem, what to use instead and when,

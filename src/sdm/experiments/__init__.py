@@ -1,17 +1,24 @@
-"""The paper's experiments as functions: the train/dev split, a tuning cell, the paired noise runs of every table.
+"""The paper's experiments, apart from the layer: every table's drivers, the baselines, the network study, the
+report. They need the ``experiments`` extra (pandas, matplotlib); the layer (``import sdm``) does not.
 
 - :mod:`sdm.experiments.runs`: the split, the tuning cells and the seeded noise runs (Tables 1, 2, 4 and 5).
 - :mod:`sdm.experiments.bias`: where a rule's flow vanishes, per noise level and zoom.
+- :mod:`sdm.experiments.data`: the Sky set from ApolloCar3D frames or synthetic scenes.
+- :mod:`sdm.experiments.baselines`: Table 3's methods and the floor.
+- :mod:`sdm.experiments.objects`, :mod:`sdm.experiments.gate`, :mod:`sdm.experiments.identifiability`: Table 6.
+- :mod:`sdm.experiments.network`: Table 7, SDM inside a network.
+- :mod:`sdm.experiments.report`: the tables, figures and words of the report; :mod:`sdm.experiments.paper`: the
+  paper's published numbers.
 
 The workflow's notebooks narrate and call these; nothing here is specific to
 Snakemake. Every random choice takes an explicit seed, so a stage gives the
 same numbers whenever and wherever it runs:
 
-- the image sample is :func:`sdm.data.sample_indices` (the data layer's, which
-  :func:`sdm.data.build_sky_dataset` uses too); the split uses a ``torch.Generator``
+- the image sample is :func:`sdm.experiments.data.sample_indices` (the data layer's, which
+  :func:`sdm.experiments.data.build_sky_dataset` uses too); the split uses a ``torch.Generator``
   seeded with the config's seed;
 - the seed flows one way: the experiment's seed is ``settings.seed``; noise run
-  ``run`` at ``level`` trains with :func:`run_seed` ``(settings.seed, level, run)``,
+  ``run`` at ``noise_level`` trains with :func:`run_seed` ``(settings.seed, noise_level, run)``,
   which fixes both the noise drawn on its training targets and the shuffling of
   its mini-batches (and is reported in its row).
 """

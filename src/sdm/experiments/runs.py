@@ -12,7 +12,7 @@ import torch
 
 from ..batch import ConfigurationSet
 from ..camera import APOLLO_CAMERA_5, Camera
-from ..data import SkyFile
+from .data import SkyFile
 from ..depth import depth_targets
 from ..errors import SDMInputError
 from ..metrics import dev_loss, distance
@@ -62,7 +62,7 @@ def load_split(sky_path: str | Path, split: dict, camera: Camera | None = None):
     """The train and dev :class:`~sdm.batch.ConfigurationSet` of a Sky file and a split.
 
     Args:
-        sky_path: file written by :func:`sdm.data.write_sky_file`.
+        sky_path: file written by :func:`sdm.experiments.data.write_sky_file`.
         split: dict with ``train`` and ``dev`` index lists (the split stage's JSON).
         camera: defaults to the Sky file's camera.
 
@@ -100,7 +100,7 @@ def tune_cell(train_set, dev_set, settings, shift: Sequence[float] = SKY_SHIFT, 
     Returns:
         ``(record, history)``: the record holds the settings, ``dev_loss`` (mean false-positive
         pixels per dev configuration), ``train_loss`` (the same measure on the training
-        configurations, at the same final theta: Table 1's tie-break, :func:`sdm.report.tables.best_index`),
+        configurations, at the same final theta: Table 1's tie-break, :func:`sdm.experiments.report.tables.best_index`),
         the final ``a``, ``b`` and ``distance`` (metres; reported, not used to choose);
         ``history`` is the training's :meth:`~sdm.train.History.to_frame`.
     """
@@ -129,7 +129,7 @@ def noisy_targets(targets: torch.Tensor, noise_level: int, seed: int, active: to
 
 
 #: Columns of Table 2's run rows (:func:`noise_runs`); lengths in metres, ``seed`` the run's own.
-#: Table 3's (:data:`sdm.baselines.RUN_COLUMNS`) and Table 4's (:func:`rule_noise_runs`) are built on it.
+#: Table 3's (:data:`sdm.experiments.baselines.RUN_COLUMNS`) and Table 4's (:func:`rule_noise_runs`) are built on it.
 RUN_COLUMNS = ["noise_level", "run", "seed", "a", "b", "distance"]
 
 
@@ -198,7 +198,7 @@ def train_group(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     (``theta0``: as there, ``None`` for every run from ``(0, 0)``).
 
     Table 2's, 4's and 5's runs (through :func:`paired_runs`) and SDM's rows of Table 3
-    (:func:`sdm.baselines.sdm_layer.fit_runs`) all train here. ``refine``: the schedule's extra passes
+    (:func:`sdm.experiments.baselines.sdm_layer.fit_runs`) all train here. ``refine``: the schedule's extra passes
     (:class:`sdm.train.Refinement`, :func:`sdm.train.refine_runs`), or ``None`` for the paper's schedule.
 
     Returns:

@@ -3,7 +3,7 @@ and loaded with ctypes.
 
 The kernel serves three callers, each through a binding module of its own that imports this one: the layer and
 the trainer (:mod:`sdm.mapping.native`), the paired runs' noise (:mod:`sdm.sky_native`) and the CMA-ES baseline's
-count (:mod:`sdm.baselines.cmaes_native`). :func:`library` is the loaded library, its functions typed by
+count (:mod:`sdm.experiments.baselines.cmaes_native`). :func:`library` is the loaded library, its functions typed by
 :data:`SIGNATURES`; :func:`check_arrays` checks a binding's arrays before a call.
 
 The kernel's sources (:data:`SOURCES`, one file per concern: ``chain.c`` the layer's chain and flow, ``train.c``
@@ -87,7 +87,7 @@ SIGNATURES: dict[str, tuple[object, list]] = {
     "sdm_train": (_I64, [_I64, _I64, _PTR, _PTR, _PTR, _PTR, _I64, _I64, _PTR, _I64, _I64, _I64, _I64,
                          *[_PTR] * 11, _I64, _I64, _I64, _PTR, _PTR, _I64, _PTR, _PTR, _PTR, _PTR]),
     "sdm_noise_fill": (_I64, [_I64, _PTR, _I64, _PTR, _PTR, _I64, _I64, _PTR, _PTR, _I64]),
-    # the CMA-ES baseline's count (sdm.baselines.cmaes_native)
+    # the CMA-ES baseline's count (sdm.experiments.baselines.cmaes_native)
     "sdm_pixel_mismatch": (None, [_I64, _PTR, _I64, _I64, *[_PTR] * 8, _I64, _I64, _PTR, _I64, _I64,
                                   *[_PTR] * 5]),
 }

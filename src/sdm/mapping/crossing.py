@@ -60,7 +60,7 @@ def rigid_groups(screen: torch.Tensor, depth: torch.Tensor, config: torch.Tensor
 def group_move_changes(screen, group, config, target) -> torch.Tensor:
     """``(G, 4)`` how the exact zoom-0 pixel mismatch changes when one rigid group alone moves one pixel.
 
-    The mismatch of a configuration is CMA-ES's objective (:mod:`sdm.baselines.cmaes`): the pixels covered by
+    The mismatch of a configuration is CMA-ES's objective (:mod:`sdm.experiments.baselines.cmaes`): the pixels covered by
     the projections ``floor(screen)`` of its points (all of them, not only the chain's survivors) against its
     target, false positives plus false negatives; off-screen pixels count nothing. For each group and each move
     of :data:`_MOVES` (y+, y-, x+, x-), with every other point where it is: a pixel the group leaves (one of

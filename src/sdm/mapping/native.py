@@ -25,7 +25,7 @@ chain runs in int32 with the per-coordinate arithmetic vectorised, its
 projection two points per AVX2 register where the CPU has it (picked at run
 time), and it zooms the runs' targets out itself (``kernel/train.c`` and its parts say why each
 keeps the bits). The kernel's other callers have bindings of their own: :mod:`sdm.sky_native` (the paired runs'
-noise) and :mod:`sdm.baselines.cmaes_native` (the CMA-ES baseline's count).
+noise) and :mod:`sdm.experiments.baselines.cmaes_native` (the CMA-ES baseline's count).
 """
 from __future__ import annotations
 

@@ -57,7 +57,7 @@ def train(
         :class:`History` (on the CPU).
 
     >>> from sdm import ConfigurationSet, build_configuration, distance
-    >>> from sdm.data.synthetic import synthetic_images
+    >>> from sdm.experiments.data.synthetic import synthetic_images
     >>> images = synthetic_images(32)  # the default synthetic data's first 32 images: car centres, metres
     >>> data = ConfigurationSet.from_configurations([build_configuration(image.centres) for image in images])
     >>> history = train(data, TrainSettings(n_epoch=2), progress=False)
@@ -151,7 +151,7 @@ def train_runs(
 
     >>> import torch
     >>> from sdm import ConfigurationSet, add_target_noise, build_configuration, distance
-    >>> from sdm.data.synthetic import synthetic_images
+    >>> from sdm.experiments.data.synthetic import synthetic_images
     >>> images = synthetic_images(32)  # the default synthetic data's first 32 images: car centres, metres
     >>> data = ConfigurationSet.from_configurations([build_configuration(image.centres) for image in images])
     >>> noisy = add_target_noise(data.targets, 2, torch.Generator().manual_seed(1))  # Table 2's noise, level 2
