@@ -66,7 +66,7 @@ from .baselines.silhouette import SilhouetteSettings
 from .batch import ConfigurationSet
 from .errors import SDMInputError
 from .experiments import noisy_targets, run_seed
-from .gate import prior_gate, prior_levels, prior_sd
+from .gate import prior_gate, prior_sd, prior_zooms
 from .identifiability import exact_sets
 from .train import TrainSettings, parse_schedule, rates_per_point, refine_runs, train_runs
 
@@ -94,7 +94,7 @@ class ObjectsSettings:
         car_sigma0: CMA-ES per car's initial step, metres (``cmaes.sigma0`` is the joint and regularised searches').
         gate: the prior gate, in standard deviations of a row's prior (:func:`prior_gate`).
         first_level: where SDM's rows start training: ``"s"``, every row at ``rows.s`` (the paper's schedule), or
-            ``"prior"``, each row at the level whose block covers its prior spread (:func:`sdm.gate.prior_levels`),
+            ``"prior"``, each row at the level whose block covers its prior spread (:func:`sdm.gate.prior_zooms`),
             at ``rows.lr`` there (the chain still runs from ``rows.s``).
     """
 
@@ -146,12 +146,12 @@ def sdm_rows(data: ConfigurationSet, targets: torch.Tensor, sharing: S.Sharing, 
     shared, shared_seconds = start if start is not None else shared_start(data, targets, seed, settings, rule)
     began = _cpu()
     rows = [replace(settings.rows, rule=rule, seed=seed)]
-    row_rate, row_level = rates_per_point(sharing.param_index), None
-    if settings.first_level == "prior":  # each row at rows.lr at its own first level, halved per level below it
-        row_level = prior_levels(data, sharing, prior_sd(sharing, settings.truth), settings.rows.s)
-        row_rate = row_rate * 2.0 ** (settings.rows.s - row_level).to(torch.float64)
+    row_rate, row_zoom = rates_per_point(sharing.param_index), None
+    if settings.first_level == "prior":  # each row at rows.lr at its own first zoom, halved per zoom below it
+        row_zoom = prior_zooms(data, sharing, prior_sd(sharing, settings.truth), settings.rows.s)
+        row_rate = row_rate * 2.0 ** (settings.rows.s - row_zoom).to(torch.float64)
     history = train_runs(data, [targets], rows, theta0=[_start_table(sharing, shared)],
-                         param_index=sharing.param_index, row_rate=row_rate, row_level=row_level)
+                         param_index=sharing.param_index, row_rate=row_rate, row_zoom=row_zoom)
     if refine is not None:
         history = refine_runs(data, [targets], rows, history, refine, param_index=sharing.param_index,
                               row_rate=row_rate)
