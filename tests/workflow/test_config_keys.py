@@ -3,6 +3,7 @@ split and the Sky set, batches against the sizes, rule names against the schema'
 naming the key's path."""
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -122,18 +123,29 @@ def test_the_workflow_refuses_a_bad_key_before_any_job(tmp_path):
            "unexpected)" in done.stdout + done.stderr
 
 
+def _schema_node(path: str) -> dict:
+    """The schema's node of a dotted key (``*``: the items of a list)."""
+    import config_check
+
+    node = yaml.safe_load(config_check.SCHEMA_PATH.read_text())
+    for key in path.split("."):
+        node = node["items"] if key == "*" else node["properties"][key]
+    return node
+
+
 @pytest.mark.parametrize("old, new", sorted(__import__("config_check").RENAMED.items()))
 def test_a_key_under_its_old_name_is_refused_naming_the_new_one(old, new):
-    """Each renamed key (config_check.RENAMED), written under its old name where config.yaml has the new one, is
-    refused before the schema runs, with the new name in the message."""
+    """Each renamed key (config_check.RENAMED), written under its old name where config.yaml has the new one (``*``:
+    the list's first item; where config.yaml leaves the key out, the first value its schema allows), is refused
+    before the schema runs, with the new name in the message (a list item named by its index)."""
     config = _config()
     node = config
     *parents, last = new.split(".")
     for key in parents:
-        node = node[key]
-    node[old.split(".")[-1]] = node.pop(last)
-    with pytest.raises(ConfigError, match=rf"^config key '{old.replace('.', '[.]')}' is now "
-                                          rf"'{new.replace('.', '[.]')}'"):
+        node = node[0 if key == "*" else key]
+    node[old.split(".")[-1]] = node.pop(last) if last in node else _schema_node(new)["enum"][0]
+    shown = {name: re.escape(name.replace(".*.", "[0].")) for name in (old, new)}
+    with pytest.raises(ConfigError, match=rf"^config key '{shown[old]}' is now '{shown[new]}'"):
         _checked(config)
 
 
@@ -141,9 +153,6 @@ def test_the_renamed_keys_exist_under_their_new_name_in_the_schema():
     """A rename's new key is a key of the schema: the message never points to a key that does not exist."""
     import config_check
 
-    schema = yaml.safe_load(config_check.SCHEMA_PATH.read_text())
     for new in config_check.RENAMED.values():
-        node = schema
-        for key in new.split("."):
-            node = node["properties"][key]
-        assert "description" in node or "type" in node or "allOf" in node, new
+        node = _schema_node(new)
+        assert "description" in node or "type" in node or "allOf" in node or "enum" in node, new
