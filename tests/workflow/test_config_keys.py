@@ -79,12 +79,12 @@ def _set(config: dict, path: str, value) -> dict:
     ("research.objects.methods", [], r"config key 'research\.objects\.methods': \[\] should be non-empty"),
     ("research.objects.identifiability.step", 0, r"config key 'research\.objects\.identifiability\.step': 0 is less "
                                                  r"than or equal to the minimum of 0"),
-    ("research.objects.rows.first_level", "zero", r"config key 'research\.objects\.rows\.first_level': 'zero' is "
-                                                  r"not one of \['s', 'prior'\]"),
+    ("research.objects.rows.first_zoom", "zero", r"config key 'research\.objects\.rows\.first_zoom': 'zero' is "
+                                                 r"not one of \['s', 'prior'\]"),
 ], ids=["unknown-key", "unknown-rule", "schedule-for-a-rule", "sizes", "train-batch", "per-epoch-over-train",
         "per-epoch-under-batch", "per-epoch-negative", "no-runs", "refine-batch",
         "silhouette-batch", "screen-twice", "scaling-off-screen", "screen-without-scale", "screen-scale-0",
-        "screen-method", "screen-key", "no-methods", "scan-step", "first-level"])
+        "screen-method", "screen-key", "no-methods", "scan-step", "first-zoom"])
 def test_a_bad_research_key_is_refused_naming_its_path(path, value, message):
     """On main each of these passed the checks before the run and failed (if at all) inside the stages."""
     config = _set(_config(), path, value)
@@ -98,7 +98,7 @@ def test_config_yaml_runs_table6_on_two_screens_the_scaling_on_the_first():
     screens = objects["screens"]
     assert [screen["scale"] for screen in screens] == [12, 1]
     assert objects["scaling"]["scale"] == 12
-    assert screens[0]["rows"] == {"lr": 2.5e-3, "n_epoch": 16, "s": 6, "first_level": "prior"}
+    assert screens[0]["rows"] == {"lr": 2.5e-3, "n_epoch": 16, "s": 6, "first_zoom": "prior"}
     assert screens[0]["cmaes"]["car_step"] == 0.1 and screens[0]["cmaes"]["step"] == 0.03
     assert 0 in objects["levels"] and 2 in objects["levels"] and objects["runs"] >= 20
 
@@ -146,6 +146,15 @@ def test_a_key_under_its_old_name_is_refused_naming_the_new_one(old, new):
     node[old.split(".")[-1]] = node.pop(last) if last in node else _schema_node(new)["enum"][0]
     shown = {name: re.escape(name.replace(".*.", "[0].")) for name in (old, new)}
     with pytest.raises(ConfigError, match=rf"^config key '{shown[old]}' is now '{shown[new]}'"):
+        _checked(config)
+
+
+def test_an_old_key_in_a_list_item_is_refused_naming_the_item():
+    """A renamed key in an item of a list (a screen's rows) is named with the item's index, in both names."""
+    config = _config()
+    config["research"]["objects"]["screens"][1]["rows"] = {"lr": 1e-3, "n_epoch": 2, "s": 3, "first_level": "prior"}
+    with pytest.raises(ConfigError, match=r"^config key 'research\.objects\.screens\[1\]\.rows\.first_level' is now "
+                                          r"'research\.objects\.screens\[1\]\.rows\.first_zoom'"):
         _checked(config)
 
 

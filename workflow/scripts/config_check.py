@@ -60,6 +60,8 @@ def load_config(path: str | Path, schema: str | Path = SCHEMA_PATH) -> dict:
 RENAMED = {
     "research.depth.flow": "research.depth.schedule",
     "research.network.refine.flow": "research.network.refine.rule",
+    "research.objects.rows.first_level": "research.objects.rows.first_zoom",
+    "research.objects.screens.*.rows.first_level": "research.objects.screens.*.rows.first_zoom",
 }
 
 
