@@ -45,7 +45,7 @@ def probe(data_path: str, device: str) -> dict:
                     f"{key}_matched": result.result.matched, f"{key}_landed": result.result.landed,
                     f"{key}_depth": result.depth_map()}
     info = explain_point(batch.points[0] + torch.tensor([0.05, 0.02, 0.0], dtype=torch.float64, device=device),
-                         tuple(batch.pixels[0].tolist()), batch.targets[0], level=1)
+                         tuple(batch.pixels[0].tolist()), batch.targets[0], zoom=1)
     out |= {"explain_pull": info["pull"], "explain_kernel": info["kernel"]}
     out["phases"] = subrep_phases(2, device=device)
     out["pyramid1"] = target_pyramid(data.targets, 2)[1]

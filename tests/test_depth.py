@@ -98,17 +98,17 @@ def test_depth_runs_trained_together_follow_their_own_histories():
     assert abs(packed.final_theta[0][2] - packed.final_theta[1][2]) > 0.1  # each run its own c
 
 
-def test_depth_zoom_holds_c_at_the_finer_levels():
+def test_depth_zoom_holds_c_at_the_finer_zooms():
     """c moves down to depth_zoom and is held below it, while (a, b) go on; depth_zoom beyond s means s."""
     data = ConfigurationSet.from_configurations(configurations(48, 6))
     data = data.with_targets(depth_targets(data, (0.517, 0.303, 1.0)))
-    for depth_zoom, held_levels in ((1, [0]), (2, [1, 0]), (9, [2, 1, 0])):
+    for depth_zoom, held_zooms in ((1, [0]), (2, [1, 0]), (9, [2, 1, 0])):
         history = train(data, TrainSettings(lr=1e-4, n_epoch=1, s=3, fit_depth=True, depth_zoom=depth_zoom),
                         progress=False)
         moved = (history.theta[1:] != history.theta[:-1])  # (steps, 3) this step changed the parameter
-        for level in range(3, -1, -1):
-            at_level = history.level == level
-            assert bool(moved[at_level, 0].any() or moved[at_level, 1].any()), (depth_zoom, level)
-            assert bool(moved[at_level, 2].any()) == (level not in held_levels), (depth_zoom, level)
+        for zoom in range(3, -1, -1):
+            at_zoom = history.level == zoom
+            assert bool(moved[at_zoom, 0].any() or moved[at_zoom, 1].any()), (depth_zoom, zoom)
+            assert bool(moved[at_zoom, 2].any()) == (zoom not in held_zooms), (depth_zoom, zoom)
     with pytest.raises(Exception, match="depth_zoom"):
         TrainSettings(fit_depth=True, depth_zoom=-1)

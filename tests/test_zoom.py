@@ -38,8 +38,8 @@ def test_first_step_follows_the_papers_reshape():
 
 def test_zoomed_out_target_is_the_union_of_subrepresentations_and_a_max_pool():
     target = torch.rand(3, 128, 256, generator=torch.Generator().manual_seed(1)) > 0.97
-    for steps, level in enumerate(target_pyramid(target, 4)):
-        assert torch.equal(level, space_to_depth(target, steps).any(-3))
+    for steps, zoomed in enumerate(target_pyramid(target, 4)):
+        assert torch.equal(zoomed, space_to_depth(target, steps).any(-3))
         pooled = F.max_pool2d(target.float()[:, None], 1 << steps)[:, 0] > 0
         assert torch.equal(zoom_out(target, steps), pooled)
 

@@ -20,30 +20,30 @@ from sdm.train import TrainSettings
 
 
 def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera=None, method: str = "fast",
-                    theta0=(0.0, 0.0), param_index=None, row_rate=None, levels=None, rates=None,
-                    crossing_widths=None, row_level=None) -> tuple[torch.Tensor, torch.Tensor]:
+                    theta0=(0.0, 0.0), param_index=None, row_rate=None, zooms=None, rates=None,
+                    crossing_widths=None, row_zoom=None) -> tuple[torch.Tensor, torch.Tensor]:
     """``(theta (steps + 1, n_params), loss (steps,))`` float64 CPU of one run (the set's own targets).
 
     ``param_index`` ``(P, G)`` (parameters attached to points): ``theta0`` is ``(K, 2)``, each point moved by the sum
-    of its rows in column order, and theta comes back ``(steps + 1, K, 2)``, every step. ``row_level`` ``(K,)``:
-    each row's first level; above it the row's step is skipped.
+    of its rows in column order, and theta comes back ``(steps + 1, K, 2)``, every step. ``row_zoom`` ``(K,)``:
+    each row's first zoom; above it the row's step is skipped.
 
-    ``levels``: the loss levels trained one after another (default ``s .. zoom``; a refinement's ``0, 0, ...``);
-    ``rates``: the learning rate of each (default ``lr``, times ``lr_decay`` after each level); ``crossing_widths``:
-    per entry of ``levels``, ``group_crossing``'s kernel half-width there (metres; ``settings.rule`` must be
+    ``zooms``: the loss zooms trained one after another (default ``s .. zoom``; a refinement's ``0, 0, ...``);
+    ``rates``: the learning rate of each (default ``lr``, times ``lr_decay`` after each zoom); ``crossing_widths``:
+    per entry of ``zooms``, ``group_crossing``'s kernel half-width there (metres; ``settings.rule`` must be
     ``"group_crossing"``): a refinement's passes'.
     """
     camera = camera or train_set.camera
     device = train_set.device
-    levels = list(range(settings.s, settings.zoom - 1, -1)) if levels is None else list(levels)
+    zooms = list(range(settings.s, settings.zoom - 1, -1)) if zooms is None else list(zooms)
     if crossing_widths is None:
-        rules = [settings.rule] * len(levels)
+        rules = [settings.rule] * len(zooms)
     else:
-        assert settings.rule == "group_crossing" and len(crossing_widths) == len(levels)
+        assert settings.rule == "group_crossing" and len(crossing_widths) == len(zooms)
         rules = [by_zoom(functools.partial(group_crossing_flow, width=width), dynamic_flow, CROSSING_FINEST_COARSE)
                  for width in crossing_widths]
-    layers = [SpatialDomainMapping(camera, s=settings.s, zoom=level, method=method, rule=rule,
-                                   fit_depth=settings.fit_depth) for level, rule in zip(levels, rules)]
+    layers = [SpatialDomainMapping(camera, s=settings.s, zoom=zoom, method=method, rule=rule,
+                                   fit_depth=settings.fit_depth) for zoom, rule in zip(zooms, rules)]
     n_configs = len(train_set)
     start = torch.as_tensor(theta0, dtype=torch.float64, device=device)
     if settings.fit_depth and start.shape == (2,):
@@ -54,17 +54,17 @@ def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera
     pyramid = train_set.pyramid(settings.s)
     batch_size = settings.batch_size
     batches_per_epoch = n_configs // batch_size
-    total = len(levels) * settings.n_epoch * batches_per_epoch
+    total = len(zooms) * settings.n_epoch * batches_per_epoch
     thetas = torch.empty(total + 1, *start.shape, dtype=torch.float64, device=device)
     thetas[0] = theta.detach()
     losses = torch.zeros(total, dtype=torch.float64, device=device)
     if rates is None:  # lr, then lr_decay times the last, one product at a time
         rates = [settings.lr]
-        while len(rates) < len(levels):
+        while len(rates) < len(zooms):
             rates.append(rates[-1] * settings.lr_decay)
     step = 0
-    for level, layer, rate in zip(levels, layers, rates):
-        rate_scale = settings.rate_scale(level, start) if settings.fit_depth else None
+    for zoom, layer, rate in zip(zooms, layers, rates):
+        rate_scale = settings.rate_scale(zoom, start) if settings.fit_depth else None
         for _ in range(settings.n_epoch):
             order = torch.randperm(n_configs, generator=generator, device="cpu").to(device)
             epoch = _EpochLayout(train_set, order, batch_size, rows)
@@ -81,15 +81,15 @@ def reference_train(train_set: ConfigurationSet, settings: TrainSettings, camera
                         moves = shift_vector(shift, batch.points)
                     out = layer(
                         batch.points + moves, batch.pixels,
-                        pyramid[level].index_select(0, configs), batch.config, batch.rank, target_is_zoomed=True,
+                        pyramid[zoom].index_select(0, configs), batch.config, batch.rank, target_is_zoomed=True,
                         validate=False,
                     )
                     out.loss.backward()
                     with torch.no_grad():
-                        if row_level is not None:  # the rows whose first level is below this one stay
-                            rate_k = rate * (row_rate if row_rate is not None else torch.ones(len(row_level)))
+                        if row_zoom is not None:  # the rows whose first zoom is below this one stay
+                            rate_k = rate * (row_rate if row_rate is not None else torch.ones(len(row_zoom)))
                             move = rate_k[:, None] * theta.grad
-                            move[torch.as_tensor(row_level) < level] = 0.0
+                            move[torch.as_tensor(row_zoom) < zoom] = 0.0
                             theta -= move
                         elif row_rate is not None:
                             theta -= (rate * row_rate)[:, None] * theta.grad

@@ -3,14 +3,14 @@
     PYTHONPATH=src python benchmarks/studies/objects_dev.py SKY SPLIT [--config config.yaml] [--scale 1] [--disc pixels]
         [--sharing car] [--levels 0 2] [--runs 3] [--first 8] [--configurations 8] [--seed 1000]
         [--methods sdm_paper sdm_schedule cmaes cmaes_car floor] [--sigma0 S] [--penalty W] [--rows LR N_EPOCH S]
-        [--gate G] [--first-level {s,prior}] [--tails]
+        [--gate G] [--first-zoom {s,prior}] [--tails]
 
 Protocol: :func:`sdm.experiments.objects.objects_runs` with the config's ``research.objects`` settings on training
 configurations ``first .. first + configurations - 1`` (Table 6 takes the first ones), rebuilt on the screen
 scaled ``--scale`` times (:func:`sdm.sky.rescaled_configuration`), runs ``0 .. runs - 1`` seeded from ``--seed``
 (Table 6 from ``noise.seed``). ``--sigma0`` replaces every search's initial step (metres), ``--penalty`` the regularised
-search's weight, ``--rows`` SDM's rows' schedule, ``--first-level`` where its rows start
-(:attr:`sdm.experiments.objects.ObjectsSettings.first_level`), ``--gate`` the prior gate (standard deviations) scored
+search's weight, ``--rows`` SDM's rows' schedule, ``--first-zoom`` where its rows start
+(:attr:`sdm.experiments.objects.ObjectsSettings.first_zoom`), ``--gate`` the prior gate (standard deviations) scored
 beside every method. Prints Table 6's rows
 (:func:`sdm.experiments.report.objects.table6`: each method's mean against its start's, 1e-3 m, as it is and after the prior
 gate) and the CPU seconds; with
@@ -56,9 +56,9 @@ def main(argv=None) -> int:
     parser.add_argument("--sigma0", type=float, default=None)
     parser.add_argument("--penalty", type=float, default=None)
     parser.add_argument("--rows", type=float, nargs=3, default=None, metavar=("LR", "N_EPOCH", "S"),
-                        help="SDM's rows' rate, epochs per level and levels")
+                        help="SDM's rows' rate, epochs per zoom and coarsest zoom")
     parser.add_argument("--gate", type=float, default=None, help="the prior gate, standard deviations")
-    parser.add_argument("--first-level", choices=objects.FIRST_LEVELS, default=None,
+    parser.add_argument("--first-zoom", choices=objects.FIRST_ZOOMS, default=None,
                         help="where SDM's rows start training (default: the config's)")
     parser.add_argument("--tails", action="store_true", help="where each mean comes from (the module's text)")
     args = parser.parse_args(argv)
@@ -75,8 +75,8 @@ def main(argv=None) -> int:
         settings = replace(settings, rows=replace(settings.rows, lr=lr, n_epoch=int(n_epoch), s=int(s)))
     if args.gate is not None:
         settings = replace(settings, gate=args.gate)
-    if args.first_level is not None:
-        settings = replace(settings, first_level=args.first_level)
+    if args.first_zoom is not None:
+        settings = replace(settings, first_zoom=args.first_zoom)
     chosen = read_json(args.split)["train"][args.first:args.first + args.configurations]
     with SkyFile(args.sky) as sky:
         configs = [sky[i] for i in chosen]
@@ -95,7 +95,7 @@ def main(argv=None) -> int:
     shown = table.assign(mean=1e3 * table["mean_m"], start=1e3 * table["start_m"], gated=1e3 * table["gated_m"])
     print(f"scale {args.scale} ({args.disc}), {args.sharing}, {args.runs} runs of {len(data)} configurations, "
           f"sigma0 {settings.cmaes.sigma0}, penalty {settings.cmaes.penalty}, rows {settings.rows.lr} "
-          f"x {settings.rows.n_epoch} epochs, s {settings.rows.s}, first level {settings.first_level}, "
+          f"x {settings.rows.n_epoch} epochs, s {settings.rows.s}, first zoom {settings.first_zoom}, "
           f"gate {settings.gate}")
     print(shown[["noise_level", "method", "units", "mean", "start", "of_start", "closer", "gated", "gated_of_start",
                  "cpu_ms"]]

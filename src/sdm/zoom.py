@@ -18,7 +18,7 @@ from .errors import SDMInputError
 def check_divisible(shape: tuple[int, int], steps: int) -> None:
     """Raise :class:`SDMInputError` unless both screen sides are divisible by ``2**steps``."""
     if int(steps) != steps or steps < 0:
-        raise SDMInputError(f"the number of zoom levels s must be a non-negative integer, got {steps!r}")
+        raise SDMInputError(f"the coarsest zoom s must be a non-negative integer, got {steps!r}")
     block = 1 << steps
     height, width = shape
     if height % block or width % block:
@@ -88,16 +88,16 @@ def zoom_out(target: torch.Tensor, steps: int) -> torch.Tensor:
 
 
 def target_pyramid(target: torch.Tensor, steps: int) -> list[torch.Tensor]:
-    """Zoomed-out targets at levels ``0..steps``: element ``k`` is ``(..., H / 2**k, W / 2**k)`` bool.
+    """Zoomed-out targets at zooms ``0..steps``: element ``k`` is ``(..., H / 2**k, W / 2**k)`` bool.
 
-    Each level is the ``2 x 2`` max-pool of the one before (a ``B x B`` block is active when one of
-    its four ``B/2 x B/2`` quarters is: exact for bools). Level 0 is ``target`` itself.
+    Each zoom's is the ``2 x 2`` max-pool of the one before (a ``B x B`` block is active when one of
+    its four ``B/2 x B/2`` quarters is: exact for bools). Zoom 0's is ``target`` itself.
     """
     check_divisible(tuple(target.shape[-2:]), steps)
-    levels = [target]
+    pyramid = [target]
     for _ in range(steps):
-        levels.append(_halve(levels[-1]))
-    return levels
+        pyramid.append(_halve(pyramid[-1]))
+    return pyramid
 
 
 def _halve(target: torch.Tensor) -> torch.Tensor:

@@ -83,7 +83,7 @@ def test_the_registry_holds_each_rule_once_and_its_views_split_it():
 
 
 def test_the_compiled_forms_switch_to_eq19_where_the_torch_flows_do():
-    """A product rule's compiled form per level: its own kernel flow below finest_coarse, eq. 19's from it on;
+    """A product rule's compiled form per zoom: its own kernel flow below finest_coarse, eq. 19's from it on;
     experiments have none."""
     assert RULES["paper"].kernel_flows([4, 1, 0]) == [KernelFlow.PAPER] * 3
     assert RULES["closed_centred_r1"].kernel_flows([2, 1, 0]) == [KernelFlow.PAPER] * 2 + [KernelFlow.CENTRED]
@@ -93,7 +93,7 @@ def test_the_compiled_forms_switch_to_eq19_where_the_torch_flows_do():
 
 
 def _rule_inputs(batch, theta, target, zoom):
-    """The arguments the layer's chain hands a rule at loss level ``zoom`` (torch path, s = 4)."""
+    """The arguments the layer's chain hands a rule at loss zoom ``zoom`` (torch path, s = 4)."""
     captured = []
 
     def spy(*args):

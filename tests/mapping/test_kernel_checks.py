@@ -72,12 +72,12 @@ def test_refine_refuses_a_history_of_other_runs_before_any_pass(data, monkeypatc
 
 @pytest.fixture(scope="module")
 def program(data):
-    """The keyword arguments of one valid train_program call (one run, the paper's flow at levels 4..0)."""
-    levels = [4, 3, 2, 1, 0]
+    """The keyword arguments of one valid train_program call (one run, the paper's flow at zooms 4..0)."""
+    zooms = [4, 3, 2, 1, 0]
     orders = torch.stack([torch.randperm(len(data), generator=torch.Generator().manual_seed(i))[None]
-                          for i in range(len(levels))])
+                          for i in range(len(zooms))])
     return dict(points=data.points, pixels=data.pixels, rank=data.rank, offsets=data.offsets, camera=data.camera,
-                steps=4, levels=levels, n_epoch=1, batch_size=16, rates=[1e-4] * 5,
+                steps=4, zooms=zooms, n_epoch=1, batch_size=16, rates=[1e-4] * 5,
                 windows=[native.KernelFlow.PAPER] * 5, orders=orders, targets=[[None] * 4 + [data.targets]],
                 theta0=torch.zeros(1, 2, dtype=torch.float64), bases=[data.targets])
 
@@ -98,16 +98,16 @@ def test_a_valid_program_runs(program):
     (lambda p, d: dict(pixels=d.pixels[:-1]), "pixels must have shape"),
     (lambda p, d: dict(bases=[d.targets[:-1]]), r"bases\[0\] must have shape"),
     (lambda p, d: dict(targets=[[d.targets[:, :8]] + [None] * 3 + [d.targets]]),
-     r"targets\[0\] at level 4 must have shape"),
-    (lambda p, d: dict(targets=[[None] * 4]), "targets must hold 5 levels a run"),
-    (lambda p, d: dict(rates=[1e-4]), "rates must hold one entry per level"),
+     r"targets\[0\] at zoom 4 must have shape"),
+    (lambda p, d: dict(targets=[[None] * 4]), "targets must hold 5 zooms a run"),
+    (lambda p, d: dict(rates=[1e-4]), "rates must hold one entry per zoom"),
     (lambda p, d: dict(batch_size=33), "batch_size 33 is more than"),
-    (lambda p, d: dict(levels=[5, 3, 2, 1, 0]), "levels must be integers in 0..4"),
+    (lambda p, d: dict(zooms=[5, 3, 2, 1, 0]), "zooms must be integers in 0..4"),
     (lambda p, d: dict(param_index=torch.zeros(d.points.shape[0], 1, dtype=torch.int64) + 3,
                        theta0=torch.zeros(1, 2, 2, dtype=torch.float64)), "param_index must lie in"),
     (lambda p, d: dict(row_rate=torch.ones(1, dtype=torch.float64)), "theta0 must be"),
-], ids=["runs", "rows", "order-range", "order-shape", "offsets", "pixels", "bases", "target-shape", "target-levels",
-        "rates", "batch", "levels", "param-index", "row-rate"])
+], ids=["runs", "rows", "order-range", "order-shape", "offsets", "pixels", "bases", "target-shape", "target-zooms",
+        "rates", "batch", "zooms", "param-index", "row-rate"])
 def test_train_program_refuses_arrays_that_do_not_fit_each_other(program, data, change, named):
     with pytest.raises(SDMInputError, match=f"train_program: {named}"):
         native.train_program(**dict(program, **change(program, data)))

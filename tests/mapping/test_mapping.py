@@ -33,9 +33,9 @@ def shifted(batch, theta):
     return batch.points + shift_vector(theta, batch.points)
 
 
-def brute_force_level(points, pixels, config, level):
-    """Dictionary oracle for one level: every point lands at floor(P(p) / B) * B + phase; rmin by (depth, index)."""
-    block_size = 1 << level
+def brute_force_zoom(points, pixels, config, zoom):
+    """Dictionary oracle for one zoom: every point lands at floor(P(p) / B) * B + phase; rmin by (depth, index)."""
+    block_size = 1 << zoom
     screen = CAM.project(points).tolist()
     best = {}
     for i, ((row, col), (r, c), n, z) in enumerate(zip(screen, pixels.tolist(), config.tolist(), points[:, 2].tolist())):
@@ -51,34 +51,34 @@ def brute_force_level(points, pixels, config, level):
     return out
 
 
-def in_reach(points, pixels, level):
-    landing = torch.floor(CAM.project(points) / (1 << level)).long()
-    return bool(((landing - (pixels >> level)).abs() <= 1).all())
+def in_reach(points, pixels, zoom):
+    landing = torch.floor(CAM.project(points) / (1 << zoom)).long()
+    return bool(((landing - (pixels >> zoom)).abs() <= 1).all())
 
 
-def max_shift_for(level, depth_min):
+def max_shift_for(zoom, depth_min):
     """Largest |a| (and |b|) moving the nearest point less than B - 0.5 pixels: inside the 3x3 reach."""
     dy, dx = CAM.metres_per_screen_pixel(depth_min)
-    return ((1 << level) - 0.5) * min(dx, dy)
+    return ((1 << zoom) - 0.5) * min(dx, dy)
 
 
 @SLOW
-@given(level=st.integers(0, 4), seed=st.integers(0, 10_000), u=st.floats(-1, 1), v=st.floats(-1, 1))
-def test_one_level_is_a_reprojection_within_reach(level, seed, u, v):
+@given(zoom=st.integers(0, 4), seed=st.integers(0, 10_000), u=st.floats(-1, 1), v=st.floats(-1, 1))
+def test_one_zoom_is_a_reprojection_within_reach(zoom, seed, u, v):
     batch = ConfigurationSet.from_configurations(configurations(3, seed)).batch(range(3))
-    limit = max_shift_for(level, float(batch.points[:, 2].min()))
+    limit = max_shift_for(zoom, float(batch.points[:, 2].min()))
     points = shifted(batch, (u * limit, v * limit))
-    assert in_reach(points, batch.pixels, level)
-    target = zoom_out(batch.targets, level)
-    result = fast_mapping(points, batch.pixels, batch.config, batch.rank, target, level, level, CAM)
-    assert torch.equal(result.out_pixels, brute_force_level(points, batch.pixels, batch.config, level))
+    assert in_reach(points, batch.pixels, zoom)
+    target = zoom_out(batch.targets, zoom)
+    result = fast_mapping(points, batch.pixels, batch.config, batch.rank, target, zoom, zoom, CAM)
+    assert torch.equal(result.out_pixels, brute_force_zoom(points, batch.pixels, batch.config, zoom))
 
 
 def coarse_collision(points, pixels, config, steps):
-    """Whether two points of one phase share a landing block at some level >= 1 (the chain's only loss)."""
+    """Whether two points of one phase share a landing block at some zoom >= 1 (the chain's only loss)."""
     screen = CAM.project(points)
-    for level in range(steps, 0, -1):
-        block_size = 1 << level
+    for zoom in range(steps, 0, -1):
+        block_size = 1 << zoom
         land = torch.floor(screen / block_size).long()
         ok = (land >= 0).all(1) & (land[:, 0] < H // block_size) & (land[:, 1] < W // block_size)
         key = torch.stack((config, land[:, 0], land[:, 1], pixels[:, 0] % block_size, pixels[:, 1] % block_size), 1)[ok]
@@ -95,7 +95,7 @@ def test_chain_output_is_contained_in_the_direct_reprojection(seed, n_cars, u, v
     limit = max_shift_for(4, float(batch.points[:, 2].min()))
     points = shifted(batch, (u * limit, v * limit))
     result = fast_mapping(points, batch.pixels, batch.config, batch.rank, batch.targets, 4, 0, CAM)
-    direct = brute_force_level(points, batch.pixels, batch.config, 0)
+    direct = brute_force_zoom(points, batch.pixels, batch.config, 0)
     alive = result.alive
     # Every surviving point sits where the direct re-projection puts it ...
     assert torch.equal(result.out_pixels[alive], torch.floor(CAM.project(points[alive])).long())
@@ -117,7 +117,7 @@ def test_single_car_chain_equals_reprojection():
     points = shifted(batch, SKY_SHIFT)
     assert not coarse_collision(points, batch.pixels, batch.config, 4)
     result = fast_mapping(points, batch.pixels, batch.config, batch.rank, batch.targets, 4, 0, CAM)
-    assert torch.equal(result.out_pixels, brute_force_level(points, batch.pixels, batch.config, 0))
+    assert torch.equal(result.out_pixels, brute_force_zoom(points, batch.pixels, batch.config, 0))
 
 
 def test_true_shift_is_a_fixed_point_and_loses_few_pixels():
@@ -220,7 +220,7 @@ def test_explain_point_agrees_with_the_layer():
     q, pixels = single_point()
     target = torch.zeros(H, W, dtype=torch.bool)
     target[61, 101] = True
-    info = explain_point(q[0], tuple(pixels[0].tolist()), target, level=0, sharpness=20.0)
+    info = explain_point(q[0], tuple(pixels[0].tolist()), target, zoom=0, sharpness=20.0)
     assert info["kernel"].sum().item() == pytest.approx(1.0)
     assert tuple(info["landing"].tolist()) == (60, 100) and info["kernel"][1, 1] == info["kernel"].max()
     assert info["matched"] is False
@@ -346,7 +346,7 @@ def test_dynamic_flow_is_the_gradient_of_the_layer():
     out.loss.backward()
     result = out.result
     screen = CAM.project(points.detach())
-    # One level at B = 1: every point enters; it lands on its projected pixel, clamped to its 3x3 window.
+    # One zoom at B = 1: every point enters; it lands on its projected pixel, clamped to its 3x3 window.
     landing = torch.minimum(torch.maximum(torch.floor(screen).long(), batch.pixels - 1), batch.pixels + 1)
     landed = inside(landing, H, W)
     flow, loss, matched = dynamic_flow(screen, points[:, 2].detach(), batch.config, landed, batch.pixels, landing,

@@ -178,7 +178,7 @@ def test_the_compiled_run_on_real_sized_data(compiled_calls):
 
 def test_the_compiled_closing_on_a_screen_of_odd_sides(compiled_calls):
     """closed_centred_r1's compiled closing on a screen whose sides are no powers of two: 200 x 72 (100 x 36, 50 x 18
-    and 25 x 9 at the levels above), its borders and odd widths closed as the reference's, so the run equals
+    and 25 x 9 at the zooms above), its borders and odd widths closed as the reference's, so the run equals
     tests/train_reference.py's bit for bit."""
     from dataclasses import replace as replaced
 

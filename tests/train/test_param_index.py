@@ -125,7 +125,7 @@ def test_the_refinement_moves_rows_as_the_torch_path(sharing):
             runs[compiled] = refine_runs(data, [data.targets], settings, history,
                                          Refinement("group_crossing", 2, pass_steps=3), param_index=index)
     assert torch.equal(runs[True].theta, runs[False].theta)
-    # the rows after every epoch (2 steps) of the levels, then after every step of the passes (3 steps each)
+    # the rows after every epoch (2 steps) of the zooms, then after every step of the passes (3 steps each)
     assert runs[True].theta_steps.tolist() == [0, 2, 4, 6, 7, 8, 9, 10, 11, 12]
     at_truth = RunsHistory(truth[None, None], torch.zeros(0, 1, dtype=torch.float64), torch.zeros(0, dtype=torch.int64),
                            torch.zeros(0, dtype=torch.float64), settings)
@@ -207,9 +207,9 @@ def test_group_crossing_splits_a_group_between_rows():
 
 @pytest.mark.parametrize("sharing", ["configuration", "camera + car"])
 @pytest.mark.parametrize("compiled", [True, False])
-def test_rows_start_at_their_own_first_level(sharing, compiled):
-    """row_level: each row stays at its start above its first level and then follows the reference loop, which
-    skips its steps there, to the bit on both paths; row_level at s everywhere is no row_level."""
+def test_rows_start_at_their_own_first_zoom(sharing, compiled):
+    """row_zoom: each row stays at its start above its first zoom and then follows the reference loop, which
+    skips its steps there, to the bit on both paths; row_zoom at s everywhere is no row_zoom."""
     if compiled and not native.enabled():
         pytest.skip("no C compiler: the compiled kernel is not built")
     data = configuration_set(48, seed=39)
@@ -218,36 +218,36 @@ def test_rows_start_at_their_own_first_level(sharing, compiled):
     data = data.with_targets(row_targets(data, index, true_rows(n_rows, seed=8)))
     settings = [TrainSettings(lr=3e-4, n_epoch=2, s=3, seed=2)]
     start = 0.01 * torch.ones(n_rows, 2, dtype=torch.float64)
-    first = torch.arange(n_rows, dtype=torch.int64) % 4  # levels 0..3: every first level is some row's
+    first = torch.arange(n_rows, dtype=torch.int64) % 4  # zooms 0..3: every first zoom is some row's
     row_rate = rates_per_point(index)
     with native.disabled() if not compiled else _nothing():
         runs = train_runs(data, [data.targets], settings, theta0=[start], param_index=index, row_rate=row_rate,
-                          row_level=first)
+                          row_zoom=first)
         plain = train_runs(data, [data.targets], settings, theta0=[start], param_index=index, row_rate=row_rate)
         at_s = train_runs(data, [data.targets], settings, theta0=[start], param_index=index, row_rate=row_rate,
-                          row_level=torch.full((n_rows,), 3))
+                          row_zoom=torch.full((n_rows,), 3))
     theta, loss = reference_train(data, settings[0], theta0=start, param_index=index, row_rate=row_rate,
-                                  row_level=first)
+                                  row_zoom=first)
     assert torch.equal(runs.theta[:, 0], theta[runs.theta_steps])
     assert float((runs.loss[:, 0] - loss).abs().max()) <= 1e-12 * float(loss.abs().max())
     assert torch.equal(at_s.theta, plain.theta)
-    per_level = len(runs.theta_steps[1:]) // 4  # records per level (one per epoch)
-    for level in range(4):  # a row of first level l is at its start after the levels above l
-        rows = first == level
-        above = per_level * (3 - level)
+    per_zoom = len(runs.theta_steps[1:]) // 4  # records per zoom (one per epoch)
+    for zoom in range(4):  # a row of first zoom l is at its start after the zooms above l
+        rows = first == zoom
+        above = per_zoom * (3 - zoom)
         assert torch.equal(runs.theta[above, 0][rows], start[rows])
         assert not torch.equal(runs.theta[-1, 0][rows], start[rows])  # and it trained below
 
 
-def test_row_level_is_checked():
+def test_row_zoom_is_checked():
     data = configuration_set(16, seed=38)
     index = point_config(data)
     settings = [TrainSettings(s=3)]
-    for bad, message in ((torch.zeros(15, dtype=torch.int64), "row_level must be 16 integers"),
-                         (torch.zeros(16, dtype=torch.float64), "row_level must be 16 integers"),
-                         (torch.full((16,), 4, dtype=torch.int64), r"must lie in the schedule's levels 0 \.\. 3"),
-                         (torch.full((16,), -1, dtype=torch.int64), "row_level must lie in")):
+    for bad, message in ((torch.zeros(15, dtype=torch.int64), "row_zoom must be 16 integers"),
+                         (torch.zeros(16, dtype=torch.float64), "row_zoom must be 16 integers"),
+                         (torch.full((16,), 4, dtype=torch.int64), r"must lie in the schedule's zooms 0 \.\. 3"),
+                         (torch.full((16,), -1, dtype=torch.int64), "row_zoom must lie in")):
         with pytest.raises(SDMInputError, match=message):
-            train_runs(data, [data.targets], settings, param_index=index, row_level=bad)
-    with pytest.raises(SDMInputError, match="row_level needs param_index"):
-        train_runs(data, [data.targets], settings, row_level=torch.zeros(1, dtype=torch.int64))
+            train_runs(data, [data.targets], settings, param_index=index, row_zoom=bad)
+    with pytest.raises(SDMInputError, match="row_zoom needs param_index"):
+        train_runs(data, [data.targets], settings, row_zoom=torch.zeros(1, dtype=torch.int64))

@@ -38,7 +38,7 @@ def test_refined_runs_packed_equal_each_run_refined_alone(small):
 
 @pytest.mark.skipif(not native.enabled(), reason="no C compiler: the compiled kernel is not built")
 def test_the_compiled_refinement_equals_the_torch_path_bit_for_bit(small, monkeypatch):
-    """The passes run in one sdm_train call (levels 0, 0, ...; group_crossing's mode) and give the torch
+    """The passes run in one sdm_train call (zooms 0, 0, ...; group_crossing's mode) and give the torch
     path's theta history to the bit and its loss (the mismatch count) exactly."""
     settings = [replace(BASE, seed=seed) for seed in (3, 8)]
     targets = [noisy_targets(small.targets, 3, 2), noisy_targets(small.targets, 1, 6)]
@@ -59,9 +59,9 @@ def test_the_compiled_refinement_equals_the_torch_path_bit_for_bit(small, monkey
     assert bool((compiled.loss[main_steps:] == compiled.loss[main_steps:].round()).all())  # pixel counts
 
 
-def test_refinement_passes_continue_the_halving_at_the_finest_level(small):
-    """Pass i runs at level zoom, at four times the last level's rate times lr_decay^i (rate_from 2), shuffled by
-    its own seed; rate_from 1 starts at twice the last level's."""
+def test_refinement_passes_continue_the_halving_at_the_finest_zoom(small):
+    """Pass i runs at zoom ``zoom``, at four times the last zoom's rate times lr_decay^i (rate_from 2), shuffled by
+    its own seed; rate_from 1 starts at twice the last zoom's."""
     history = train_group(small, [small.targets], BASE, [7], refine=Refinement("group_crossing", 3, pass_steps=PER_EPOCH))
     per_pass = 64 // 16
     assert history.level[-3 * per_pass:].tolist() == [0] * (3 * per_pass)
@@ -134,7 +134,7 @@ def test_the_kernel_narrows_by_halves_to_the_last_width_on_the_last_pass():
 def test_the_passes_widths_equal_the_reference_loop_bit_for_bit(small, monkeypatch, compiled):
     """Each pass at its own kernel half-width (16, 8, 4, 2e-3 m), on the compiled path (one sdm_train call for every
     pass) and on the torch path: each run's theta history and loss are tests/train_reference.py's, run over the
-    levels 0, 0, 0, 0 with a group_crossing rule of each pass's width at each pass's rate, shuffled by the run's
+    zooms 0, 0, 0, 0 with a group_crossing rule of each pass's width at each pass's rate, shuffled by the run's
     refine_seed generator. The widths matter: the same passes at 2e-3 m alone end elsewhere."""
     from train_reference import reference_train
 
@@ -155,7 +155,7 @@ def test_the_passes_widths_equal_the_reference_loop_bit_for_bit(small, monkeypat
     for run, (one, run_targets) in enumerate(zip(settings, targets)):
         passes = replace(one, rule="group_crossing", seed=refine_seed(one.seed), n_epoch=1)
         theta, loss = reference_train(small.with_targets(run_targets), passes, theta0=history.theta[-1, run],
-                                      levels=[0] * 4, rates=refinement.rates(one), crossing_widths=refinement.widths)
+                                      zooms=[0] * 4, rates=refinement.rates(one), crossing_widths=refinement.widths)
         assert torch.equal(refined.theta[main_steps:, run], theta), run
         assert torch.equal(refined.loss[main_steps:, run], loss), run
     narrow = refine_runs(small, targets, settings, history, replace(refinement, first_width=2e-3))

@@ -30,12 +30,12 @@ def test_recovers_the_shift_without_noise(sky768):
 def test_history_records_every_step(sky768):
     train_set, _ = sky768
     history = train(train_set.subset(range(100)), TrainSettings(lr=3e-4, n_epoch=2, s=3), progress=False)
-    per_level = 2 * (100 // 16)  # incomplete last batch dropped
-    assert history.theta.shape == (4 * per_level + 1, 2) and torch.equal(history.theta[0], torch.zeros(2, dtype=torch.float64))
-    assert history.level.tolist() == [3] * per_level + [2] * per_level + [1] * per_level + [0] * per_level
+    per_zoom = 2 * (100 // 16)  # incomplete last batch dropped
+    assert history.theta.shape == (4 * per_zoom + 1, 2) and torch.equal(history.theta[0], torch.zeros(2, dtype=torch.float64))
+    assert history.level.tolist() == [3] * per_zoom + [2] * per_zoom + [1] * per_zoom + [0] * per_zoom
     assert history.lr.unique().tolist() == sorted(3e-4 * 0.5**k for k in range(4))
     frame = history.to_frame()
-    assert list(frame.columns) == ["step", "level", "lr", "loss", "a", "b"] and len(frame) == 4 * per_level
+    assert list(frame.columns) == ["step", "level", "lr", "loss", "a", "b"] and len(frame) == 4 * per_zoom
     assert (frame["a"].iloc[-1], frame["b"].iloc[-1]) == history.final_theta
 
 

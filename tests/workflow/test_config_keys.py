@@ -3,6 +3,7 @@ split and the Sky set, batches against the sizes, rule names against the schema'
 naming the key's path."""
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -78,12 +79,12 @@ def _set(config: dict, path: str, value) -> dict:
     ("research.objects.methods", [], r"config key 'research\.objects\.methods': \[\] should be non-empty"),
     ("research.objects.identifiability.step", 0, r"config key 'research\.objects\.identifiability\.step': 0 is less "
                                                  r"than or equal to the minimum of 0"),
-    ("research.objects.rows.first_level", "zero", r"config key 'research\.objects\.rows\.first_level': 'zero' is "
-                                                  r"not one of \['s', 'prior'\]"),
+    ("research.objects.rows.first_zoom", "zero", r"config key 'research\.objects\.rows\.first_zoom': 'zero' is "
+                                                 r"not one of \['s', 'prior'\]"),
 ], ids=["unknown-key", "unknown-rule", "schedule-for-a-rule", "sizes", "train-batch", "per-epoch-over-train",
         "per-epoch-under-batch", "per-epoch-negative", "no-runs", "refine-batch",
         "silhouette-batch", "screen-twice", "scaling-off-screen", "screen-without-scale", "screen-scale-0",
-        "screen-method", "screen-key", "no-methods", "scan-step", "first-level"])
+        "screen-method", "screen-key", "no-methods", "scan-step", "first-zoom"])
 def test_a_bad_research_key_is_refused_naming_its_path(path, value, message):
     """On main each of these passed the checks before the run and failed (if at all) inside the stages."""
     config = _set(_config(), path, value)
@@ -97,7 +98,7 @@ def test_config_yaml_runs_table6_on_two_screens_the_scaling_on_the_first():
     screens = objects["screens"]
     assert [screen["scale"] for screen in screens] == [12, 1]
     assert objects["scaling"]["scale"] == 12
-    assert screens[0]["rows"] == {"lr": 2.5e-3, "n_epoch": 16, "s": 6, "first_level": "prior"}
+    assert screens[0]["rows"] == {"lr": 2.5e-3, "n_epoch": 16, "s": 6, "first_zoom": "prior"}
     assert screens[0]["cmaes"]["car_step"] == 0.1 and screens[0]["cmaes"]["step"] == 0.03
     assert 0 in objects["noise_levels"] and 2 in objects["noise_levels"] and objects["runs"] >= 20
 
@@ -122,18 +123,38 @@ def test_the_workflow_refuses_a_bad_key_before_any_job(tmp_path):
            "unexpected)" in done.stdout + done.stderr
 
 
+def _schema_node(path: str) -> dict:
+    """The schema's node of a dotted key (``*``: the items of a list)."""
+    import config_check
+
+    node = yaml.safe_load(config_check.SCHEMA_PATH.read_text())
+    for key in path.split("."):
+        node = node["items"] if key == "*" else node["properties"][key]
+    return node
+
+
 @pytest.mark.parametrize("old, new", sorted(__import__("config_check").RENAMED.items()))
 def test_a_key_under_its_old_name_is_refused_naming_the_new_one(old, new):
-    """Each renamed key (config_check.RENAMED), written under its old name where config.yaml has the new one, is
-    refused before the schema runs, with the new name in the message."""
+    """Each renamed key (config_check.RENAMED), written under its old name where config.yaml has the new one (``*``:
+    the list's first item; where config.yaml leaves the key out, the first value its schema allows), is refused
+    before the schema runs, with the new name in the message (a list item named by its index)."""
     config = _config()
     node = config
     *parents, last = new.split(".")
     for key in parents:
-        node = node[key]
-    node[old.split(".")[-1]] = node.pop(last)
-    with pytest.raises(ConfigError, match=rf"^config key '{old.replace('.', '[.]')}' is now "
-                                          rf"'{new.replace('.', '[.]')}'"):
+        node = node[0 if key == "*" else key]
+    node[old.split(".")[-1]] = node.pop(last) if last in node else _schema_node(new)["enum"][0]
+    shown = {name: re.escape(name.replace(".*.", "[0].")) for name in (old, new)}
+    with pytest.raises(ConfigError, match=rf"^config key '{shown[old]}' is now '{shown[new]}'"):
+        _checked(config)
+
+
+def test_an_old_key_in_a_list_item_is_refused_naming_the_item():
+    """A renamed key in an item of a list (a screen's rows) is named with the item's index, in both names."""
+    config = _config()
+    config["research"]["objects"]["screens"][1]["rows"] = {"lr": 1e-3, "n_epoch": 2, "s": 3, "first_level": "prior"}
+    with pytest.raises(ConfigError, match=r"^config key 'research\.objects\.screens\[1\]\.rows\.first_level' is now "
+                                          r"'research\.objects\.screens\[1\]\.rows\.first_zoom'"):
         _checked(config)
 
 
@@ -141,9 +162,6 @@ def test_the_renamed_keys_exist_under_their_new_name_in_the_schema():
     """A rename's new key is a key of the schema: the message never points to a key that does not exist."""
     import config_check
 
-    schema = yaml.safe_load(config_check.SCHEMA_PATH.read_text())
     for new in config_check.RENAMED.values():
-        node = schema
-        for key in new.split("."):
-            node = node["properties"][key]
-        assert "description" in node or "type" in node or "allOf" in node, new
+        node = _schema_node(new)
+        assert "description" in node or "type" in node or "allOf" in node or "enum" in node, new

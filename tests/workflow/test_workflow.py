@@ -773,7 +773,7 @@ def _objects_cases() -> dict[str, tuple[dict, str | None]]:
         "rows.lr": (0.001, "objects_runs"),
         "rows.n_epoch": (2, "objects_runs"),
         "rows.s": (3, "objects_runs"),
-        "rows.first_level": ("prior", "objects_runs"),
+        "rows.first_zoom": ("prior", "objects_runs"),
         "schedule": ('paper', "objects_runs"),
         "cmaes.evaluations_per_unknown": (20, "objects_runs"),
         "cmaes.penalty": (2.0, "objects_runs"),

@@ -54,8 +54,9 @@ def load_config(path: str | Path, schema: str | Path = SCHEMA_PATH) -> dict:
     return config
 
 
-#: Keys that have a new name: old dotted key -> new dotted key (``*`` stands for any one key). A config that
-#: still uses an old name is refused with a message that gives the new one (:func:`check_renamed`).
+#: Keys that have a new name: old dotted key -> new dotted key (``*`` stands for any one key of a mapping or any
+#: item of a list). A config that still uses an old name is refused with a message that gives the new one
+#: (:func:`check_renamed`).
 RENAMED = {
     "research.depth.flow": "research.depth.schedule",
     "research.network.refine.flow": "research.network.refine.rule",
@@ -63,6 +64,9 @@ RENAMED = {
     "research.objects.levels": "research.objects.noise_levels",
     "research.objects.scaling.level": "research.objects.scaling.noise_level",
     "research.network.levels": "research.network.noise_levels",
+    "research.objects.screens.*.levels": "research.objects.screens.*.noise_levels",
+    "research.objects.rows.first_level": "research.objects.rows.first_zoom",
+    "research.objects.screens.*.rows.first_level": "research.objects.screens.*.rows.first_zoom",
 }
 
 
@@ -70,23 +74,30 @@ def check_renamed(config: Mapping[str, Any]) -> None:
     """Refuse a key that has a new name (:data:`RENAMED`), naming the new one.
 
     Raises:
-        ConfigError: ``config key 'research.depth.flow' is now 'research.depth.schedule' ...``.
+        ConfigError: ``config key 'research.depth.flow' is now 'research.depth.schedule' ...``, a list item named
+            by its index: ``config key 'research.objects.screens[1].rows.first_level' is now
+            'research.objects.screens[1].rows.first_zoom' ...``.
     """
     for old, new in RENAMED.items():
         for found in _matching(config, old.split(".")):
-            now = ".".join(part if wanted == "*" else wanted
-                           for part, wanted in zip(found.split("."), new.split(".")))
-            raise ConfigError(f"config key '{found}' is now '{now}': rename it (the value stays as it is)")
+            now = [part if wanted == "*" else wanted for part, wanted in zip(found, new.split("."))]
+            raise ConfigError(f"config key '{_dotted(found)}' is now '{_dotted(now)}': rename it (the value stays as "
+                              "it is)")
 
 
-def _matching(value: Any, parts: list[str], prefix: str = "") -> list[str]:
-    """The dotted keys of ``value`` that ``parts`` (``*`` for any one key) names."""
+def _matching(value: Any, parts: list[str], prefix: tuple = ()) -> list[tuple]:
+    """The key paths in ``value`` (as :func:`_dotted` reads them: an int for a list item) that ``parts`` names
+    (``*`` for any one key of a mapping or any item of a list)."""
     if not parts:
         return [prefix]
-    if not isinstance(value, Mapping):
+    if isinstance(value, list) and parts[0] == "*":
+        items = list(enumerate(value))
+    elif isinstance(value, Mapping):
+        items = ([(str(key), item) for key, item in value.items()] if parts[0] == "*"
+                 else [(parts[0], value[parts[0]])] if parts[0] in value else [])
+    else:
         return []
-    keys = [str(key) for key in value] if parts[0] == "*" else [parts[0]] if parts[0] in value else []
-    return [found for key in keys for found in _matching(value[key], parts[1:], f"{prefix}.{key}" if prefix else key)]
+    return [found for key, item in items for found in _matching(item, parts[1:], (*prefix, key))]
 
 
 def validate_schema(config: dict, schema: str | Path = SCHEMA_PATH) -> None:

@@ -1,6 +1,7 @@
-"""What theta*'s prior tells SDM's rows on Table 6 (docs/method/objects.md): where each row starts training
-(:func:`prior_levels`, "Each row's first level") and the prior gate, a check after any method that returns to its
-start every unit whose estimate travelled implausibly far under the prior (:func:`prior_gate`, "The prior gate")."""
+"""What theta*'s prior tells SDM's rows on Table 6 (docs/method/objects.md): where each row starts training, its
+first zoom (:func:`prior_zooms`, "Each row's first level") and the prior gate, a check after any method that returns
+to its start every unit whose estimate travelled implausibly far under the prior (:func:`prior_gate`, "The prior
+gate")."""
 from __future__ import annotations
 
 import torch
@@ -56,12 +57,12 @@ def prior_gate(theta: torch.Tensor, start: torch.Tensor, sd: torch.Tensor, gate:
     return torch.where(returned.unsqueeze(1), start, theta), returned
 
 
-def prior_levels(data: ConfigurationSet, sharing: S.Sharing, sd: torch.Tensor, s: int) -> torch.Tensor:
-    """Each row's first (coarsest) trained level (:func:`sdm.train.train_runs` ``row_level``): the finest level whose
+def prior_zooms(data: ConfigurationSet, sharing: S.Sharing, sd: torch.Tensor, s: int) -> torch.Tensor:
+    """Each row's first (coarsest) trained zoom (:func:`sdm.train.train_runs` ``row_zoom``): the finest zoom whose
     block is at least the row's prior spread in screen columns, ``clamp(ceil(log2(sd_k / dx_k)), 0, s)``.
 
     ``dx_k`` is the width in metres of one screen column (the screen's coarser axis) at the mean depth of row
-    ``k``'s points (:meth:`sdm.camera.Camera.metres_per_screen_pixel`). At a coarser level a row's disc and its target
+    ``k``'s points (:meth:`sdm.camera.Camera.metres_per_screen_pixel`). At a coarser zoom a row's disc and its target
     share a block for most draws of theta*, so the row gets no pull of its own, only the other rows' targets'
     (docs/method/objects.md, "Each row's first level").
 
@@ -69,7 +70,7 @@ def prior_levels(data: ConfigurationSet, sharing: S.Sharing, sd: torch.Tensor, s
         data: the configurations whose points ``sharing`` indexes (its camera and screen).
         sharing: the rows; a point moved by several rows (``camera+car``) counts in each.
         sd: ``(K,)`` metres, each row's prior spread per axis (:func:`prior_sd`).
-        s: the schedule's coarsest level, a non-negative integer.
+        s: the schedule's coarsest zoom, a non-negative integer.
 
     Returns:
         ``(K,)`` int64 on the CPU, in ``0 .. s``.
@@ -80,11 +81,11 @@ def prior_levels(data: ConfigurationSet, sharing: S.Sharing, sd: torch.Tensor, s
     >>> data = ConfigurationSet.from_configurations([near, far])
     >>> rows = S.sharing("configuration", data)
     >>> sd = torch.full((2,), 0.15, dtype=torch.float64)  # 2.6 columns of 128 x 256 at 10 m, 0.33 at 80 m
-    >>> prior_levels(data, rows, sd, 6).tolist()
+    >>> prior_zooms(data, rows, sd, 6).tolist()
     [2, 0]
     """
     if isinstance(s, bool) or not isinstance(s, int) or s < 0:
-        raise SDMInputError(f"s must be a non-negative integer level, got {s!r}")
+        raise SDMInputError(f"s must be a non-negative integer zoom, got {s!r}")
     if sd.shape != (sharing.n_rows,) or not bool((sd > 0).all()):
         raise SDMInputError(f"sd must be {sharing.n_rows} positive spreads (one per row), got {tuple(sd.shape)}")
     index = sharing.param_index.cpu()
@@ -97,5 +98,5 @@ def prior_levels(data: ConfigurationSet, sharing: S.Sharing, sd: torch.Tensor, s
         total.index_add_(0, column[moved], depth[moved])
         count.index_add_(0, column[moved], torch.ones_like(depth[moved]))
     column_width = data.camera.metres_per_screen_pixel(total / count.clamp(min=1))[1]
-    level = torch.ceil(torch.log2(sd.to(torch.float64) / column_width))
-    return level.clamp(0, s).to(torch.int64)
+    zoom = torch.ceil(torch.log2(sd.to(torch.float64) / column_width))
+    return zoom.clamp(0, s).to(torch.int64)

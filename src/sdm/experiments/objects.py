@@ -66,7 +66,7 @@ from .baselines.silhouette import SilhouetteSettings
 from ..batch import ConfigurationSet
 from ..errors import SDMInputError
 from .runs import noisy_targets, run_seed
-from .gate import prior_gate, prior_levels, prior_sd
+from .gate import prior_gate, prior_sd, prior_zooms
 from .identifiability import exact_sets
 from ..train import TrainSettings, parse_schedule, rates_per_point, refine_runs, train_runs
 
@@ -77,8 +77,8 @@ REFERENCES = ("start", "prior")
 #: What the pixels identify: a unit's exact-match set (:func:`sdm.experiments.identifiability.exact_sets`), scored on the units of
 #: a job's first run (its mean distance from theta*; the set's extent per axis in ``extent_a``, ``extent_b``).
 EXACT_SET = "exact_set"
-#: Where SDM's rows start training (:attr:`ObjectsSettings.first_level`).
-FIRST_LEVELS = ("s", "prior")
+#: Where SDM's rows start training (:attr:`ObjectsSettings.first_zoom`).
+FIRST_ZOOMS = ("s", "prior")
 
 
 @dataclass(frozen=True)
@@ -93,8 +93,8 @@ class ObjectsSettings:
         truth: how theta* is drawn.
         car_sigma0: CMA-ES per car's initial step, metres (``cmaes.sigma0`` is the joint and regularised searches').
         gate: the prior gate, in standard deviations of a row's prior (:func:`prior_gate`).
-        first_level: where SDM's rows start training: ``"s"``, every row at ``rows.s`` (the paper's schedule), or
-            ``"prior"``, each row at the level whose block covers its prior spread (:func:`sdm.experiments.gate.prior_levels`),
+        first_zoom: where SDM's rows start training: ``"s"``, every row at ``rows.s`` (the paper's schedule), or
+            ``"prior"``, each row at the zoom whose block covers its prior spread (:func:`sdm.experiments.gate.prior_zooms`),
             at ``rows.lr`` there (the chain still runs from ``rows.s``).
     """
 
@@ -107,11 +107,11 @@ class ObjectsSettings:
     truth: S.TruthDistribution = S.TruthDistribution()
     car_sigma0: float = 0.3
     gate: float = 3.5
-    first_level: str = "s"
+    first_zoom: str = "s"
 
     def __post_init__(self):
-        if self.first_level not in FIRST_LEVELS:
-            raise SDMInputError(f"first_level must be one of {', '.join(FIRST_LEVELS)}, got {self.first_level!r}")
+        if self.first_zoom not in FIRST_ZOOMS:
+            raise SDMInputError(f"first_zoom must be one of {', '.join(FIRST_ZOOMS)}, got {self.first_zoom!r}")
 
 
 def _cpu() -> float:
@@ -146,12 +146,12 @@ def sdm_rows(data: ConfigurationSet, targets: torch.Tensor, sharing: S.Sharing, 
     shared, shared_seconds = start if start is not None else shared_start(data, targets, seed, settings, rule)
     began = _cpu()
     rows = [replace(settings.rows, rule=rule, seed=seed)]
-    row_rate, row_level = rates_per_point(sharing.param_index), None
-    if settings.first_level == "prior":  # each row at rows.lr at its own first level, halved per level below it
-        row_level = prior_levels(data, sharing, prior_sd(sharing, settings.truth), settings.rows.s)
-        row_rate = row_rate * 2.0 ** (settings.rows.s - row_level).to(torch.float64)
+    row_rate, row_zoom = rates_per_point(sharing.param_index), None
+    if settings.first_zoom == "prior":  # each row at rows.lr at its own first zoom, halved per zoom below it
+        row_zoom = prior_zooms(data, sharing, prior_sd(sharing, settings.truth), settings.rows.s)
+        row_rate = row_rate * 2.0 ** (settings.rows.s - row_zoom).to(torch.float64)
     history = train_runs(data, [targets], rows, theta0=[_start_table(sharing, shared)],
-                         param_index=sharing.param_index, row_rate=row_rate, row_level=row_level)
+                         param_index=sharing.param_index, row_rate=row_rate, row_zoom=row_zoom)
     if refine is not None:
         history = refine_runs(data, [targets], rows, history, refine, param_index=sharing.param_index,
                               row_rate=row_rate)
@@ -445,7 +445,7 @@ def search_settings(warm: dict, rows: dict, schedule: str, cmaes: dict, s: int, 
                                                         penalty=float(cmaes.get("penalty", 0.0)),
                                                         sigma0=float(cmaes.get("step", 0.3))),
         car_sigma0=float(cmaes.get("car_step", cmaes.get("step", 0.3))),
-        floor=None, silhouette=None, first_level=str(rows.get("first_level", "s")))
+        floor=None, silhouette=None, first_zoom=str(rows.get("first_zoom", "s")))
 
 
 def settings_from_sections(section: dict, train: dict) -> ObjectsSettings:

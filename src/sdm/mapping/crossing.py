@@ -2,7 +2,7 @@
 
 docs/method/floor.md, "A rule aimed at the floor". Table 4 trains ``closed_centred_r1`` and then refines with this
 rule at zoom 0 (:class:`sdm.train.Refinement`); :data:`sdm.RULES` registers it as ``"group_crossing"``
-(eq. 19 at the levels ``>= CROSSING_FINEST_COARSE``, :func:`group_crossing_flow` below them). The compiled
+(eq. 19 at the zooms ``>= CROSSING_FINEST_COARSE``, :func:`group_crossing_flow` below them). The compiled
 trainer runs the same arithmetic (``crossing_pull`` in ``kernel/crossing.c``), held to this module's to the bit by
 ``tests/mapping/test_native.py`` and ``tests/train/test_refine.py``; ``tests/flow_reference.py`` recounts the mismatch from
 scratch for :func:`group_move_changes`.
@@ -31,7 +31,7 @@ CROSSING_SCALE = 8.0
 #: The kernel is quantised to multiples of ``1 / CROSSING_STEPS``: every flow value is then an exact binary
 #: fraction, so its sum over points is the same in any order (float64).
 CROSSING_STEPS = 4096
-#: ``group_crossing`` is eq. 19 at the levels ``>=`` this one (its crossing flow reads zoom 0's pixels).
+#: ``group_crossing`` is eq. 19 at the zooms ``>=`` this one (its crossing flow reads zoom 0's pixels).
 CROSSING_FINEST_COARSE = 1
 
 

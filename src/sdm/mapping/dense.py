@@ -1,6 +1,6 @@
 """The dense SDM reference: the paper's grid formulation, written for reading, not speed.
 
-Every level works on whole ``(n, 4^k, h, w)`` grids of sub-representations
+Every zoom ``k`` works on whole ``(n, 4^k, h, w)`` grids of sub-representations
 (:func:`sdm.zoom.space_to_depth`), exactly as section 4.1 of the paper builds
 them:
 
@@ -14,9 +14,9 @@ them:
    the ``rmin`` of the points whose kernel selects it. With a finite ``c`` a
    point within about ``1/c`` metres of a block boundary selects nothing and
    disappears; as ``c`` grows the output converges to the fast path's.
-4. The inverse reshape restores the full-resolution screen for the next level.
+4. The inverse reshape restores the full-resolution screen for the next zoom.
 
-At the loss level the landing adjustment of each point is read off the same
+At the loss zoom the landing adjustment of each point is read off the same
 grids: the nearest one (``argmax D``; the backward "removes the role of the
 kernel"); the dynamic gradient flow itself is :func:`~sdm.mapping.flow.dynamic_flow`,
 the one rule every path shares.
@@ -47,7 +47,7 @@ def dense_mapping(
     camera: Camera,
     sharpness: float = 1e9,
 ) -> MappingResult:
-    """Grid-formulation SDM over levels ``steps..zoom``; same contract as :func:`~sdm.mapping.fast.fast_mapping`.
+    """Grid-formulation SDM over the zooms ``steps..zoom``; same contract as :func:`~sdm.mapping.fast.fast_mapping`.
 
     Args:
         points, pixels, config, rank, target, steps, zoom, camera: as in
@@ -73,23 +73,23 @@ def dense_mapping(
         "rank": _scatter(cell, rank, n_configs, camera, NO_RANK),
     }
     device = points.device
-    for level in range(steps, zoom - 1, -1):
-        sub = {name: space_to_depth(values, level) for name, values in grid.items()}
+    for at in range(steps, zoom - 1, -1):  # each zoom, coarsest first
+        sub = {name: space_to_depth(values, at) for name, values in grid.items()}
         active = sub["id"] >= 0  # (n, S, h, w)
-        adjustments = _adjustments(sub["z"], level, camera)  # (n, S, 9, h, w, 2) metres
+        adjustments = _adjustments(sub["z"], at, camera)  # (n, S, 9, h, w, 2) metres
         offset = torch.stack((sub["x"], sub["y"]), -1)[:, :, None] - adjustments  # p - T
         distance = offset.norm(dim=-1)  # (n, S, 9, h, w)
         kernel = torch.softmax(-sharpness * distance, dim=2)
         selected = (kernel > 0.5) & active[:, :, None]
-        if level == zoom:
-            # Each point's input block and landing block (the nearest adjustment, argmax D) at the loss level.
+        if at == zoom:
+            # Each point's input block and landing block (the nearest adjustment, argmax D) at the loss zoom.
             present = active.nonzero()  # (p, 4): configuration, sub-representation, block row, block col
             ids = sub["id"][active]
             nearest = kernel.argmax(2)[active]  # (p,) index into the 3x3 window
             entered_block = present[:, 2:]
             entered_landing = entered_block + window_offsets(device).index_select(0, nearest)
         sub = _aggregate(sub, selected)
-        grid = {name: depth_to_space(values, level) for name, values in sub.items()}
+        grid = {name: depth_to_space(values, at) for name, values in sub.items()}
 
     out_pixels = torch.full((n_points, 2), -1, dtype=torch.int64, device=device)
     out_id = grid["id"]
@@ -113,9 +113,9 @@ def _scatter(cell, values, n_configs, camera, empty):
     return grid.view(n_configs, height, width)
 
 
-def _adjustments(depth: torch.Tensor, level: int, camera: Camera) -> torch.Tensor:
-    """XY-adjustments ``T``: ``(n, S, 9, h, w, 2)`` (x, y) in metres at each cell's depth."""
-    block_size = 1 << level
+def _adjustments(depth: torch.Tensor, zoom: int, camera: Camera) -> torch.Tensor:
+    """XY-adjustments ``T`` at zoom ``zoom``: ``(n, S, 9, h, w, 2)`` (x, y) in metres at each cell's depth."""
+    block_size = 1 << zoom
     h, w = depth.shape[-2:]
     rows = torch.arange(h, dtype=depth.dtype, device=depth.device)[:, None].expand(h, w)
     cols = torch.arange(w, dtype=depth.dtype, device=depth.device)[None, :].expand(h, w)

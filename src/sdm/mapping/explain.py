@@ -1,4 +1,4 @@
-"""One point through one SDM level, every intermediate exposed (Figures 2 and 3 of the paper)."""
+"""One point through one SDM zoom, every intermediate exposed (Figures 2 and 3 of the paper)."""
 from __future__ import annotations
 
 import torch
@@ -13,20 +13,20 @@ def explain_point(
     point: torch.Tensor,
     pixel: tuple[int, int],
     target: torch.Tensor,
-    level: int = 0,
+    zoom: int = 0,
     sharpness: float = 20.0,
     camera: Camera = APOLLO_CAMERA_5,
 ) -> dict:
-    """Forward and backward of one SDM level for a single point.
+    """Forward and backward of one SDM zoom for a single point.
 
     The landing block is the nearest XY-adjustment (the forward's choice); the
     pull is :func:`~sdm.mapping.flow.dynamic_flow`, the rule the layer's backward uses.
 
     Args:
         point: ``(3,)`` the (shifted) point in metres; its device is used throughout.
-        pixel: ``(row, col)`` the pixel it sits in at this level's input.
+        pixel: ``(row, col)`` the pixel it sits in at this zoom's input.
         target: ``(H, W)`` bool target at full resolution, on the device of ``point``.
-        level: zoom level ``k`` (blocks of ``2^k`` pixels).
+        zoom: the zoom ``k`` (blocks of ``2^k`` pixels).
         sharpness: the kernel's sharpness, the paper's ``c``, 1/metres (finite, so the kernel is visibly soft).
         camera: camera and screen.
 
@@ -43,9 +43,9 @@ def explain_point(
     if target.shape != camera.screen_shape:
         raise SDMInputError(f"target must have shape {camera.screen_shape}, got {tuple(target.shape)}")
     device = point.device
-    block = torch.tensor(pixel, dtype=torch.int64, device=device) >> level
-    zoomed, config = zoom_out(target, level), torch.zeros(1, dtype=torch.int64, device=device)
-    window = block_window(block[None], config, zoomed[None], level, torch.float64)  # the flow's window, p = 1
+    block = torch.tensor(pixel, dtype=torch.int64, device=device) >> zoom
+    zoomed, config = zoom_out(target, zoom), torch.zeros(1, dtype=torch.int64, device=device)
+    window = block_window(block[None], config, zoomed[None], zoom, torch.float64)  # the flow's window, p = 1
     blocks, centres = window.blocks()[0], nine(window.centres)[0]  # (9, 2) blocks, (9, 2) screen pixels
     adjustments = camera.backproject(centres, point[2].expand(9))
     distance = (point[:2] - adjustments[:, :2]).norm(dim=-1)
@@ -55,7 +55,7 @@ def explain_point(
     landing = blocks[nearest]
     flow, _, matched = dynamic_flow(
         camera.project(point)[None], point[2:], config, in_grid[nearest : nearest + 1], block[None], landing[None],
-        zoomed[None], level, camera,
+        zoomed[None], zoom, camera,
     )
     return {
         "block": block,

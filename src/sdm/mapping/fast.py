@@ -4,13 +4,13 @@ Same output as the dense grid formulation in the large-``c`` limit (tests hold
 the two together), at a fraction of the cost: the work is proportional to the
 number of points, not to the screen area times the kernel size.
 
-At level ``k`` (block size ``B = 2^k``), a point at pixel ``(r, c)`` has phase
+At zoom ``k`` (block size ``B = 2^k``), a point at pixel ``(r, c)`` has phase
 ``(r mod B, c mod B)`` and block ``(r div B, c div B)``. It lands in block
 ``clamp(floor(P(p) / B), block - 1, block + 1)`` (the nearest XY-adjustment of
 its 3x3 kernel), moves to pixel ``landing * B + phase`` and competes by
 ``rmin`` with the points of the same phase that landed in the same block. A
 point landing off the grid is dropped, as is every ``rmin`` loser, for all
-later levels.
+later zooms.
 
 Rows are never compacted: dropped points stay in the arrays behind an
 ``alive`` mask and are routed to a sentinel cell, because boolean-mask
@@ -30,8 +30,8 @@ from .result import MappingResult
 class _CellScratch:
     """Reusable ``int64`` buffers over all (configuration, pixel) cells, kept at ``NO_RANK``, one per device.
 
-    Filling an ``n * H * W`` buffer at every level would cost more than the rest
-    of the level; instead only the touched cells are reset after use.
+    Filling an ``n * H * W`` buffer at every zoom would cost more than the rest
+    of the zoom; instead only the touched cells are reset after use.
     """
 
     def __init__(self) -> None:
@@ -71,7 +71,7 @@ def fast_mapping(
     flow_rule=dynamic_flow,
     native: bool | None = None,
 ) -> MappingResult:
-    """Run SDM levels ``steps, steps-1, ..., zoom`` on points; loss and flow at level ``zoom``.
+    """Run the SDM zooms ``steps, steps-1, ..., zoom`` on points; loss and flow at zoom ``zoom``.
 
     Args:
         points: ``(P, 3)`` float shifted points ``p`` in metres (detached, checked), ``z > 0``.
@@ -79,13 +79,13 @@ def fast_mapping(
         pixels: ``(P, 2)`` int64 pixel each point sits in at the start (its pixel in ``I~``).
         config: ``(P,)`` int64 configuration index of each point in ``[0, n)``.
         rank: ``(P,)`` int64 ``rmin`` priority, distinct within a configuration; lower wins.
-        target: ``(n, H / 2^zoom, W / 2^zoom)`` bool zoomed-out target at the loss level.
-        steps: the coarsest level ``s``.
-        zoom: the loss level, ``0 <= zoom <= steps``.
+        target: ``(n, H / 2^zoom, W / 2^zoom)`` bool zoomed-out target at the loss zoom.
+        steps: the coarsest zoom ``s``.
+        zoom: the loss zoom (the finest), ``0 <= zoom <= steps``.
         camera: camera and screen ``(H, W)``.
         flow_rule: the gradient rule (default the paper's :func:`~sdm.mapping.flow.dynamic_flow`;
             the flows of the rules in :data:`sdm.RULES`), called with the same arguments.
-        native: run the level loop (and the paper's flow) in the compiled CPU kernel of
+        native: run the zoom loop (and the paper's flow) in the compiled CPU kernel of
             :mod:`~sdm.mapping.native`: ``None`` (default) wherever it can (contiguous CPU
             tensors, the kernel built), ``False`` never (the torch path; same results, bit for bit).
 
@@ -95,7 +95,7 @@ def fast_mapping(
     height, width = camera.screen_shape
     n_cells = int(target.shape[0]) * height * width
     screen = camera.project(points, validate=False)  # (P, 2) continuous (row, col)
-    # floor(P(p) / 2^k) == floor(P(p)) >> k for every level k: one floor for the whole chain.
+    # floor(P(p) / 2^k) == floor(P(p)) >> k for every zoom k: one floor for the whole chain.
     projected_pixel = torch.floor(screen).long()
     if native is not False and native_kernel.serves(projected_pixel, pixels, config, rank, target):
         scratch = _SCRATCH.buffer(points.device, 2 * n_cells + 1)  # the kernel's two rmin tables
@@ -112,17 +112,17 @@ def fast_mapping(
     alive = torch.ones(points.shape[0], dtype=torch.bool, device=points.device)
     current = pixels
     config_offset = config * (height * width)
-    for level in range(steps, zoom - 1, -1):
-        block = current >> level
+    for at in range(steps, zoom - 1, -1):  # each zoom, coarsest first
+        block = current >> at
         # Landing block - input block, limited to the 3x3 kernel; the point keeps its phase,
         # so its new pixel is its old one moved by whole blocks.
-        step = torch.clamp((projected_pixel >> level) - block, -1, 1)
-        if level == zoom:
+        step = torch.clamp((projected_pixel >> at) - block, -1, 1)
+        if at == zoom:
             entered, entered_block, entered_landing = alive, block, block + step
-        current = current + (step << level)
+        current = current + (step << at)
         # The new pixel is on the screen exactly when its landing block is on the block grid.
         candidate = alive & inside(current, height, width)
-        if level == zoom:
+        if at == zoom:
             landed = candidate
         cell = torch.where(candidate, config_offset + current[:, 0] * width + current[:, 1], n_cells)
         alive = candidate & _SCRATCH.winners(cell, rank, n_cells)

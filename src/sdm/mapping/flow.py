@@ -51,10 +51,10 @@ def dynamic_flow(
     zoom: int,
     camera: Camera,
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The dynamic gradient flow at the loss level ``zoom`` (paper, eq. 19).
+    """The dynamic gradient flow at the loss zoom ``zoom`` (paper, eq. 19).
 
     A point whose landing block is active in the zoomed-out target is matched
-    and gets nothing. Every other point that entered the level and landed on
+    and gets nothing. Every other point that entered the loss zoom and landed on
     the grid is pulled, per axis, towards each active target block ``q !=
     landing`` of the 3x3 window around its input block:
     ``d|p - T_q|_1 / d(x, y) = sign(p - T_q)``. The sign is taken in screen
@@ -69,11 +69,11 @@ def dynamic_flow(
         screen: ``(P, 2)`` float ``(row, col)`` projection ``P(p)`` of each point, screen pixels.
         depth: ``(P,)`` float depth ``z`` of each point, metres.
         config: ``(P,)`` int64 configuration of each point in ``[0, n)``.
-        landed: ``(P,)`` bool, the point entered the level and its landing block is on the grid.
+        landed: ``(P,)`` bool, the point entered the loss zoom and its landing block is on the grid.
         block: ``(P, 2)`` int64 input block ``(row, col) >> zoom`` of each point.
         landing: ``(P, 2)`` int64 landing block (the nearest XY-adjustment); read only where ``landed``.
         target: ``(n, H / 2^zoom, W / 2^zoom)`` bool zoomed-out target.
-        zoom: the loss level (blocks of ``2^zoom`` screen pixels).
+        zoom: the loss zoom (blocks of ``2^zoom`` screen pixels).
         camera: camera and screen (metres per screen pixel for the loss).
 
     Returns:
@@ -109,7 +109,7 @@ def landing_matched(config: torch.Tensor, landed: torch.Tensor, landing: torch.T
         config: ``(P,)`` int64 configuration of each point in ``[0, n)``.
         landed: ``(P,)`` bool, the landing block is on the grid (``landing`` is read only there).
         landing: ``(P, 2)`` int64 landing block ``(row, col)``.
-        target: ``(n, h, w)`` bool target at the level of ``landing``; all on one device.
+        target: ``(n, h, w)`` bool target at the zoom of ``landing``; all on one device.
     """
     grid_h, grid_w = target.shape[1:]
     landing_cell = torch.where(landed, config * (grid_h * grid_w) + landing[:, 0] * grid_w + landing[:, 1], 0)
@@ -117,7 +117,7 @@ def landing_matched(config: torch.Tensor, landed: torch.Tensor, landing: torch.T
 
 
 class Window(NamedTuple):
-    """The 3x3 window of blocks around one centre block per point, at one level (:func:`block_window`).
+    """The 3x3 window of blocks around one centre block per point, at one zoom (:func:`block_window`).
 
     Window block ``q = centre + (dk, dl)`` has index ``3 * (dk + 1) + (dl + 1)`` (row-major,
     :data:`WINDOW_OFFSETS`). Its centre is ``(centre + (dk, dl) + 0.5) * 2^zoom`` screen pixels,
@@ -162,11 +162,11 @@ def block_window(centre: torch.Tensor, config: torch.Tensor, target: torch.Tenso
     """The 3x3 :class:`Window` around block ``centre`` of each point: the one window of every gradient rule.
 
     Args:
-        centre: ``(p, 2)`` int64 centre block ``(row, col)`` at level ``zoom`` (the input block for
+        centre: ``(p, 2)`` int64 centre block ``(row, col)`` at zoom ``zoom`` (the input block for
             eq. 19, the landing block for the centred rules).
         config: ``(p,)`` int64 configuration of each point in ``[0, n)``.
         target: ``(n, h, w)`` bool blocks that may pull (the zoomed-out target, or a rule's version of it).
-        zoom: the level (blocks of ``2^zoom`` screen pixels).
+        zoom: the zoom (blocks of ``2^zoom`` screen pixels).
         dtype: float dtype of the centres (that of the screen coordinates they are compared with).
 
     All tensors on one device (any); the window lives there too. The centres are exact: block

@@ -105,12 +105,12 @@ class SDMOutput:
 
 
 class SpatialDomainMapping(nn.Module):
-    """Spatial Domain Mapping with the zoom chain (levels ``s..zoom``) as a module.
+    """Spatial Domain Mapping with the zoom chain (zooms ``s..zoom``) as a module.
 
     Args:
         camera: camera and screen (default ApolloCar3D ``Camera_5``, 128 x 256).
-        s: coarsest zoom level; both screen sides must be divisible by ``2^s``.
-        zoom: the level whose output is compared with the zoomed-out target.
+        s: the coarsest zoom; both screen sides must be divisible by ``2^s``.
+        zoom: the finest zoom, whose output is compared with the zoomed-out target.
         method: ``"fast"`` (point rows) or ``"dense"`` (the paper's grids, for reference).
         sharpness: the dense path's kernel sharpness, the paper's ``c``, 1/metres (ignored by ``"fast"``,
             which is the ``c -> infinity`` limit).
@@ -177,7 +177,7 @@ class SpatialDomainMapping(nn.Module):
             config: ``(P,)`` int64 configuration of each point in ``[0, n)``; may be
                 omitted only for a single target (``n = 1``).
             rank: ``(P,)`` int64 ``rmin`` priority; default: depth, then row order.
-            target_is_zoomed: ``target`` is already zoomed out to level ``zoom``.
+            target_is_zoomed: ``target`` is already zoomed out to zoom ``zoom``.
             validate: check every input's values too (the default). Only callers that checked
                 their inputs once up front (the trainer, on a packed set) turn this off; the
                 types, shapes and devices are checked either way.

@@ -1,11 +1,11 @@
 """The compiled CPU kernel's bindings for the layer (the SDM chain and the paper's flow) and the trainer.
 
 On the CPU the fast path's cost is not the arithmetic but the passes over memory:
-every level runs some twenty torch operations over all points, each a full pass
+every zoom runs some twenty torch operations over all points, each a full pass
 plus dispatch (``benchmarks/speed/bench_sdm.py`` measures it). ``kernel/chain.c`` does each
-level in one loop over the points and the paper's flow in one more, with the same
+zoom in one loop over the points and the paper's flow in one more, with the same
 integer arithmetic and the same floating-point operations in the same order as
-:func:`~sdm.mapping.fast.fast_mapping`'s level loop and
+:func:`~sdm.mapping.fast.fast_mapping`'s zoom loop and
 :func:`~sdm.mapping.flow.dynamic_flow`, so results are equal to the bit
 (``tests/mapping/test_native.py``). The library is built, cached and loaded by :mod:`sdm.mapping.build`; whenever it
 cannot be used the layer runs its torch path (the same results, slower). It serves CPU tensors (non-contiguous
@@ -16,7 +16,7 @@ points (other rules and float32 points get torch's flow).
 It serves two callers. The layer (:func:`~sdm.mapping.fast.fast_mapping`) calls
 :func:`chain` and :func:`paper_flow` once per forward pass. The trainer
 (:func:`sdm.train.train_runs`) calls :func:`train_program` once per program of
-``R`` runs: every level, epoch, mini-batch, projection, chain, flow (the paper's,
+``R`` runs: every zoom, epoch, mini-batch, projection, chain, flow (the paper's,
 ``closed_centred_r1``'s or ``group_crossing``'s: :meth:`sdm.mapping.rules.Rule.kernel_flows`), loss and SGD step
 in C, the per-step Python work gone; theta histories equal the torch path's to the bit
 (the loss to 1e-12 relative: its sum is compensated, not in torch's order). The
@@ -46,7 +46,7 @@ from .rules import KernelFlow
 
 
 #: The largest start pixel (either sign) :func:`chain` takes: moved by less than ``2^61`` pixels over at most 60
-#: levels, it stays within int64.
+#: zooms, it stays within int64.
 PIXEL_BOUND = 2**61
 
 
@@ -70,7 +70,7 @@ def _check_screen(call: str, height, width, steps, zoom) -> None:
 @eager_under_compile
 def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, rank: torch.Tensor,
           scratch: torch.Tensor, height: int, width: int, steps: int, zoom: int):
-    """Levels ``steps..zoom`` of the zoom chain (the level loop of :func:`~sdm.mapping.fast.fast_mapping`).
+    """Zooms ``steps..zoom`` of the zoom chain (the zoom loop of :func:`~sdm.mapping.fast.fast_mapping`).
 
     Args:
         projected: ``(P, 2)`` int64 ``floor(P(p))``, screen pixels ``(row, col)``.
@@ -78,7 +78,7 @@ def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, r
         config: ``(P,)`` int64 configuration of each point; ``rank``: ``(P,)`` int64 ``rmin`` priority.
         scratch: ``(>= 2 * (n * H * W + 1),)`` int64 (the kernel's two alternating rmin tables), every entry
             :data:`~sdm.representation.NO_RANK` (and so again on return).
-        height, width: the screen; steps, zoom: the levels.
+        height, width: the screen; steps, zoom: the coarsest and the finest zoom.
 
     All tensors on the CPU (see :func:`serves`; non-contiguous ones are copied); the results too.
     :func:`check_arrays` checks their shapes against each other first; the kernel checks ``config`` against the
@@ -86,8 +86,8 @@ def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, r
 
     Returns:
         ``(out_pixels, entered, landed, block, landing)``: ``(P, 2)`` int64 output pixel (``-1``
-        where dropped), ``(P,)`` bool entered and landed at level ``zoom``, ``(P, 2)`` int64 input
-        and landing block at level ``zoom``.
+        where dropped), ``(P,)`` bool entered and landed at zoom ``zoom``, ``(P, 2)`` int64 input
+        and landing block at zoom ``zoom``.
     """
     projected, pixels, config, rank = (t.contiguous() for t in (projected, pixels, config, rank))
     int64 = torch.int64
@@ -180,7 +180,7 @@ def trains_screen(screen_shape) -> bool:
 
 
 def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor, offsets: torch.Tensor,
-                  camera, steps: int, levels: list[int], n_epoch: int, batch_size: int, rates: list[float],
+                  camera, steps: int, zooms: list[int], n_epoch: int, batch_size: int, rates: list[float],
                   windows: list[KernelFlow], orders: torch.Tensor, targets: list[list[torch.Tensor | None]],
                   theta0: torch.Tensor, bases: list[torch.Tensor] | None = None,
                   param_index: torch.Tensor | None = None, record_every: int = 1,
@@ -191,31 +191,31 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
         points: ``(P, 3)`` float64 points ``Q`` (metres), ``pixels`` ``(P, 2)`` int64, ``rank`` ``(P,)`` int64,
             ``offsets`` ``(N + 1,)`` int64: the packed set (:class:`~sdm.batch.ConfigurationSet`).
         camera: :class:`~sdm.camera.Camera` (intrinsics and screen ``(H, W)``).
-        steps: the chain's coarsest level ``s``; ``levels``: the loss levels (each in ``0..s``), one after
+        steps: the chain's coarsest zoom ``s``; ``zooms``: the loss zooms (each in ``0..s``), one after
             another (the paper's ``s, s - 1, ...``; a refinement's ``0, 0, ...``).
-        n_epoch, batch_size: epochs per level, configurations per mini-batch (the last incomplete one dropped).
-        rates: the learning rate at each of ``levels``.
-        windows: per level, the flow (:meth:`sdm.mapping.rules.Rule.kernel_flows`), a
+        n_epoch, batch_size: epochs per zoom, configurations per mini-batch (the last incomplete one dropped).
+        rates: the learning rate at each of ``zooms``.
+        windows: per zoom, the flow (:meth:`sdm.mapping.rules.Rule.kernel_flows`), a
             :class:`~sdm.mapping.rules.KernelFlow`: ``PAPER``; ``CENTRED``, ``closed_centred_r1``'s window
-            (centred on the landing block, on the level's target closed 3 x 3 by the kernel, as
-            :func:`sdm.mapping.rules.closing` ``(3)``); ``CROSSING``, ``group_crossing``'s flow (level 0 only;
+            (centred on the landing block, on the zoom's target closed 3 x 3 by the kernel, as
+            :func:`sdm.mapping.rules.closing` ``(3)``); ``CROSSING``, ``group_crossing``'s flow (zoom 0 only;
             the loss is then the mismatch count).
-        crossing_widths: ``None`` (:data:`sdm.mapping.crossing.CROSSING_WIDTH` at every level) or, per level of
-            ``levels``, ``group_crossing``'s kernel half-width in metres at that level (read at its
-            ``CROSSING`` levels only; a refinement's passes, :attr:`sdm.train.Refinement.widths`).
-        orders: ``(len(levels) * n_epoch, R, N)`` int64, each epoch's shuffling of each run.
-        targets: ``R`` lists, one ``(N, H >> level, W >> level)`` bool target per level of ``levels``, or
-            ``None``: the kernel zooms ``bases[r]`` out to that level itself (as
+        crossing_widths: ``None`` (:data:`sdm.mapping.crossing.CROSSING_WIDTH` at every zoom) or, per entry of
+            ``zooms``, ``group_crossing``'s kernel half-width in metres at that zoom (read at its
+            ``CROSSING`` zooms only; a refinement's passes, :attr:`sdm.train.Refinement.widths`).
+        orders: ``(len(zooms) * n_epoch, R, N)`` int64, each epoch's shuffling of each run.
+        targets: ``R`` lists, one ``(N, H >> zoom, W >> zoom)`` bool target per entry of ``zooms``, or
+            ``None``: the kernel zooms ``bases[r]`` out to that zoom itself (as
             :func:`sdm.zoom.target_pyramid`; into one buffer the runs reuse, which spares each noise run the
             allocation and passes of a fresh pyramid).
         theta0: ``(R, 2)`` float64 starts ``(a, b)``, metres; ``(R, K, 2)`` with ``param_index``.
-        bases: ``R`` ``(N, H, W)`` bool level-0 targets, one per run (needed where ``targets`` holds ``None``).
+        bases: ``R`` ``(N, H, W)`` bool zoom-0 targets, one per run (needed where ``targets`` holds ``None``).
         param_index: ``None`` (every point moved by the one shared shift) or ``(P, G)`` int64, checked by the
             caller (:func:`sdm.train.train_runs`): point ``i`` is moved by the sum of rows
             ``param_index[i, 0..G-1]`` of its run's ``(K, 2)`` theta, and each of those rows takes its flow.
             With ``group_crossing``, every rigid group's points must share their rows.
-        row_rate: ``None`` or ``(L, K)`` float64, each row's factor on the rate of each of ``levels`` (with
-            ``param_index``; 0 leaves the row where it is at that level).
+        row_rate: ``None`` or ``(L, K)`` float64, each row's factor on the rate of each of ``zooms`` (with
+            ``param_index``; 0 leaves the row where it is at that zoom).
         record_every: theta is recorded before the first step and after every ``record_every``-th step (the
             total number of steps must be a multiple of it).
 
@@ -231,33 +231,33 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     """
     points, pixels, rank, offsets, orders, theta0 = (
         _contiguous(t) for t in (points, pixels, rank, offsets, orders, theta0))
-    targets = [[_contiguous(level) for level in run] for run in targets]
+    targets = [[_contiguous(target) for target in run] for run in targets]
     bases = [_contiguous(base) for base in bases] if bases is not None else None
     if isinstance(param_index, torch.Tensor) and param_index.dim() == 1:
         param_index = param_index[:, None]
     param_index, row_rate = _contiguous(param_index), _contiguous(row_rate)
-    check_program(points, pixels, rank, offsets, camera, steps, levels, n_epoch, batch_size, rates, windows, orders,
+    check_program(points, pixels, rank, offsets, camera, steps, zooms, n_epoch, batch_size, rates, windows, orders,
                   targets, theta0, bases, param_index, record_every, row_rate, crossing_widths)
     n_runs, n_configs = orders.shape[1], orders.shape[2]
     device = points.device
-    total = len(levels) * n_epoch * (n_configs // batch_size)
+    total = len(zooms) * n_epoch * (n_configs // batch_size)
     row_shape = tuple(theta0.shape[1:])  # (2,), or (K, 2) with param_index
     n_rows = theta0.shape[1] if param_index is not None else 1
     constants = torch.tensor([camera.fx, camera.fy, camera.cx, camera.cy, camera.rows_per_image_pixel,
                               camera.cols_per_image_pixel, camera.fy * camera.rows_per_image_pixel,
                               camera.fx * camera.cols_per_image_pixel], dtype=torch.float64, device=device)
     rates_t = torch.tensor(rates, dtype=torch.float64, device=device)
-    levels_t = torch.tensor(levels, dtype=torch.int64, device=device)
+    zooms_t = torch.tensor(zooms, dtype=torch.int64, device=device)
     modes_t = torch.tensor([int(window) for window in windows], dtype=torch.uint8, device=device)
     groups = (_crossing_groups(points, offsets, param_index) if KernelFlow.CROSSING in windows
               else (torch.zeros(1, dtype=torch.int64),) * 3)
-    crossing = _crossing_constants(device, crossing_widths, len(levels))
-    addresses = torch.tensor([[level.data_ptr() if level is not None else 0 for level in run] for run in targets],
+    crossing = _crossing_constants(device, crossing_widths, len(zooms))
+    addresses = torch.tensor([[target.data_ptr() if target is not None else 0 for target in run] for run in targets],
                              dtype=torch.int64, device=device)
     height, width = camera.screen_shape
-    # as sdm_train lays it out: the zoomed-out levels where it zooms any out, then the closed targets
-    zooms = any(target is None and level > 0 for run in targets for target, level in zip(run, levels))
-    pyramid = _pyramid_scratch(n_configs * sum((height >> k) * (width >> k) for k in range(1, steps + 1)) * zooms
+    # as sdm_train lays it out: the zoomed-out targets where it zooms any out, then the closed targets
+    zooms_out = any(target is None and zoom > 0 for run in targets for target, zoom in zip(run, zooms))
+    pyramid = _pyramid_scratch(n_configs * sum((height >> k) * (width >> k) for k in range(1, steps + 1)) * zooms_out
                                + n_configs * height * width * (KernelFlow.CENTRED in windows), device)
     base_addresses = torch.tensor([base.data_ptr() for base in bases] if bases is not None else [0] * n_runs,
                                   dtype=torch.int64, device=device)
@@ -266,7 +266,7 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     failed = torch.empty(n_runs, dtype=torch.int64, device=device)
     code = _library().sdm_train(
         n_runs, n_configs, offsets.data_ptr(), points.data_ptr(), pixels.data_ptr(), rank.data_ptr(), height, width,
-        constants.data_ptr(), steps, len(levels), n_epoch, batch_size, levels_t.data_ptr(), rates_t.data_ptr(),
+        constants.data_ptr(), steps, len(zooms), n_epoch, batch_size, zooms_t.data_ptr(), rates_t.data_ptr(),
         modes_t.data_ptr(), *(group.data_ptr() for group in groups), crossing.data_ptr(), orders.data_ptr(),
         addresses.data_ptr(), base_addresses.data_ptr(), pyramid.data_ptr(), NO_RANK, n_rows,
         param_index.shape[1] if param_index is not None else 1,
@@ -276,23 +276,23 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     if code == -2:
         raise ValueError(f"sdm_train: a {height} x {width} screen is beyond its int32 chain (trains_screen)")
     if code == -3:
-        raise ValueError(f"sdm_train: levels {levels} outside 0..{steps}, or CROSSING above level 0: "
-                         f"{[(window.name, level) for window, level in zip(windows, levels)]}")
+        raise ValueError(f"sdm_train: zooms {zooms} outside 0..{steps}, or CROSSING above zoom 0: "
+                         f"{[(window.name, zoom) for window, zoom in zip(windows, zooms)]}")
     if code != 0:
         raise MemoryError("sdm_train: no memory for one configuration's working rows")
     return thetas, losses, failed
 
 
-def check_program(points, pixels, rank, offsets, camera, steps, levels, n_epoch, batch_size, rates, windows, orders,
+def check_program(points, pixels, rank, offsets, camera, steps, zooms, n_epoch, batch_size, rates, windows, orders,
                   targets, theta0, bases=None, param_index=None, record_every=1, row_rate=None,
                   crossing_widths=None) -> None:
     """:func:`train_program`'s arguments checked against each other, as ``sdm_train`` reads them.
 
     The sizes: ``P`` points, ``N`` configurations (``offsets``: ``0``, non-decreasing, ``P`` last), ``R`` runs
-    (``orders``, ``targets``, ``bases``, ``theta0``), ``L`` loss levels (``levels`` in ``0..steps``, ``rates``,
+    (``orders``, ``targets``, ``bases``, ``theta0``), ``L`` loss zooms (``zooms`` in ``0..steps``, ``rates``,
     ``windows``, ``crossing_widths``, each run's ``targets`` and ``row_rate``'s rows), ``K`` rows of theta
     (``theta0``, ``row_rate``'s columns, the entries of ``param_index``). Every shuffled configuration lies in
-    ``0..N-1``; every target level is ``(N, H >> level, W >> level)`` bool; the screen divides into blocks of
+    ``0..N-1``; every target at zoom ``k`` is ``(N, H >> k, W >> k)`` bool; the screen divides into blocks of
     ``2^steps``; the steps are a multiple of ``record_every``.
 
     Raises:
@@ -306,25 +306,25 @@ def check_program(points, pixels, rank, offsets, camera, steps, levels, n_epoch,
     for name, value in (("n_epoch", n_epoch), ("batch_size", batch_size), ("record_every", record_every)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise SDMInputError(f"{call}: {name} must be a positive integer, got {value!r}")
-    n_levels = len(levels)
-    if n_levels == 0 or any(isinstance(level, bool) or not isinstance(level, int) or not 0 <= level <= steps
-                            for level in levels):
-        raise SDMInputError(f"{call}: levels must be integers in 0..{steps}, at least one, got {levels}")
-    for name, per_level in (("rates", rates), ("windows", windows), ("crossing_widths", crossing_widths)):
-        if per_level is not None and len(per_level) != n_levels:
-            raise SDMInputError(f"{call}: {name} must hold one entry per level ({n_levels}), got {len(per_level)}")
+    n_zooms = len(zooms)
+    if n_zooms == 0 or any(isinstance(zoom, bool) or not isinstance(zoom, int) or not 0 <= zoom <= steps
+                           for zoom in zooms):
+        raise SDMInputError(f"{call}: zooms must be integers in 0..{steps}, at least one, got {zooms}")
+    for name, per_zoom in (("rates", rates), ("windows", windows), ("crossing_widths", crossing_widths)):
+        if per_zoom is not None and len(per_zoom) != n_zooms:
+            raise SDMInputError(f"{call}: {name} must hold one entry per zoom ({n_zooms}), got {len(per_zoom)}")
     if not all(isinstance(window, KernelFlow) for window in windows):  # sdm_train refuses an unknown mode (-3)
         raise SDMInputError(f"{call}: windows must be sdm.mapping.rules.KernelFlow, got {windows}")
-    if any(window is KernelFlow.CROSSING and level != 0 for window, level in zip(windows, levels)):
-        raise SDMInputError(f"{call}: CROSSING runs at level 0 only, got levels {levels} for windows "
+    if any(window is KernelFlow.CROSSING and zoom != 0 for window, zoom in zip(windows, zooms)):
+        raise SDMInputError(f"{call}: CROSSING runs at zoom 0 only, got zooms {zooms} for windows "
                             f"{[window.name for window in windows]}")
     if not isinstance(orders, torch.Tensor) or orders.dim() != 3 or len(targets) != orders.shape[1]:
-        raise SDMInputError(f"{call}: orders must be (levels * n_epoch, R, N) and targets hold its R runs, got orders "
+        raise SDMInputError(f"{call}: orders must be (zooms * n_epoch, R, N) and targets hold its R runs, got orders "
                             f"{tuple(getattr(orders, 'shape', ()))} and {len(targets)} runs of targets")
-    if any(len(run) != n_levels for run in targets):
-        raise SDMInputError(f"{call}: targets must hold {n_levels} levels a run, got {[len(run) for run in targets]}")
-    if bases is None and any(level is None for run in targets for level in run):
-        raise SDMInputError(f"{call}: a level left to the kernel (None) needs the run's level-0 target in bases")
+    if any(len(run) != n_zooms for run in targets):
+        raise SDMInputError(f"{call}: targets must hold {n_zooms} zooms a run, got {[len(run) for run in targets]}")
+    if bases is None and any(target is None for run in targets for target in run):
+        raise SDMInputError(f"{call}: a zoom left to the kernel (None) needs the run's zoom-0 target in bases")
     if bases is not None and len(bases) != len(targets):
         raise SDMInputError(f"{call}: bases must hold one target per run ({len(targets)}), got {len(bases)}")
     if (not isinstance(theta0, torch.Tensor) or (param_index is None) != (theta0.dim() == 2)
@@ -334,17 +334,17 @@ def check_program(points, pixels, rank, offsets, camera, steps, levels, n_epoch,
                             f"{None if param_index is None else tuple(param_index.shape)}")
     arrays = dict(offsets=(offsets, int64, ("N+1",)), points=(points, torch.float64, ("P", 3)),
                   pixels=(pixels, int64, ("P", 2)), rank=(rank, int64, ("P",)),
-                  orders=(orders, int64, (n_levels * n_epoch, "R", "N")))
+                  orders=(orders, int64, (n_zooms * n_epoch, "R", "N")))
     for run, run_targets in enumerate(targets):
-        arrays.update({f"targets[{run}] at level {level}": (target, torch.bool, ("N", height >> level, width >> level))
-                       for level, target in zip(levels, run_targets) if target is not None})
+        arrays.update({f"targets[{run}] at zoom {zoom}": (target, torch.bool, ("N", height >> zoom, width >> zoom))
+                       for zoom, target in zip(zooms, run_targets) if target is not None})
     arrays.update({f"bases[{run}]": (base, torch.bool, ("N", height, width)) for run, base in enumerate(bases or [])})
     if param_index is None:
         arrays["theta0"] = (theta0, torch.float64, ("R", 2))
     else:
         arrays.update(theta0=(theta0, torch.float64, ("R", "K", 2)), param_index=(param_index, int64, ("P", "G")))
         if row_rate is not None:
-            arrays["row_rate"] = (row_rate, torch.float64, (n_levels, "K"))
+            arrays["row_rate"] = (row_rate, torch.float64, (n_zooms, "K"))
     sizes = check_arrays(call, **arrays)
     n_configs = sizes["N"]
     if n_configs < 1 or int(offsets[0]) != 0 or int(offsets[-1]) != sizes["P"] or bool((offsets.diff() < 0).any()):
@@ -353,7 +353,7 @@ def check_program(points, pixels, rank, offsets, camera, steps, levels, n_epoch,
     _check_range(call, "orders", orders, 0, n_configs)
     if batch_size > n_configs:
         raise SDMInputError(f"{call}: batch_size {batch_size} is more than the {n_configs} configurations")
-    total = n_levels * n_epoch * (n_configs // batch_size)
+    total = n_zooms * n_epoch * (n_configs // batch_size)
     if total % record_every:
         raise SDMInputError(f"{call}: {total} steps are not a multiple of record_every {record_every}")
     if param_index is not None:
@@ -415,12 +415,12 @@ def _crossing_layout(points: torch.Tensor, offsets: torch.Tensor,
     return config_group, group_start, members.contiguous()
 
 
-def _crossing_constants(device: torch.device, widths: list[float] | None, n_levels: int) -> torch.Tensor:
-    """``(n_levels, 3)`` float64, per level: ``group_crossing``'s kernel half-width (metres; ``widths[level]``,
+def _crossing_constants(device: torch.device, widths: list[float] | None, n_zooms: int) -> torch.Tensor:
+    """``(n_zooms, 3)`` float64, per zoom: ``group_crossing``'s kernel half-width (metres; ``widths[i]``,
     :data:`~sdm.mapping.crossing.CROSSING_WIDTH` for ``None``), flow scale and kernel steps."""
-    widths = [CROSSING_WIDTH] * n_levels if widths is None else [float(width) for width in widths]
+    widths = [CROSSING_WIDTH] * n_zooms if widths is None else [float(width) for width in widths]
     return torch.tensor([[width, CROSSING_SCALE, float(CROSSING_STEPS)] for width in widths], dtype=torch.float64,
-                        device=device).reshape(n_levels, 3)
+                        device=device).reshape(n_zooms, 3)
 
 #: Per thread, the compiled trainer's pyramid scratch (:func:`train_program`): kept, because on the machines
 #: measured the first touch of fresh pages (a noise run's pyramid is 5.6 MB) cost more than zooming out.

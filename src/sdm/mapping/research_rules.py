@@ -105,16 +105,16 @@ def _normalised(offset, weight):
 
 
 def _closing_pixels(radius: int, at_least: int = 0):
-    """Closing with a square of ``radius`` *screen pixels*: ``2 (radius >> zoom) + 1`` blocks at level ``zoom``.
+    """Closing with a square of ``radius`` *screen pixels*: ``2 (radius >> zoom) + 1`` blocks at zoom ``zoom``.
 
     Noise moves a pixel by at most ``level`` screen pixels, so it opens holes of
     that size at full resolution; zooming out already fills them once a block is
     wider than the noise. A closing of a fixed number of *blocks* (``closed5``)
-    over-fills the coarse levels (5 blocks of 16 pixels bridge whole gaps between
-    cars, every point is matched, theta hardly moves until the fine levels, where
+    over-fills the coarse zooms (5 blocks of 16 pixels bridge whole gaps between
+    cars, every point is matched, theta hardly moves until the fine zooms, where
     the 3x3 kernel can no longer reach). Measured in docs/method/rules.md. ``at_least``
-    blocks of radius are closed at every level (``closed_m2``: 1, i.e. 3x3 at the
-    coarse levels, as ``closed``).
+    blocks of radius are closed at every zoom (``closed_m2``: 1, i.e. 3x3 at the
+    coarse zooms, as ``closed``).
     """
     closings = {}
 
@@ -143,7 +143,7 @@ _EXPERIMENTS = {
     "closed_m2": window_rule(prepare=_closing_pixels(2, at_least=1)),
     "centred": window_rule(centred=True),
     "closed_centred": window_rule(prepare=closing(3), centred=True),
-    # 3x3 closing at zoom 0 only (radius 1 screen pixel), eq. 19 at the coarser levels.
+    # 3x3 closing at zoom 0 only (radius 1 screen pixel), eq. 19 at the coarser zooms.
     "closed_r1": window_rule(prepare=_closing_pixels(1)),
     # Chamfer-like: also pulled towards target blocks that no point's projection covers.
     "two_sided": _two_sided(),

@@ -8,21 +8,21 @@ import torch
 
 @dataclass
 class MappingResult:
-    """Forward output and dynamic gradient flow of the SDM chain (levels ``s..zoom``).
+    """Forward output and dynamic gradient flow of the SDM chain (zooms ``s..zoom``).
 
     Attributes:
         out_pixels: ``(P, 2)`` int64 pixel ``(row, col)`` of each point in the
             output representation ``L~`` (full resolution: block * 2^zoom + phase);
             ``-1`` for points dropped (off the grid, or hidden by ``rmin``).
         flow: ``(P, 2)`` float64 ``dJ/d(x, y)`` per point (dimensionless: sums of
-            signs), zero for matched points and points dropped before the loss level.
+            signs), zero for matched points and points dropped before the loss zoom.
         loss: ``()`` float64 ``J``: over unmatched points, the summed L1 distance in
             metres (x and y) to the XY-adjustments of the active target blocks in
             their 3x3 window.
-        entered: ``(P,)`` bool, the point reached the loss level.
+        entered: ``(P,)`` bool, the point reached the loss zoom.
         matched: ``(P,)`` bool, the point's landing block is active in the zoomed-out target.
-        zoom: the loss level.
-        landed: ``(P,)`` bool, the point entered the loss level and its landing block is on
+        zoom: the loss zoom (the finest).
+        landed: ``(P,)`` bool, the point entered the loss zoom and its landing block is on
             the grid (points leaving the screen are neither matched nor pulled).
     """
 

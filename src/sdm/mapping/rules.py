@@ -1,7 +1,7 @@
 """Gradient rules as objects (:class:`Rule`) and their one registry, :data:`RULES`.
 
 A rule is a name, its torch flow, and optionally its compiled form: the flow the compiled trainer
-(:func:`sdm.mapping.native.train_program`) runs at each loss level (:class:`KernelFlow`). Every rule of the
+(:func:`sdm.mapping.native.train_program`) runs at each loss zoom (:class:`KernelFlow`). Every rule of the
 project is registered in :data:`RULES`; :data:`FLOW_RULES` (the rules a configuration or table uses) and
 :data:`sdm.mapping.research_rules.RESEARCH_RULES` (the experiments of docs/method/rules.md) are live views of
 it, and the workflow schema's rule names are held to it by ``tests/experiments/test_research.py``.
@@ -13,7 +13,7 @@ registered name, a :class:`Rule`, or a bare function with the signature of
 path). ``"paper"`` is the paper's eq. 19, unchanged, and the default.
 
 The product's rules: ``"paper"``; ``"closed_centred_r1"`` (docs/method/rules.md), eq. 19 at every zoom >= 1 (the
-coarse levels, where blocks are wider than the noise's holes and the paper's strong pull brings theta near
+coarse zooms, where blocks are wider than the noise's holes and the paper's strong pull brings theta near
 theta*), and at zoom 0 a 3x3 closing of the target with the window centred on the landing block: the one rule
 that meets the bar "half the paper's mean" at every noise level on the default data; ``"group_crossing"``
 (:mod:`sdm.mapping.crossing`), Table 4's refinement. This module also holds the builders every rule shares: one
@@ -21,7 +21,7 @@ generic 3x3 window with hooks (:func:`window_rule`), :func:`by_zoom` and :func:`
 
 Shapes follow :func:`~sdm.mapping.flow.dynamic_flow`: ``screen`` ``(P, 2)`` float
 ``(row, col)`` screen pixels, ``depth`` ``(P,)`` metres, ``config`` ``(P,)`` int64,
-``landed`` ``(P,)`` bool, ``block``/``landing`` ``(P, 2)`` int64 blocks at level
+``landed`` ``(P,)`` bool, ``block``/``landing`` ``(P, 2)`` int64 blocks at zoom
 ``zoom``, ``target`` ``(n, H / 2^zoom, W / 2^zoom)`` bool; all on one device (any).
 Outputs: ``flow`` ``(P, 2)`` ``(x, y)`` (dtype of ``screen``), ``loss`` ``()`` metres,
 ``matched`` ``(P,)`` bool.
@@ -106,7 +106,7 @@ def window_rule(select=None, weigh=None, prepare=None, centred=False) -> FlowRul
 
 
 def by_zoom(fine: FlowRule, coarse: FlowRule, finest_coarse: int = 1) -> FlowRule:
-    """``coarse`` at the loss levels ``zoom >= finest_coarse``, ``fine`` below them."""
+    """``coarse`` at the loss zooms ``zoom >= finest_coarse``, ``fine`` below them."""
 
     def rule(screen, depth, config, landed, block, landing, target, zoom, camera: Camera):
         chosen = coarse if zoom >= finest_coarse else fine
@@ -149,13 +149,13 @@ def _spread(image: torch.Tensor, radius: int, combine) -> torch.Tensor:
 
 
 class KernelFlow(enum.IntEnum):
-    """A flow the compiled trainer (``sdm_train``, ``kernel/train.c``) runs at one loss level; the value is its mode."""
+    """A flow the compiled trainer (``sdm_train``, ``kernel/train.c``) runs at one loss zoom; the value is its mode."""
 
     #: eq. 19's window on the input block (:func:`~sdm.mapping.flow.dynamic_flow`)
     PAPER = 0
-    #: the window on the landing block, over the level's target closed as :func:`closing` ``(3)`` closes it
+    #: the window on the landing block, over the zoom's target closed as :func:`closing` ``(3)`` closes it
     CENTRED = 1
-    #: ``group_crossing``'s flow (:func:`~sdm.mapping.crossing.group_crossing_flow`; level 0 only)
+    #: ``group_crossing``'s flow (:func:`~sdm.mapping.crossing.group_crossing_flow`; zoom 0 only)
     CROSSING = 2
 
 
@@ -170,7 +170,7 @@ class Rule:
         compiled: ``None`` (no compiled form: training takes the torch path) or the :class:`KernelFlow` the
             compiled trainer runs where the rule is not eq. 19; it must give ``flow``'s theta history to the
             bit (``tests/mapping/test_native.py`` holds the product's rules to that).
-        finest_coarse: ``None``, or the loss level from which on the rule is eq. 19 (:class:`KernelFlow` ``PAPER``
+        finest_coarse: ``None``, or the loss zoom from which on the rule is eq. 19 (:class:`KernelFlow` ``PAPER``
             in the kernel; :meth:`by_zoom` builds ``flow`` from the same number).
         experiment: measured in docs/method/rules.md, used by no table (:data:`RESEARCH_RULES` rather than
             :data:`FLOW_RULES`).
@@ -205,7 +205,7 @@ class Rule:
     @classmethod
     def by_zoom(cls, name: str, fine: FlowRule, finest_coarse: int, compiled: KernelFlow | None = None,
                 experiment: bool = False) -> "Rule":
-        """``fine`` below loss level ``finest_coarse``, eq. 19 from it on: the torch flow (:func:`by_zoom`) and the
+        """``fine`` below loss zoom ``finest_coarse``, eq. 19 from it on: the torch flow (:func:`by_zoom`) and the
         compiled form's switch read the same number."""
         return cls(name, by_zoom(fine, dynamic_flow, finest_coarse), compiled, finest_coarse, experiment)
 
@@ -216,12 +216,12 @@ class Rule:
         compiled = f", compiled={self.compiled.name}" if self.compiled is not None else ""
         return f"Rule({self.name!r}{compiled})"
 
-    def kernel_flows(self, levels: Iterable[int]) -> list[KernelFlow] | None:
-        """The compiled trainer's flow at each of ``levels``, or ``None`` where the rule has no compiled form."""
+    def kernel_flows(self, zooms: Iterable[int]) -> list[KernelFlow] | None:
+        """The compiled trainer's flow at each of ``zooms``, or ``None`` where the rule has no compiled form."""
         if self.compiled is None:
             return None
         coarse = self.finest_coarse
-        return [KernelFlow.PAPER if coarse is not None and level >= coarse else self.compiled for level in levels]
+        return [KernelFlow.PAPER if coarse is not None and zoom >= coarse else self.compiled for zoom in zooms]
 
 
 class RuleRegistry(Mapping):
@@ -319,11 +319,11 @@ RULES = RuleRegistry()
 
 #: eq. 19 (:func:`~sdm.mapping.flow.dynamic_flow`), the default; the kernel's window on the input block.
 PAPER = RULES.register(Rule("paper", dynamic_flow, KernelFlow.PAPER))
-#: The 3x3 closing and the window centred on the landing block at zoom 0, eq. 19 at the coarser levels.
+#: The 3x3 closing and the window centred on the landing block at zoom 0, eq. 19 at the coarser zooms.
 CLOSED_CENTRED_R1 = RULES.register(Rule.by_zoom("closed_centred_r1", window_rule(prepare=closing(3), centred=True),
                                                 1, KernelFlow.CENTRED))
 #: The kernel-weighted discrete derivative of CMA-ES's objective at zoom 0 (sdm.mapping.crossing), eq. 19 at the
-#: coarser levels; Table 4 refines closed_centred_r1's runs with it (sdm.train.Refinement).
+#: coarser zooms; Table 4 refines closed_centred_r1's runs with it (sdm.train.Refinement).
 GROUP_CROSSING = RULES.register(Rule.by_zoom("group_crossing", group_crossing_flow, CROSSING_FINEST_COARSE,
                                              KernelFlow.CROSSING))
 
@@ -336,7 +336,7 @@ def crossing_width_rule(rule, width: float | None) -> Rule:
     (metres; a refinement pass's, :attr:`sdm.train.Refinement.widths`). ``width=None``, its own width
     :data:`~sdm.mapping.crossing.CROSSING_WIDTH`, and every rule but ``group_crossing`` (which read no width) give
     the rule itself; another width a :class:`Rule` of the same name and compiled form whose torch flow reads it
-    (the compiled trainer reads the width per level itself: ``crossing_widths`` of
+    (the compiled trainer reads the width per zoom itself: ``crossing_widths`` of
     :func:`sdm.mapping.native.train_program`).
 
     Raises:

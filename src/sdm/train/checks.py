@@ -163,23 +163,23 @@ def checked_row_rate(row_rate, rows, device) -> torch.Tensor | None:
     return rate.to(dtype=torch.float64, device=device)
 
 
-def checked_row_level(row_level, rows, common: TrainSettings) -> torch.Tensor | None:
-    """``row_level`` checked against the checked ``rows`` and the schedule's levels ``common.s .. common.zoom``:
+def checked_row_zoom(row_zoom, rows, common: TrainSettings) -> torch.Tensor | None:
+    """``row_zoom`` checked against the checked ``rows`` and the schedule's zooms ``common.s .. common.zoom``:
     ``(K,)`` int64 on the CPU, or ``None``."""
-    if row_level is None:
+    if row_zoom is None:
         return None
     if rows is None:
-        raise SDMInputError("row_level needs param_index (it names each row's first level)")
+        raise SDMInputError("row_zoom needs param_index (it names each row's first zoom)")
     n_rows = int(rows.max()) + 1
-    level = torch.as_tensor(row_level)
-    if level.shape != (n_rows,) or level.is_floating_point() or level.is_complex() or level.dtype == torch.bool:
-        raise SDMInputError(f"row_level must be {n_rows} integers (one per row of param_index), got {level.dtype} "
-                            f"{tuple(level.shape)}")
-    level = level.to("cpu", torch.int64)
-    if n_rows and not bool(((level >= common.zoom) & (level <= common.s)).all()):
-        raise SDMInputError(f"row_level must lie in the schedule's levels {common.zoom} .. {common.s}, got "
-                            f"{int(level.min())} .. {int(level.max())}")
-    return level
+    first = torch.as_tensor(row_zoom)
+    if first.shape != (n_rows,) or first.is_floating_point() or first.is_complex() or first.dtype == torch.bool:
+        raise SDMInputError(f"row_zoom must be {n_rows} integers (one per row of param_index), got {first.dtype} "
+                            f"{tuple(first.shape)}")
+    first = first.to("cpu", torch.int64)
+    if n_rows and not bool(((first >= common.zoom) & (first <= common.s)).all()):
+        raise SDMInputError(f"row_zoom must lie in the schedule's zooms {common.zoom} .. {common.s}, got "
+                            f"{int(first.min())} .. {int(first.max())}")
+    return first
 
 
 def usable_device(device: torch.device | str) -> torch.device:

@@ -1,13 +1,13 @@
 """The training engine: :func:`train_runs` trains ``R`` independent runs as one program, :func:`train` is it with
 ``R = 1`` (paper, section 6; docs/method/paper.md, "Training and evaluation").
 
-theta starts at (0, 0). For zoom level ``s, s-1, ..., zoom``: ``n_epoch`` passes over the training set in shuffled
-mini-batches of 16 configurations (the incomplete last batch is dropped), the loss taken at that level; the learning
-rate halves after each level. The loss is the *sum* over all points of the batch, which is what the paper's learning
+theta starts at (0, 0). For each zoom ``s, s-1, ..., zoom``: ``n_epoch`` passes over the training set in shuffled
+mini-batches of 16 configurations (the incomplete last batch is dropped), the loss taken at that zoom; the learning
+rate halves after each zoom. The loss is the *sum* over all points of the batch, which is what the paper's learning
 rates assume.
 
 On the CPU, for a rule with a compiled form (:attr:`sdm.mapping.rules.Rule.compiled`: ``"paper"``,
-``"closed_centred_r1"``, ``"group_crossing"``) on float64 points, the whole run (every level, epoch, mini-batch, chain,
+``"closed_centred_r1"``, ``"group_crossing"``) on float64 points, the whole run (every zoom, epoch, mini-batch, chain,
 flow and SGD step) is one call of the compiled kernel (:func:`sdm.mapping.native.train_program`); everything else, and
 every device, runs the torch path (:mod:`sdm.train.torch_path`), one layer call per step with autograd. Both give the
 theta history of the single-run loop kept in ``tests/train_reference.py`` to the bit.
@@ -26,7 +26,7 @@ from ..mapping import native
 from ..mapping.crossing import rigid_groups
 from ..mapping.rules import RULES, KernelFlow
 from ..zoom import target_pyramid
-from .checks import check_divergence, checked_row_level, checked_runs
+from .checks import check_divergence, checked_row_zoom, checked_runs
 from .settings import History, RunsHistory, TrainSettings
 from .torch_path import train_torch
 
@@ -61,7 +61,7 @@ def train(
     >>> images = synthetic_images(32)  # the default synthetic data's first 32 images: car centres, metres
     >>> data = ConfigurationSet.from_configurations([build_configuration(image.centres) for image in images])
     >>> history = train(data, TrainSettings(n_epoch=2), progress=False)
-    >>> history.theta.shape  # (steps + 1, 2): 5 levels of 2 epochs of 2 batches of 16
+    >>> history.theta.shape  # (steps + 1, 2): 5 zooms of 2 epochs of 2 batches of 16
     torch.Size([21, 2])
     >>> round(distance(history.final_theta), 2)  # metres from SKY_SHIFT
     0.02
@@ -83,7 +83,7 @@ def train_runs(
     progress: bool = False,
     param_index: torch.Tensor | None = None,
     row_rate: torch.Tensor | None = None,
-    row_level: torch.Tensor | None = None,
+    row_zoom: torch.Tensor | None = None,
 ) -> RunsHistory:
     """``R`` independent training runs on the same points as one program: the one training engine.
 
@@ -94,7 +94,7 @@ def train_runs(
     * **compiled** (CPU, float64 points, ``method="fast"``, a flow with a compiled form
       (:meth:`sdm.mapping.rules.Rule.kernel_flows`), no ``fit_depth``, the kernel of :mod:`sdm.mapping.native`
       available): Python draws every epoch's shuffling and zooms out every run's targets
-      once, and one C call (``sdm_train``) does every level, epoch, mini-batch, chain,
+      once, and one C call (``sdm_train``) does every zoom, epoch, mini-batch, chain,
       flow, loss and SGD step, with the torch path's float operations in its order:
       every run's theta history equals the torch path's to the bit
       (``tests/mapping/test_native.py``); only the loss is summed in another order (equal to
@@ -137,6 +137,9 @@ def train_runs(
         row_rate: ``None`` or ``(K,)`` positive factors, row ``k``'s step ``rate * row_rate[k] * flow_k`` (with
             ``param_index``): a row of few points gets a flow of few terms, and one rate for rows of 20 and of
             2,000 points moves the first too little or the second too far (:func:`rates_per_point`).
+        row_zoom: ``None`` (every row trains at every zoom) or ``(K,)`` integers in ``zoom .. s`` (with
+            ``param_index``), each row's first (coarsest) trained zoom: row ``k`` stays where it is at the zooms
+            above ``row_zoom[k]`` (:func:`sdm.experiments.gate.prior_zooms`).
 
     Returns:
         :class:`RunsHistory` (on the CPU).
@@ -164,29 +167,29 @@ def train_runs(
     runs = checked_runs(train_set, targets, settings, camera, device, theta0, method, param_index, row_rate)
     train_set, settings, common, rows, starts = runs.train_set, runs.settings, runs.common, runs.rows, runs.starts
     n_configs, batch_size = len(train_set), common.batch_size
-    first_levels = checked_row_level(row_level, rows, common)
+    first_zooms = checked_row_zoom(row_zoom, rows, common)
 
-    levels = list(range(common.s, common.zoom - 1, -1))
+    zooms = list(range(common.s, common.zoom - 1, -1))
     rates, rate = [], common.lr
-    for _ in levels:  # the learning rate of each level: lr, then lr_decay times the last
+    for _ in zooms:  # the learning rate of each zoom: lr, then lr_decay times the last
         rates.append(rate)
         rate *= common.lr_decay
-    # Every epoch's shuffling of every run, (levels * n_epoch, R, N): each run's generator draws its
+    # Every epoch's shuffling of every run, (zooms * n_epoch, R, N): each run's generator draws its
     # permutations in epoch order, as the run alone would.
-    orders = shufflings([one.seed for one in settings], n_configs, len(levels) * common.n_epoch)
-    steps_per_level = common.n_epoch * (n_configs // batch_size)
-    total = len(levels) * steps_per_level
-    step_levels = torch.tensor(levels, dtype=torch.int64, device="cpu").repeat_interleave(steps_per_level)
-    step_rates = torch.tensor(rates, dtype=torch.float64, device="cpu").repeat_interleave(steps_per_level)
+    orders = shufflings([one.seed for one in settings], n_configs, len(zooms) * common.n_epoch)
+    steps_per_zoom = common.n_epoch * (n_configs // batch_size)
+    total = len(zooms) * steps_per_zoom
+    step_zooms = torch.tensor(zooms, dtype=torch.int64, device="cpu").repeat_interleave(steps_per_zoom)
+    step_rates = torch.tensor(rates, dtype=torch.float64, device="cpu").repeat_interleave(steps_per_zoom)
 
     record_every = 1 if rows is None else n_configs // batch_size  # rows: after every epoch
     with tqdm(total=total, disable=not progress, desc="SDM training", unit="step", leave=False) as bar:
-        thetas, losses = train_steps(train_set, targets, runs.own_targets, settings, runs.camera, method, levels,
+        thetas, losses = train_steps(train_set, targets, runs.own_targets, settings, runs.camera, method, zooms,
                                         rates, orders, starts, bar, rows, record_every, runs.row_rate,
-                                        row_level=first_levels)
+                                        row_zoom=first_zooms)
     theta_steps = torch.arange(0, total + 1, record_every, dtype=torch.int64, device="cpu")
     check_divergence(thetas.cpu(), theta_steps, step_rates, runs)
-    return RunsHistory(thetas.cpu(), losses.cpu(), step_levels, step_rates, settings, theta_steps)
+    return RunsHistory(thetas.cpu(), losses.cpu(), step_zooms, step_rates, settings, theta_steps)
 
 
 def shufflings(seeds: Sequence[int], n_configs: int, n_epochs: int) -> torch.Tensor:
@@ -199,51 +202,50 @@ def shufflings(seeds: Sequence[int], n_configs: int, n_epochs: int) -> torch.Ten
 
 def run_pyramids(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], own_targets: Sequence[bool],
                   steps: int) -> list[list[torch.Tensor]]:
-    """Run r's zoomed-out targets, levels 0..steps, on the set's device (the set's cached pyramid for its own)."""
+    """Run r's zoomed-out targets, zooms 0..steps, on the set's device (the set's cached pyramid for its own)."""
     return [train_set.pyramid(steps) if own else target_pyramid(run_targets.to(train_set.device), steps)
             for own, run_targets in zip(own_targets, targets)]
 
 
 def kernel_targets(train_set: ConfigurationSet, target: torch.Tensor, own: bool, steps: int,
-                    levels: list[int]) -> list[torch.Tensor | None]:
-    """One run's target at each loss level for the compiled trainer (:func:`sdm.mapping.native.train_program`).
+                    zooms: list[int]) -> list[torch.Tensor | None]:
+    """One run's target at each loss zoom for the compiled trainer (:func:`sdm.mapping.native.train_program`).
 
-    ``target`` ``(N, H, W)`` bool is the run's. The set's cached pyramid level where ``own``; else ``target``
-    at level 0 and ``None`` above it, where the kernel zooms ``target`` out itself (no torch pyramid is made).
+    ``target`` ``(N, H, W)`` bool is the run's. The set's cached pyramid's where ``own``; else ``target``
+    at zoom 0 and ``None`` above it, where the kernel zooms ``target`` out itself (no torch pyramid is made).
     A rule's prepared target (``closed_centred_r1``'s closing) is the kernel's own work.
     """
     pyramid = train_set.pyramid(steps) if own else None
-    return [pyramid[level] if pyramid is not None else (target if level == 0 else None) for level in levels]
+    return [pyramid[zoom] if pyramid is not None else (target if zoom == 0 else None) for zoom in zooms]
 
 
-def train_steps(train_set, targets, own_targets, settings, camera, method, levels, rates, orders, starts, bar,
-                   rows=None, record_every=1, row_rate=None, widths=None, row_level=None):
-    """The steps of :func:`train_runs` at ``levels`` (``settings[0].n_epoch`` epochs each, rates ``rates``,
+def train_steps(train_set, targets, own_targets, settings, camera, method, zooms, rates, orders, starts, bar,
+                   rows=None, record_every=1, row_rate=None, widths=None, row_zoom=None):
+    """The steps of :func:`train_runs` at ``zooms`` (``settings[0].n_epoch`` epochs each, rates ``rates``,
     shufflings ``orders``) from ``starts``, on the compiled path where it applies, else the torch path:
     ``(thetas (steps / record_every + 1, R, ...), losses (steps, R))`` on the set's device. ``rows``: ``None``
     or the checked ``(P, G)`` param_index (:func:`check_param_index`), ``row_rate`` ``None`` or its rows' rates,
-    ``row_level`` ``None`` or its rows' first levels (checked, :func:`checked_row_level`); ``widths``: ``None``
-    or, per entry of ``levels``, ``group_crossing``'s kernel half-width there (metres; :attr:`Refinement.widths`)."""
+    ``row_zoom`` ``None`` or its rows' first zooms (checked, :func:`checked_row_zoom`); ``widths``: ``None``
+    or, per entry of ``zooms``, ``group_crossing``'s kernel half-width there (metres; :attr:`Refinement.widths`)."""
     common = settings[0]
     device = train_set.device
-    row_rate = level_row_rates(levels, row_rate, row_level, rows)
+    row_rate = zoom_row_rates(zooms, row_rate, row_zoom, rows)
     rule = RULES.resolve(common.rule)
-    windows = rule.kernel_flows(levels)  # None: no compiled form
+    windows = rule.kernel_flows(zooms)  # None: no compiled form
     if not (method == "fast" and not common.fit_depth and windows is not None and device.type == "cpu"
             and train_set.points.dtype == torch.float64 and native.enabled()
             and native.trains_screen(camera.screen_shape)):
         # the compiled groups split by rows; the torch rule cannot
         if rows is not None and windows is not None and KernelFlow.CROSSING in windows:
             check_rigid_rows(train_set, rows)
-        pyramids = run_pyramids(train_set, targets, own_targets, common.s)  # run r's levels 0..s
-        return train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar,
+        pyramids = run_pyramids(train_set, targets, own_targets, common.s)  # run r's zooms 0..s
+        return train_torch(train_set, pyramids, settings, camera, method, zooms, rates, orders, starts, bar,
                             rows, record_every, row_rate, widths)
     bases = [run_targets.to(device) for run_targets in targets]
-    run_levels = [kernel_targets(train_set, base, own, common.s, levels)
-                  for base, own in zip(bases, own_targets)]
+    zoomed = [kernel_targets(train_set, base, own, common.s, zooms) for base, own in zip(bases, own_targets)]
     thetas, losses, failed = native.train_program(
-        train_set.points, train_set.pixels, train_set.rank, train_set.offsets, camera, common.s, levels,
-        common.n_epoch, common.batch_size, rates, windows, orders, run_levels, starts, bases, rows, record_every,
+        train_set.points, train_set.pixels, train_set.rank, train_set.offsets, camera, common.s, zooms,
+        common.n_epoch, common.batch_size, rates, windows, orders, zoomed, starts, bases, rows, record_every,
         row_rate, widths)
     if bool((failed >= 0).any()):
         step = int(failed[failed >= 0].min())
@@ -254,20 +256,20 @@ def train_steps(train_set, targets, own_targets, settings, camera, method, level
     return thetas, losses
 
 
-def level_row_rates(levels: list[int], row_rate: torch.Tensor | None, row_level: torch.Tensor | None,
-                    rows: torch.Tensor | None) -> torch.Tensor | None:
-    """``(L, K)`` float64 each row's factor on each entry of ``levels``' rate, on ``rows``' device: ``row_rate``
-    (``(K,)``, or ones) at every level, times 0 at the levels above the row's first level ``row_level`` (``(K,)``
+def zoom_row_rates(zooms: list[int], row_rate: torch.Tensor | None, row_zoom: torch.Tensor | None,
+                   rows: torch.Tensor | None) -> torch.Tensor | None:
+    """``(L, K)`` float64 each row's factor on each entry of ``zooms``' rate, on ``rows``' device: ``row_rate``
+    (``(K,)``, or ones) at every zoom, times 0 at the zooms above the row's first zoom ``row_zoom`` (``(K,)``
     int64 CPU). ``None`` where both are ``None``."""
-    if row_rate is None and row_level is None:
+    if row_rate is None and row_zoom is None:
         return None
-    n_rows = int(row_level.shape[0]) if row_level is not None else int(row_rate.shape[0])
+    n_rows = int(row_zoom.shape[0]) if row_zoom is not None else int(row_rate.shape[0])
     base = row_rate if row_rate is not None else torch.ones(n_rows, dtype=torch.float64, device=rows.device)
-    per_level = base.unsqueeze(0).expand(len(levels), n_rows)
-    if row_level is None:
-        return per_level.contiguous()
-    trains = row_level.unsqueeze(0) >= torch.tensor(levels, dtype=torch.int64).unsqueeze(1)  # (L, K)
-    return per_level * trains.to(base.device, base.dtype)
+    per_zoom = base.unsqueeze(0).expand(len(zooms), n_rows)
+    if row_zoom is None:
+        return per_zoom.contiguous()
+    trains = row_zoom.unsqueeze(0) >= torch.tensor(zooms, dtype=torch.int64).unsqueeze(1)  # (L, K)
+    return per_zoom * trains.to(base.device, base.dtype)
 
 
 def check_rigid_rows(train_set: ConfigurationSet, rows: torch.Tensor) -> None:

@@ -23,8 +23,8 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
                 row_rate: torch.Tensor | None = None) -> RunsHistory:
     """``history`` (of :func:`train_runs` with these arguments) continued by ``refinement``'s passes.
 
-    The passes train at level ``zoom`` only, through the whole chain ``s .. zoom`` (the forward of the
-    schedule's last level), from each run's last theta, on the paths of :func:`train_runs` (compiled where
+    The passes train at zoom ``zoom`` only, through the whole chain ``s .. zoom`` (the forward of the
+    schedule's last zoom), from each run's last theta, on the paths of :func:`train_runs` (compiled where
     it applies: for ``group_crossing`` on float64 CPU points; else packed runs in torch). Their steps are
     epochs of the training set (shuffled mini-batches, the incomplete last one dropped): run ``r`` draws one
     permutation per epoch from a generator seeded :func:`refine_seed` ``(settings[r].seed)``. A pass is the

@@ -1,5 +1,5 @@
 """The settings of a training run and what it returns: :class:`TrainSettings`, :class:`Refinement` (the
-schedule's passes after the paper's levels, :func:`parse_schedule`), :class:`History` and :class:`RunsHistory`
+schedule's passes after the paper's zooms, :func:`parse_schedule`), :class:`History` and :class:`RunsHistory`
 (docs/library.md; the schedule: docs/method/paper.md, "Training and evaluation"; the passes: docs/method/floor.md).
 """
 from __future__ import annotations
@@ -30,11 +30,11 @@ class TrainSettings:
 
     Attributes:
         lr: initial learning rate (metres per unit of summed flow).
-        n_epoch: passes over the training set per zoom level.
+        n_epoch: passes over the training set per zoom.
         batch_size: configurations per mini-batch.
-        s: coarsest zoom level (blocks of ``2^s`` pixels).
-        zoom: finest level trained (0 = full resolution).
-        lr_decay: factor applied to the learning rate after each level.
+        s: the coarsest zoom (blocks of ``2^s`` pixels).
+        zoom: the finest zoom trained (0 = full resolution).
+        lr_decay: factor applied to the learning rate after each zoom.
         seed: seeds the shuffling.
         rule: the gradient rule: a name of :data:`sdm.RULES` (default ``"paper"``, eq. 19), a :class:`sdm.Rule`
             (trained by the compiled kernel where it has a compiled form) or a flow function (the torch path).
@@ -42,8 +42,8 @@ class TrainSettings:
             (beyond the paper); theta, its history and ``final_theta`` then have three entries.
         depth_lr_scale: the learning rate of ``c`` relative to ``lr`` (with ``fit_depth``); 20 by a
             measured sweep (1: c lags, 10-30: within 1e-2 m, 100: diverges; docs/method/depth.md).
-        depth_zoom: the finest zoom level at which ``c`` moves (with ``fit_depth``; at least the coarsest
-            level ``s``): the finer levels train ``(a, b)`` with ``c`` held. Default 1: at full resolution
+        depth_zoom: the finest zoom at which ``c`` moves (with ``fit_depth``; at least the coarsest
+            zoom ``s``): the finer zooms train ``(a, b)`` with ``c`` held. Default 1: at full resolution
             the pull on ``c`` with ``depth_lr_scale`` 20 walks along the near-degenerate direction of
             ``(b, c)`` (every point lies below the principal point) and leaves ``b`` off by about 2e-3 m
             at c = -1 m (measured; docs/method/depth.md).
@@ -92,12 +92,12 @@ class TrainSettings:
         if isinstance(self.depth_zoom, bool) or int(self.depth_zoom) != self.depth_zoom or self.depth_zoom < 0:
             raise SDMInputError(f"depth_zoom must be a non-negative integer, got {self.depth_zoom!r}")
 
-    def rate_scale(self, level: int, like: torch.Tensor) -> torch.Tensor:
-        """``(3,)`` per-parameter learning-rate factors of ``(a, b, c)`` at zoom ``level`` (with ``fit_depth``).
+    def rate_scale(self, zoom: int, like: torch.Tensor) -> torch.Tensor:
+        """``(3,)`` per-parameter learning-rate factors of ``(a, b, c)`` at zoom ``zoom`` (with ``fit_depth``).
 
         ``(1, 1, depth_lr_scale)``, and ``(1, 1, 0)`` below ``min(depth_zoom, s)``; dtype and device of ``like``.
         """
-        depth = self.depth_lr_scale if level >= min(self.depth_zoom, self.s) else 0.0
+        depth = self.depth_lr_scale if zoom >= min(self.depth_zoom, self.s) else 0.0
         return torch.tensor([1.0, 1.0, depth], dtype=like.dtype, device=like.device)
 
 
@@ -187,12 +187,12 @@ def rates_per_point(param_index: torch.Tensor) -> torch.Tensor:
 
 @dataclass(frozen=True)
 class Refinement:
-    """A documented extension of the paper's schedule: SGD steps at the finest level with another rule.
+    """A documented extension of the paper's schedule: SGD steps at the finest zoom with another rule.
 
-    After the levels ``s .. zoom`` of :class:`TrainSettings`, ``passes`` passes of ``pass_steps`` SGD steps each
-    at level ``zoom`` with the gradient rule ``rule``; pass ``i`` (from 0) runs at the rate of level
-    ``zoom + rate_from`` times ``lr_decay^i`` (by default four times the last level's rate, then halving each
-    pass: the paper's halving, continued per pass), with the chain ``s .. zoom`` of the last level
+    After the zooms ``s .. zoom`` of :class:`TrainSettings`, ``passes`` passes of ``pass_steps`` SGD steps each
+    at zoom ``zoom`` with the gradient rule ``rule``; pass ``i`` (from 0) runs at the rate of zoom
+    ``zoom + rate_from`` times ``lr_decay^i`` (by default four times the last zoom's rate, then halving each
+    pass: the paper's halving, continued per pass), with the chain ``s .. zoom`` of the last zoom
     (:func:`refine_runs`).
 
     The passes are counted in SGD steps, not in epochs, so the refinement's strength does not depend on the size
@@ -206,7 +206,7 @@ class Refinement:
     it: the last pass runs at ``last_width`` (the rule's own :data:`~sdm.mapping.crossing.CROSSING_WIDTH`, whose
     fixed point the schedule keeps), each earlier pass at twice the next one's, at most ``first_width``
     (:attr:`widths`; 4 passes: 16, 8, 4, 2e-3 m). On sparse real frames (few rigid groups, 0.2 m of theta per
-    pixel) theta ends ``closed_centred_r1``'s levels farther than 2e-3 m from any crossing that lowers the count;
+    pixel) theta ends ``closed_centred_r1``'s zooms farther than 2e-3 m from any crossing that lowers the count;
     the wide first passes, at the full rate, reach them. On dense data the same passes scatter theta by a few
     millimetres; the narrower passes pull it back, given steps enough (96 a pass: docs/method/floor.md, "The
     refinement on the real sample").
@@ -214,7 +214,7 @@ class Refinement:
     Attributes:
         rule: a rule name, or a :class:`~sdm.mapping.rules.Rule` (:meth:`sdm.mapping.rules.RuleRegistry.resolve`).
         passes: passes, a positive integer.
-        rate_from: the first pass's rate is level ``zoom + rate_from``'s (a non-negative integer; 2 was chosen
+        rate_from: the first pass's rate is zoom ``zoom + rate_from``'s (a non-negative integer; 2 was chosen
             on runs no table holds: docs/method/floor.md, "The schedule that reaches the floor").
         moves_c: with ``fit_depth``, the passes move ``c`` too (at ``depth_lr_scale`` times their rate), whatever
             ``depth_zoom`` says: ``group_crossing``'s depth flow at theta* under noise is less biased at zoom 0 than
@@ -265,7 +265,7 @@ class Refinement:
         return widths[::-1]
 
     def rates(self, settings: TrainSettings) -> list[float]:
-        """The learning rate of each pass (metres per unit of summed flow): level ``zoom + rate_from``'s rate times
+        """The learning rate of each pass (metres per unit of summed flow): zoom ``zoom + rate_from``'s rate times
         ``lr_decay^i``, whatever the pass's kernel width."""
         rate = settings.lr * settings.lr_decay ** max(settings.s - settings.zoom - self.rate_from, 0)
         return [rate * settings.lr_decay ** i for i in range(self.passes)]

@@ -14,37 +14,37 @@ from ..sharing import point_shifts
 from ..sky import shift_vector
 
 
-def train_torch(train_set, pyramids, settings, camera, method, levels, rates, orders, starts, bar, rows=None,
+def train_torch(train_set, pyramids, settings, camera, method, zooms, rates, orders, starts, bar, rows=None,
                  record_every=1, row_rate=None, widths=None):
     """The torch path of :func:`train_runs`: ``(thetas (steps / record_every + 1, R, ...), losses (steps, R))`` on
     the set's device."""
     common, n_runs = settings[0], len(settings)
     device, batch_size = train_set.device, common.batch_size
-    # Run r's target of configuration c is row r * N + c of each level.
-    pyramid = pyramids[0] if n_runs == 1 else [torch.cat(level) for level in zip(*pyramids)]
-    # Per entry of levels: its rule (group_crossing's kernel width may differ pass by pass) and its layer.
+    # Run r's target of configuration c is row r * N + c of each zoom.
+    pyramid = pyramids[0] if n_runs == 1 else [torch.cat(at_zoom) for at_zoom in zip(*pyramids)]
+    # Per entry of zooms: its rule (group_crossing's kernel width may differ pass by pass) and its layer.
     # With several runs the rule is applied run by run (the chain stays one call), so each run's loss is its own.
     built, layers, runners = {}, [], []
-    for index, level in enumerate(levels):
+    for index, zoom in enumerate(zooms):
         width = None if widths is None else widths[index]
-        if (level, width) not in built:
+        if (zoom, width) not in built:
             rule = crossing_width_rule(common.rule, width)
             runner = rule if n_runs == 1 else RunByRun(rule, n_runs, batch_size)
-            built[level, width] = (SpatialDomainMapping(camera, s=common.s, zoom=level, method=method, rule=runner,
-                                                        fit_depth=common.fit_depth), runner)
-        layers.append(built[level, width][0])
-        runners.append(built[level, width][1])
+            built[zoom, width] = (SpatialDomainMapping(camera, s=common.s, zoom=zoom, method=method, rule=runner,
+                                                       fit_depth=common.fit_depth), runner)
+        layers.append(built[zoom, width][0])
+        runners.append(built[zoom, width][1])
     theta = starts.clone().requires_grad_(True)
-    total = len(levels) * common.n_epoch * (len(train_set) // batch_size)
+    total = len(zooms) * common.n_epoch * (len(train_set) // batch_size)
     thetas = torch.empty(total // record_every + 1, *theta.shape, dtype=torch.float64, device=device)
     thetas[0] = theta.detach()
     losses = torch.zeros(total, n_runs, dtype=torch.float64, device=device)
     step = 0
-    for index_level, (level, rate) in enumerate(zip(levels, rates)):
+    for entry, (zoom, rate) in enumerate(zip(zooms, rates)):
         # Per-parameter learning-rate factors: c learns at its own rate (depth_lr_scale) down to depth_zoom.
-        rate_scale = common.rate_scale(level, theta) if common.fit_depth else None
+        rate_scale = common.rate_scale(zoom, theta) if common.fit_depth else None
         for epoch_index in range(common.n_epoch):
-            epoch = RunsEpochLayout(train_set, orders[index_level * common.n_epoch + epoch_index].to(device),
+            epoch = RunsEpochLayout(train_set, orders[entry * common.n_epoch + epoch_index].to(device),
                                      batch_size, rows)
             for index in range(epoch.steps):
                 batch, target_rows, run_of_point, run_bounds = epoch.batch(index)
@@ -56,17 +56,17 @@ def train_torch(train_set, pyramids, settings, camera, method, levels, rates, or
                         moves = shift_vector(theta[0], batch.points)
                     else:
                         moves = shift_vector(theta, batch.points).index_select(0, run_of_point)  # (P, 3)
-                    rule = runners[index_level]
+                    rule = runners[entry]
                     if n_runs > 1:
                         rule.bounds = run_bounds
-                    out = layers[index_level](
-                        batch.points + moves, batch.pixels, pyramid[level].index_select(0, target_rows),
+                    out = layers[entry](
+                        batch.points + moves, batch.pixels, pyramid[zoom].index_select(0, target_rows),
                         batch.config, batch.rank, target_is_zoomed=True, validate=False,
                     )
                     out.loss.backward()
                     with torch.no_grad():  # plain SGD, per run: theta_r <- theta_r - lr * grad_r
                         if row_rate is not None:  # each row at its own rate (as the kernel rounds it)
-                            theta -= (rate * row_rate[index_level])[:, None] * theta.grad
+                            theta -= (rate * row_rate[entry])[:, None] * theta.grad
                         elif common.fit_depth:
                             theta -= rate * rate_scale * theta.grad
                         else:

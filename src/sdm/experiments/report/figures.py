@@ -133,7 +133,7 @@ def pick_point(configuration: SkyConfiguration, theta: Sequence[float], camera: 
     fallback = None
     for index in order.tolist():
         pixel = tuple(int(v) for v in configuration.pixels[index])
-        info = explain_point(points[index], pixel, configuration.target, level=level, camera=camera)
+        info = explain_point(points[index], pixel, configuration.target, zoom=level, camera=camera)
         fallback = fallback or (points[index], pixel, info)
         if matched is None:
             return points[index], pixel, info

@@ -7,7 +7,7 @@
  *   sdm_train          (train.c)    <-> sdm.train.train_runs on the torch path (projection, chain, flow, SGD),
  *                                       for the paper's rule, "closed_centred_r1" and group_crossing
  *   sdm_noise_fill     (noise.c)    <-> sdm.sky.add_target_noise's scatter into a reused buffer
- *   sdm_pixel_mismatch (mismatch.c) <-> the CMA-ES baseline's exact count (sdm.baselines.mismatch)
+ *   sdm_pixel_mismatch (mismatch.c) <-> the CMA-ES baseline's exact count (sdm.experiments.baselines.mismatch)
  * They do the same integer arithmetic and, for the floating-point values, the same operations in the same
  * order, so their results equal the torch path's bit for bit (tests/mapping/test_native.py holds it); only
  * sdm_train's loss is summed in another order (train.c). Built with -ffp-contract=off: no fused

@@ -1,7 +1,7 @@
-/* The CMA-ES baseline's count (sdm.baselines.cmaes_native): the exact zoom-0 pixel mismatch for many thetas
- * (sdm.baselines.mismatch).
+/* The CMA-ES baseline's count (sdm.experiments.baselines.cmaes_native): the exact zoom-0 pixel mismatch for many thetas
+ * (sdm.experiments.baselines.mismatch).
  *
- * sdm_pixel_mismatch <-> sdm.baselines.mismatch.ShiftLayout.rendered_ids + PixelMismatch's count: the same
+ * sdm_pixel_mismatch <-> sdm.experiments.baselines.mismatch.ShiftLayout.rendered_ids + PixelMismatch's count: the same
  * float operations decide each group's whole shift and whether it can be trusted (one multiply, one
  * add and a floor per bound, as torch computes them elementwise), then an integer count. A candidate
  * whose shift cannot be trusted gets -1 and is counted by the torch reference (the caller's job).
@@ -16,7 +16,7 @@
  * table:        (N * cells_per_config,) int8 per padded pixel its weight + 1 (0 on target, 2 on
  *               screen off target, 1 in the margin)
  * limits:       (3,) the largest |gain| (row, col) and the range up to which shifts are trusted
- * memo:         the last counts of this table, L = n_slots >= K slots (sdm.baselines.mismatch.MismatchMemo):
+ * memo:         the last counts of this table, L = n_slots >= K slots (sdm.experiments.baselines.mismatch.MismatchMemo):
  *               slot_offsets (L * G,) int64 a candidate's group shifts per slot, slot_sums (L * N,) int64
  *               its per-configuration sums (FP - TP), state (L + 1,) int64 each slot's validity, then the
  *               next slot to fill (all zero at first). This call's candidates take the K slots from the next
