@@ -17,7 +17,7 @@
 # targets are rebuilt for its points moved by theta* = (a*, b*, c*), noise is drawn as Table 2's (the same
 # seeds), and (a, b, c) is trained from (0, 0, 0) with the depth flow (`TrainSettings(fit_depth=True)`;
 # docs/method/depth.md). `schedule` is a rule or a schedule `RULE+REFINE:E` (`sdm.train.parse_schedule`):
-# the schedule's refinement passes at zoom 0 move c too (`Refinement.moves_c`), where the paper's schedule holds c
+# the schedule's refinement passes at zoom 0 move c too (`Refinement.moves_c`), where the paper's coarse-to-fine training holds c
 # below `TrainSettings.depth_zoom`. The stage `table5` gathers this stage's files.
 #
 # `sdm.experiments.depth_noise_runs` trains the runs together (each equal to the run trained alone to

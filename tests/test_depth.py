@@ -107,7 +107,7 @@ def test_depth_zoom_holds_c_at_the_finer_zooms():
                         progress=False)
         moved = (history.theta[1:] != history.theta[:-1])  # (steps, 3) this step changed the parameter
         for zoom in range(3, -1, -1):
-            at_zoom = history.level == zoom
+            at_zoom = history.zoom == zoom
             assert bool(moved[at_zoom, 0].any() or moved[at_zoom, 1].any()), (depth_zoom, zoom)
             assert bool(moved[at_zoom, 2].any()) == (zoom not in held_zooms), (depth_zoom, zoom)
     with pytest.raises(Exception, match="depth_zoom"):

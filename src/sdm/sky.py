@@ -372,7 +372,7 @@ class NoiseBuffer:
 
 
 def noise_displacement(noise_level: int, mean_depth: float, camera: Camera = APOLLO_CAMERA_5) -> float:
-    """Table 2's "Avg. Dist.": the expected 3D displacement, metres, that pixel noise ``level`` stands for.
+    """Table 2's "Avg. Dist.": the expected 3D displacement, metres, that pixel noise ``noise_level`` stands for.
 
     ``mean_depth * E[sqrt((X * dx)^2 + (Y * dy)^2)]`` with ``X, Y`` independent
     uniform integers on ``[-level, level]`` and ``dx, dy`` the metres per

@@ -64,7 +64,7 @@ def test_refinement_passes_continue_the_halving_at_the_finest_zoom(small):
     its own seed; rate_from 1 starts at twice the last zoom's."""
     history = train_group(small, [small.targets], BASE, [7], refine=Refinement("group_crossing", 3, pass_steps=PER_EPOCH))
     per_pass = 64 // 16
-    assert history.level[-3 * per_pass:].tolist() == [0] * (3 * per_pass)
+    assert history.zoom[-3 * per_pass:].tolist() == [0] * (3 * per_pass)
     rates = history.lr[-3 * per_pass:].reshape(3, per_pass)
     # widths 8, 4, 2e-3 m, every pass at the halving rate whatever its width
     assert Refinement("group_crossing", 3).widths == [8e-3, 4e-3, 2e-3]
@@ -187,7 +187,7 @@ def test_a_pass_counts_sgd_steps_whatever_the_size_of_the_training_set(small):
         history = train_group(configs, [configs.targets], BASE, [7], refine=refinement)
         main_steps = 5 * (len(configs) // 16)
         assert history.theta.shape == (main_steps + 24 + 1, 1, 2)
-        assert history.level[main_steps:].tolist() == [0] * 24
+        assert history.zoom[main_steps:].tolist() == [0] * 24
         assert history.lr[main_steps:].tolist() == [rate for rate in refinement.rates(BASE) for _ in range(8)]
 
 

@@ -32,10 +32,10 @@ def test_history_records_every_step(sky768):
     history = train(train_set.subset(range(100)), TrainSettings(lr=3e-4, n_epoch=2, s=3), progress=False)
     per_zoom = 2 * (100 // 16)  # incomplete last batch dropped
     assert history.theta.shape == (4 * per_zoom + 1, 2) and torch.equal(history.theta[0], torch.zeros(2, dtype=torch.float64))
-    assert history.level.tolist() == [3] * per_zoom + [2] * per_zoom + [1] * per_zoom + [0] * per_zoom
+    assert history.zoom.tolist() == [3] * per_zoom + [2] * per_zoom + [1] * per_zoom + [0] * per_zoom
     assert history.lr.unique().tolist() == sorted(3e-4 * 0.5**k for k in range(4))
     frame = history.to_frame()
-    assert list(frame.columns) == ["step", "level", "lr", "loss", "a", "b"] and len(frame) == 4 * per_zoom
+    assert list(frame.columns) == ["step", "zoom", "lr", "loss", "a", "b"] and len(frame) == 4 * per_zoom
     assert (frame["a"].iloc[-1], frame["b"].iloc[-1]) == history.final_theta
 
 
@@ -121,7 +121,7 @@ def test_runs_trained_together_follow_their_own_histories(sky768):
         assert torch.equal(together.theta[:, run], alone.theta), run
         assert torch.equal(together.loss[:, run], alone.loss), run  # the same engine: each run's own loss
     assert not torch.equal(together.theta[:, 0], together.theta[:, 2])  # same seed, other noise: other run
-    assert torch.equal(together.lr, alone.lr) and torch.equal(together.level, alone.level)
+    assert torch.equal(together.lr, alone.lr) and torch.equal(together.zoom, alone.zoom)
 
 
 @pytest.mark.parametrize("rule", ["paper", "closed_centred_r1", "closed"])

@@ -31,7 +31,7 @@ def flow_at_true_shift(train_set: ConfigurationSet, noise_levels: Sequence[int],
     loss levels measured (default ``s .. 0``); ``at`` another theta to measure at (default theta* itself).
 
     Returns:
-        One row per (noise level, zoom): ``level, zoom, flow_a, flow_b`` (summed flow per
+        One row per (noise level, zoom): ``noise_level, zoom, flow_a, flow_b`` (summed flow per
         training configuration; negative values push theta~ up) and ``unmatched`` (share of
         the points entering the zoom level that land on the grid in a block the target leaves empty).
     """
@@ -69,7 +69,7 @@ def rule_bias(train_set: ConfigurationSet, schedule: str, noise_levels: Sequence
     metre). A measurement of where the rule's fixed point lies, not of SGD's scatter around it.
 
     Returns:
-        One row per level: ``level, bias_a, bias_b`` (flow per configuration), ``stiffness_a, stiffness_b``
+        One row per level: ``noise_level, bias_a, bias_b`` (flow per configuration), ``stiffness_a, stiffness_b``
         (per metre), ``offset_a, offset_b`` (metres, ``-bias / stiffness``) and ``predicted_m`` (their norm).
     """
     first, refine = parse_schedule(schedule)
@@ -107,7 +107,7 @@ def depth_bias(train_set: ConfigurationSet, c: float, noise_levels: Sequence[int
     it comes from, and where SGD on ``c`` alone would settle.
 
     The targets are :func:`depth_noise_runs`' (the points moved by theta*, then run 0's noise draw of each
-    level, :func:`run_seed` ``(seed, level, 0)``). At each loss level ``zoom`` the points sit at theta* and the
+    level, :func:`run_seed` ``(seed, noise_level, 0)``). At each loss level ``zoom`` the points sit at theta* and the
     layer's flow gives each point its depth flow (:func:`sdm.depth.depth_flow`; SGD moves ``c`` against it:
     a negative ``flow_c`` moves the estimate farther). ``stiffness_c`` is its central difference over
     ``c* +- step`` on the same targets, so ``offset_c = -flow_c / stiffness_c`` is where the mean flow on

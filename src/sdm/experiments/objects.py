@@ -11,7 +11,7 @@ pixels identify.
 
 The methods (:data:`METHODS`):
 
-* ``sdm_paper``: SDM with the paper's rule. First the paper's schedule on one shared shift (the camera
+* ``sdm_paper``: SDM with the paper's rule. First the paper's coarse-to-fine training on one shared shift (the camera
   concept at its coarsest: one row for the run's configurations; :attr:`ObjectsSettings.warm`), then every
   row from that start (:attr:`ObjectsSettings.rows`: levels ``s..0``, each row at the same rate per point,
   :func:`sdm.train.rates_per_point`). A lone car's disc at the coarse levels sits inside its target's
@@ -93,7 +93,7 @@ class ObjectsSettings:
         truth: how theta* is drawn.
         car_sigma0: CMA-ES per car's initial step, metres (``cmaes.sigma0`` is the joint and regularised searches').
         gate: the prior gate, in standard deviations of a row's prior (:func:`prior_gate`).
-        first_zoom: where SDM's rows start training: ``"s"``, every row at ``rows.s`` (the paper's schedule), or
+        first_zoom: where SDM's rows start training: ``"s"``, every row at ``rows.s`` (the paper's coarse-to-fine training), or
             ``"prior"``, each row at the zoom whose block covers its prior spread (:func:`sdm.experiments.gate.prior_zooms`),
             at ``rows.lr`` there (the chain still runs from ``rows.s``).
     """

@@ -35,7 +35,7 @@ NOISE_GROUP_SIZE = 4
 
 
 def run_seed(seed: int, noise_level: int, run: int) -> int:
-    """The seed of noise run ``run`` at ``level``: a hash of the three, stable across platforms."""
+    """The seed of noise run ``run`` at ``noise_level``: a hash of the three, stable across platforms."""
     for name, value in (("seed", seed), ("noise_level", noise_level), ("run", run)):
         if isinstance(value, bool) or int(value) != value or value < 0:
             raise SDMInputError(f"{name} must be a non-negative integer, got {value!r}")
@@ -119,7 +119,7 @@ def tune_cell(train_set, dev_set, settings, shift: Sequence[float] = SKY_SHIFT, 
 
 def noisy_targets(targets: torch.Tensor, noise_level: int, seed: int, active: torch.Tensor | None = None,
                   out: NoiseBuffer | None = None) -> torch.Tensor:
-    """Every target moved by noise ``level`` (paper, section 5.2), drawn from ``seed``.
+    """Every target moved by noise ``noise_level`` (paper, section 5.2), drawn from ``seed``.
 
     ``active`` is ``targets.nonzero()`` where the caller has it (one clean set, many draws); ``out`` a
     :class:`sdm.sky.NoiseBuffer` to draw into (as :func:`sdm.sky.add_target_noise`'s).
@@ -155,7 +155,7 @@ def paired_runs(clean_targets: torch.Tensor, noise_level: int, runs: Sequence[in
         fit_group: ``fit_group(targets, seeds)``: a group's ``(N, H, W)`` bool noisy targets (on the
             device of ``clean_targets``; read-only, and not to be kept past the call) and their run
             seeds -> one result per run, in order.
-        record: ``record(result)``: the row's columns beyond ``level, run, seed``.
+        record: ``record(result)``: the row's columns beyond ``noise_level, run, seed``.
         columns: the table's columns, in order (:data:`RUN_COLUMNS`, ...).
         group_size: runs per ``fit_group`` call, a positive integer; ``None``: all of ``runs`` at once.
 
@@ -199,7 +199,7 @@ def train_group(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
 
     Table 2's, 4's and 5's runs (through :func:`paired_runs`) and SDM's rows of Table 3
     (:func:`sdm.experiments.baselines.sdm_layer.fit_runs`) all train here. ``refine``: the schedule's extra passes
-    (:class:`sdm.train.Refinement`, :func:`sdm.train.refine_runs`), or ``None`` for the paper's schedule.
+    (:class:`sdm.train.Refinement`, :func:`sdm.train.refine_runs`), or ``None`` for the paper's coarse-to-fine training.
 
     Returns:
         :class:`sdm.train.RunsHistory` (on the CPU).
@@ -290,7 +290,7 @@ def depth_noise_runs(train_set, c: float, noise_level: int, runs: Sequence[int],
     """Table 5: the robustness experiment for the general shift ``theta* = (a*, b*, c)``, one row per run.
 
     The training set's targets are rebuilt for its points moved by ``(a*, b*, c)``
-    (:func:`sdm.depth.depth_targets`); run ``r`` (:func:`paired_runs`) moves them by noise ``level``
+    (:func:`sdm.depth.depth_targets`); run ``r`` (:func:`paired_runs`) moves them by noise ``noise_level``
     drawn from :func:`run_seed` ``(settings.seed, level, r)`` (the draw of Table 2's run ``r``, applied
     to these targets), which also shuffles its mini-batches, and trains ``(a, b, c)`` from ``(0, 0, 0)``
     with ``fit_depth`` (the rest of ``settings`` as given: flow rule, ``depth_lr_scale``). The runs
@@ -317,7 +317,7 @@ def depth_noise_runs(train_set, c: float, noise_level: int, runs: Sequence[int],
             behind the camera (message starting ``c = ``).
 
     Returns:
-        Columns :data:`DEPTH_RUN_COLUMNS`: ``c_true``, ``level``, ``run``, ``seed`` (the run's),
+        Columns :data:`DEPTH_RUN_COLUMNS`: ``c_true``, ``noise_level``, ``run``, ``seed`` (the run's),
         the fitted ``a, b, c``, the absolute errors ``error_a, error_b, error_c``, the distance in
         ``(a, b)`` (``distance_ab``, as Table 2's) and in ``(a, b, c)`` (``distance``), all in metres.
     """

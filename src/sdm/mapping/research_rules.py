@@ -107,7 +107,7 @@ def _normalised(offset, weight):
 def _closing_pixels(radius: int, at_least: int = 0):
     """Closing with a square of ``radius`` *screen pixels*: ``2 (radius >> zoom) + 1`` blocks at zoom ``zoom``.
 
-    Noise moves a pixel by at most ``level`` screen pixels, so it opens holes of
+    Noise moves a pixel by at most ``noise_level`` screen pixels, so it opens holes of
     that size at full resolution; zooming out already fills them once a block is
     wider than the noise. A closing of a fixed number of *blocks* (``closed5``)
     over-fills the coarse zooms (5 blocks of 16 pixels bridge whole gaps between

@@ -68,7 +68,7 @@ def train(
     """
     runs = train_runs(train_set, [train_set.targets], [settings], camera, device, theta0=[theta0], method=method,
                       progress=progress)
-    return History(runs.theta[:, 0].contiguous(), runs.loss[:, 0].contiguous(), runs.level, runs.lr, settings)
+    return History(runs.theta[:, 0].contiguous(), runs.loss[:, 0].contiguous(), runs.zoom, runs.lr, settings)
 
 
 def train_runs(

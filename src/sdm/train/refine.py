@@ -1,4 +1,4 @@
-"""The refinement passes after the paper's schedule: :func:`refine_runs` continues a :class:`RunsHistory` with a
+"""The refinement passes after the paper's coarse-to-fine training: :func:`refine_runs` continues a :class:`RunsHistory` with a
 :class:`Refinement` (docs/method/floor.md, "The schedule that reaches the floor").
 """
 from __future__ import annotations
@@ -78,5 +78,5 @@ def refine_runs(train_set: ConfigurationSet, targets: Sequence[torch.Tensor], se
     recorded = torch.arange(1, refinement.steps + 1, dtype=torch.int64, device="cpu") + int(history.theta_steps[-1])
     check_divergence(torch.cat(thetas), recorded, torch.cat((history.lr, step_rates)), runs)
     return RunsHistory(torch.cat((history.theta, *thetas)), torch.cat((history.loss, *losses)),
-                       torch.cat((history.level, torch.full((refinement.steps,), common.zoom, dtype=torch.int64))),
+                       torch.cat((history.zoom, torch.full((refinement.steps,), common.zoom, dtype=torch.int64))),
                        torch.cat((history.lr, step_rates)), settings, torch.cat((history.theta_steps, recorded)))

@@ -1,6 +1,6 @@
 """The settings of a training run and what it returns: :class:`TrainSettings`, :class:`Refinement` (the
 schedule's passes after the paper's zooms, :func:`parse_schedule`), :class:`History` and :class:`RunsHistory`
-(docs/library.md; the schedule: docs/method/paper.md, "Training and evaluation"; the passes: docs/method/floor.md).
+(docs/library.md; the training: docs/method/paper.md, "Training and evaluation"; the passes: docs/method/floor.md).
 """
 from __future__ import annotations
 
@@ -108,14 +108,14 @@ class History:
     Attributes:
         theta: ``(steps + 1, 2)`` float64 ``(a, b)`` in metres, before the first step and after each.
         loss: ``(steps,)`` float64 loss ``J`` of each step's batch (metres).
-        level: ``(steps,)`` int64 zoom level of each step.
+        zoom: ``(steps,)`` int64 zoom level of each step.
         lr: ``(steps,)`` float64 learning rate of each step.
         settings: the settings of the run.
     """
 
     theta: torch.Tensor
     loss: torch.Tensor
-    level: torch.Tensor
+    zoom: torch.Tensor
     lr: torch.Tensor
     settings: TrainSettings
 
@@ -125,14 +125,14 @@ class History:
         return tuple(self.theta[-1].tolist())
 
     def to_frame(self):
-        """A pandas DataFrame with one row per step: ``step, level, lr, loss, a, b`` (theta after the step)."""
+        """A pandas DataFrame with one row per step: ``step, zoom, lr, loss, a, b`` (theta after the step)."""
         import pandas as pd
 
         steps = len(self.loss)
         return pd.DataFrame(
             {
                 "step": range(1, steps + 1),
-                "level": self.level.tolist(),
+                "zoom": self.zoom.tolist(),
                 "lr": self.lr.tolist(),
                 "loss": self.loss.tolist(),
                 "a": self.theta[1:, 0].tolist(),
@@ -153,7 +153,7 @@ class RunsHistory:
             step would make the history ``K`` times the run).
         loss: ``(steps, R)`` float64 loss ``J`` of each run's mini-batch at each step (metres; 0 where the
             run's batch held no point).
-        level: ``(steps,)`` int64 zoom level of each step.
+        zoom: ``(steps,)`` int64 zoom level of each step.
         lr: ``(steps,)`` float64 learning rate of each step (the same for every run).
         settings: the settings of each run.
         theta_steps: ``(len(theta),)`` int64, the number of steps taken when each entry of ``theta`` was
@@ -162,7 +162,7 @@ class RunsHistory:
 
     theta: torch.Tensor
     loss: torch.Tensor
-    level: torch.Tensor
+    zoom: torch.Tensor
     lr: torch.Tensor
     settings: list[TrainSettings]
     theta_steps: torch.Tensor | None = None
@@ -187,7 +187,7 @@ def rates_per_point(param_index: torch.Tensor) -> torch.Tensor:
 
 @dataclass(frozen=True)
 class Refinement:
-    """A documented extension of the paper's schedule: SGD steps at the finest zoom with another rule.
+    """A documented extension of the paper's coarse-to-fine training: SGD steps at the finest zoom with another rule.
 
     After the zooms ``s .. zoom`` of :class:`TrainSettings`, ``passes`` passes of ``pass_steps`` SGD steps each
     at zoom ``zoom`` with the gradient rule ``rule``; pass ``i`` (from 0) runs at the rate of zoom
@@ -272,7 +272,7 @@ class Refinement:
 
 
 def parse_schedule(name: str) -> tuple[str, Refinement | None]:
-    """A training schedule by name: ``"RULE"`` (the paper's schedule, rule ``RULE``) or ``"RULE+REFINE:E"``
+    """A training schedule by name: ``"RULE"`` (the paper's coarse-to-fine training, rule ``RULE``) or ``"RULE+REFINE:E"``
     (then ``E`` refinement passes of :attr:`Refinement.pass_steps` SGD steps with rule ``REFINE``,
     :class:`Refinement`; ``"RULE+REFINE"``: 4 passes). Every other choice of the passes is the class's default:
     their rates, and ``group_crossing``'s kernel half-widths narrowing to 2e-3 m on the last pass

@@ -235,7 +235,7 @@ def test_tune_cell_reports_dev_loss_and_history():
     record, history = tune_cell(train_set, dev_set, settings_for(1, 1e-3, 4, 16, 0.5, 0))
     assert record["dev_loss"] >= 0 and record["n_epoch"] == 1 and record["lr"] == 1e-3
     assert record["steps"] == len(history) == 5 * 2  # 5 levels x 2 batches of 16
-    assert {"step", "level", "a", "b"} <= set(history.columns)
+    assert {"step", "zoom", "a", "b"} <= set(history.columns)
 
 
 # -- figures ---------------------------------------------------------------------------------------

@@ -36,7 +36,7 @@ def fit(train_set: ConfigurationSet, settings: TrainSettings = TrainSettings(), 
         steps = history.to_frame()
         return FitResult(
             history.final_theta, 0.0, len(steps),
-            {"stage": steps["level"].tolist(), "loss": steps["loss"].tolist(),
+            {"stage": steps["zoom"].tolist(), "loss": steps["loss"].tolist(),
              "a": steps["a"].tolist(), "b": steps["b"].tolist()},
         )
 
@@ -68,13 +68,13 @@ def fit_runs(train_sets: Sequence[ConfigurationSet], settings: TrainSettings = T
     def run() -> list[FitResult]:
         history = train_group(train_sets[0], [train_set.targets for train_set in train_sets], settings, seeds, camera,
                               theta0=start)
-        levels = history.level.tolist()
+        zooms = history.zoom.tolist()
         results = []
         for run_index in range(len(train_sets)):
             a, b = history.theta[1:, run_index, :2].unbind(-1)
             results.append(FitResult(
-                tuple(history.theta[-1, run_index].tolist()), 0.0, len(levels),
-                {"stage": levels, "loss": history.loss[:, run_index].tolist(), "a": a.tolist(), "b": b.tolist()},
+                tuple(history.theta[-1, run_index].tolist()), 0.0, len(zooms),
+                {"stage": zooms, "loss": history.loss[:, run_index].tolist(), "a": a.tolist(), "b": b.tolist()},
             ))
         return results
 

@@ -92,7 +92,7 @@ def shift_set(data: ConfigurationSet, seed: int, noise_levels: Sequence[int] | t
 
 
 def mixed_noise_levels(n_configs: int, noise_levels: Sequence[int], seed: int) -> torch.Tensor:
-    """``(n_configs,)`` int64: each configuration's noise level, uniform over ``levels``, drawn from ``seed``."""
+    """``(n_configs,)`` int64: each configuration's noise level, uniform over ``noise_levels``, drawn from ``seed``."""
     choice = torch.randint(len(noise_levels), (n_configs,), generator=torch.Generator().manual_seed(int(seed)))
     return torch.as_tensor(list(noise_levels), dtype=torch.int64)[choice]
 
@@ -114,7 +114,7 @@ def read_sets(sky: str | Path, sizes: Sequence[int], seed: int, noise_levels: Se
               train_noise: int | None = None) -> dict[str, ShiftSet]:
     """The configurations of a Sky file split into train, dev and test (:func:`split_three`), each with its shifts.
 
-    Part ``p`` draws theta* from ``run_seed(seed, PARTS.index(p), 0)``; train and dev mix ``levels``
+    Part ``p`` draws theta* from ``run_seed(seed, PARTS.index(p), 0)``; train and dev mix ``noise_levels``
     (:func:`mixed_noise_levels`, seeded ``run_seed(seed, PARTS.index(p), 1)``); the test set takes every target at
     ``test_level``, so that its configurations keep their theta* at every level and only the noise differs.
     Each part's noise is drawn from its theta* seed, the training part's from ``train_noise`` where given (a

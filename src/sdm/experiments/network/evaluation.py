@@ -75,7 +75,7 @@ def test_methods(test: ShiftSet, noise_level: int, networks: dict[tuple[str, int
     of the shared start.
 
     Args:
-        test: the test configurations, every target at noise ``level``.
+        test: the test configurations, every target at noise ``noise_level``.
         networks: trained networks by (loss name, training run).
         refine_settings: :class:`sdm.train.TrainSettings` of the SDM steps after each network (rule, levels,
             epochs per level, rate per point, batch size, seed).
@@ -141,12 +141,12 @@ def loss_bias(test: ShiftSet, noise_level: int, kind: str, settings: NetworkSett
     ``-mean bias / mean stiffness`` from theta* per axis.
 
     Args:
-        test: the test configurations at noise ``level``.
+        test: the test configurations at noise ``noise_level``.
         kind: one of :data:`BIAS_LOSSES`.
         settings: the training's settings (the SDM chain's ``s``, the silhouette's ``sigma``).
 
     Returns:
-        ``{"level", "loss", "bias_a", "bias_b", "stiffness_a", "stiffness_b", "offset_m"}``: the means over the
+        ``{"noise_level", "loss", "bias_a", "bias_b", "stiffness_a", "stiffness_b", "offset_m"}``: the means over the
         configurations (gradient; its change per metre) and the predicted offset's norm (metres).
     """
     if kind not in BIAS_LOSSES:

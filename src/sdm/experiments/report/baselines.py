@@ -46,7 +46,7 @@ def table3_frame(runs: pd.DataFrame, shift: Sequence[float] = SKY_SHIFT, referen
     """Table 3: per method and noise level, the distances' statistics, time per run, and the pairing with SDM.
 
     Args:
-        runs: one row per (method, level, run) with :data:`RUN_COLUMNS` (metres, seconds).
+        runs: one row per (method, noise_level, run) with :data:`RUN_COLUMNS` (metres, seconds).
         shift: theta* (metres).
         reference: the method the others are paired with (same level and run = same noisy targets).
 
@@ -63,7 +63,7 @@ def table3_frame(runs: pd.DataFrame, shift: Sequence[float] = SKY_SHIFT, referen
     duplicated = runs.duplicated(["method", "noise_level", "run"])
     if duplicated.any():
         first = runs[duplicated].iloc[0]
-        raise SDMInputError(f"Table 3 runs: (method, level, run) = ({first['method']}, {first['noise_level']}, {first['run']}) twice")
+        raise SDMInputError(f"Table 3 runs: (method, noise_level, run) = ({first['method']}, {first['noise_level']}, {first['run']}) twice")
     a_star, b_star = (float(v) for v in shift)
     base = runs[runs["method"] == reference].set_index(["noise_level", "run"])["distance"]
     rows = []
@@ -112,7 +112,7 @@ def table2_runs(distances: pd.DataFrame, timings: Sequence[Mapping], noise_level
     :func:`sdm.experiments.noise_runs`); nothing is trained again.
 
     Args:
-        distances: Table 2's per-run rows (``level, run, a, b, distance``; metres), e.g.
+        distances: Table 2's per-run rows (``noise_level, run, a, b, distance``; metres), e.g.
             ``results/noise/distances.csv``.
         timings: the noise jobs' records, one per chunk: ``{"noise_level", "runs", "seconds"}`` (wall seconds
             of the chunk's runs, trained together as one program). May be empty.
@@ -120,11 +120,11 @@ def table2_runs(distances: pd.DataFrame, timings: Sequence[Mapping], noise_level
         name: the method name the rows get.
 
     Returns:
-        One row per wanted ``(level, run)`` with :data:`RUN_COLUMNS`; ``seconds`` is the level's
+        One row per wanted ``(noise_level, run)`` with :data:`RUN_COLUMNS`; ``seconds`` is the level's
         chunk seconds over its runs (NaN for a level with no timing record).
 
     Raises:
-        SDMInputError: a wanted ``(level, run)`` that Table 2 does not have.
+        SDMInputError: a wanted ``(noise_level, run)`` that Table 2 does not have.
     """
     require_columns(distances, [c for c in RUN_COLUMNS if c not in ("method", "seconds")], "Table 2's runs")
     wanted = pd.MultiIndex.from_product([[int(v) for v in noise_levels], [int(v) for v in runs]], names=["noise_level", "run"])
@@ -165,7 +165,7 @@ TABLE3_FORMAT = TableFormat(
     caption="Table 3: distance ||theta~ - theta*|| per method and noise level (1e-3 m), paired runs",
     label="tab:table3",
     notes=(
-        "Same training configurations and, per (level, run), the same noisy targets for every method. "
+        "Same training configurations and, per (noise_level, run), the same noisy targets for every method. "
         "bias: distance from the mean theta~ to theta*; spread: RMS distance of the theta~ to their mean. "
         "beats SDM: share of paired runs closer to theta* than SDM's (ties half). The paper reports SDM only.",
     ),
@@ -353,7 +353,7 @@ def floor_frame(runs: pd.DataFrame) -> pd.DataFrame:
     """The floor per noise level from its per-run rows (:data:`FLOOR_RUN_COLUMNS`, metres).
 
     Returns:
-        One row per level: ``level, runs``; ``mean_m``, ``median_m`` of the floor's distance to theta*
+        One row per level: ``noise_level, runs``; ``mean_m``, ``median_m`` of the floor's distance to theta*
         (the centre of each run's minimal region); ``search_mean_m`` (the search's own best points);
         ``half_mean_m`` (the floor found with half the budget) and ``budget_change`` (``|mean - half| /
         mean``: what doubling the budget moved); ``extent_a_m``, ``extent_b_m`` (mean width of the region

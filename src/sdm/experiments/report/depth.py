@@ -27,7 +27,7 @@ def table5_frame(depth_runs: pd.DataFrame) -> pd.DataFrame:
     """Table 5: the shift with depth, per true ``c*`` and noise level.
 
     Args:
-        depth_runs: one row per (c_true, level, run) with :data:`DEPTH_RUN_COLUMNS` (metres).
+        depth_runs: one row per (c_true, noise_level, run) with :data:`DEPTH_RUN_COLUMNS` (metres).
 
     Returns:
         One row per (c_true, level), sorted: ``c_true, level, runs``; the means over the runs of
@@ -97,7 +97,7 @@ def table5_summary(frame: pd.DataFrame) -> str:
 
 def table5_bias_summary(frame: pd.DataFrame, bias: pd.DataFrame) -> str:
     """Why ``c`` is biased, in plain words (Markdown): Table 5's signed mean ``c - c*`` beside what
-    :func:`sdm.experiments.depth_bias` measured at theta* (one row per ``rule``, ``c_true``, ``level``, ``zoom``).
+    :func:`sdm.experiments.depth_bias` measured at theta* (one row per ``rule``, ``c_true``, ``noise_level``, ``zoom``).
 
     Per c* and noisy level: the measured bias, then each measured rule's predicted fixed point of ``c`` and the
     share of its depth flow that comes from the points at the edges of the discs, with how often those land on

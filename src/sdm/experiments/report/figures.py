@@ -32,7 +32,7 @@ from ...sky import SKY_SHIFT, SkyConfiguration, add_target_noise, shift_vector
 from .io import write_atomic
 
 MASK_CMAP = ListedColormap(["#111111", "#f2f2f2"])
-LEVEL_COLOURS = plt.get_cmap("viridis")
+ZOOM_COLOURS = plt.get_cmap("viridis")
 
 
 def _write(figure, path: Path, pdf: bool) -> None:
@@ -111,11 +111,11 @@ def figure1(configuration: SkyConfiguration, camera: Camera = APOLLO_CAMERA_5):
     return fig
 
 
-# -- Figures 2 and 3: one point through one SDM level ---------------------------------------------
+# -- Figures 2 and 3: one point through one SDM zoom level ---------------------------------------
 
 
 def pick_point(configuration: SkyConfiguration, theta: Sequence[float], camera: Camera = APOLLO_CAMERA_5,
-               matched: bool | None = None, level: int = 0):
+               matched: bool | None = None, zoom: int = 0):
     """Choose a point of ``configuration`` for the single-point figures.
 
     Takes the point whose depth is nearest the configuration's median depth among those that
@@ -133,7 +133,7 @@ def pick_point(configuration: SkyConfiguration, theta: Sequence[float], camera: 
     fallback = None
     for index in order.tolist():
         pixel = tuple(int(v) for v in configuration.pixels[index])
-        info = explain_point(points[index], pixel, configuration.target, zoom=level, camera=camera)
+        info = explain_point(points[index], pixel, configuration.target, zoom=zoom, camera=camera)
         fallback = fallback or (points[index], pixel, info)
         if matched is None:
             return points[index], pixel, info
@@ -142,9 +142,9 @@ def pick_point(configuration: SkyConfiguration, theta: Sequence[float], camera: 
     return fallback
 
 
-def _window(ax, info, level: int = 0):
+def _window(ax, info, zoom: int = 0):
     """Draw the 3x3 window of blocks around the point's block, in screen coordinates."""
-    size = 1 << level
+    size = 1 << zoom
     block = info["block"].numpy()
     for dk in (-1, 0, 1):
         for dl in (-1, 0, 1):
@@ -159,7 +159,7 @@ def _window(ax, info, level: int = 0):
     ax.tick_params(labelsize=7)
 
 
-def figure2(point: torch.Tensor, original: torch.Tensor, info: dict, level: int = 0,
+def figure2(point: torch.Tensor, original: torch.Tensor, info: dict, zoom: int = 0,
             camera: Camera = APOLLO_CAMERA_5):
     """The forward pass on a single point (paper, Figure 2).
 
@@ -167,7 +167,7 @@ def figure2(point: torch.Tensor, original: torch.Tensor, info: dict, level: int 
         point: the shifted point ``q + (a~, b~, 0)``; ``original``: the point ``q``.
         info: :func:`sdm.mapping.explain_point` of ``point`` at the pixel of ``q``.
     """
-    size = 1 << level
+    size = 1 << zoom
     original_screen = camera.project(original).numpy()
     shifted_screen = info["point_screen"].numpy()
     screen = info["screen"].numpy().reshape(9, 2)
@@ -182,7 +182,7 @@ def figure2(point: torch.Tensor, original: torch.Tensor, info: dict, level: int 
         "(d) output: the point at its landing pixel",
     ]
     for ax, title in zip(axes, titles):
-        _window(ax, info, level)
+        _window(ax, info, zoom)
         ax.set_title(title, fontsize=9)
     home = Rectangle((block[1] * size, block[0] * size), size, size, color="#ff7f0e", alpha=0.7)
     axes[0].add_patch(home)
@@ -202,13 +202,13 @@ def figure2(point: torch.Tensor, original: torch.Tensor, info: dict, level: int 
     axes[3].plot(shifted_screen[1], shifted_screen[0], "o", color="#2ca02c", mec="k", ms=7)
     for ax in axes[:3]:
         ax.legend(loc="lower left", fontsize=7)
-    fig.suptitle(f"Figure 2: SDM forward pass on one point (level {level}, depth {float(point[2]):.1f} m)", fontsize=11)
+    fig.suptitle(f"Figure 2: SDM forward pass on one point (zoom {zoom}, depth {float(point[2]):.1f} m)", fontsize=11)
     return fig
 
 
-def figure3(point: torch.Tensor, info: dict, level: int = 0):
+def figure3(point: torch.Tensor, info: dict, zoom: int = 0):
     """The backward pass on a single point (paper, Figure 3): which target blocks pull it, and where to."""
-    size = 1 << level
+    size = 1 << zoom
     shifted = info["point_screen"].numpy()
     landing = info["landing"].numpy()
     block = info["block"].numpy()
@@ -216,7 +216,7 @@ def figure3(point: torch.Tensor, info: dict, level: int = 0):
     pull = info["pull"].numpy()
     fig, axes = plt.subplots(1, 3, figsize=(12, 4.4), constrained_layout=True)
     for ax in axes:
-        _window(ax, info, level)
+        _window(ax, info, zoom)
     axes[0].set_title("(a) output L~: the point's landing pixel", fontsize=9)
     axes[0].add_patch(Rectangle((landing[1] * size, landing[0] * size), size, size, color="#2ca02c", alpha=0.8))
     axes[1].set_title("(b) L~ (green) and the target L (dashed)", fontsize=9)
@@ -245,7 +245,7 @@ def figure3(point: torch.Tensor, info: dict, level: int = 0):
     status = "matched: no gradient" if info["matched"] else f"gradient on (a~, b~) = ({pull[0]:+.0f}, {pull[1]:+.0f})"
     axes[2].text(0.02, 0.02, status + "\nblack: descent step -grad", transform=axes[2].transAxes, fontsize=8,
                  va="bottom", bbox={"fc": "white", "alpha": 0.8})
-    fig.suptitle(f"Figure 3: SDM backward pass on one point (level {level}, depth {float(point[2]):.1f} m)", fontsize=11)
+    fig.suptitle(f"Figure 3: SDM backward pass on one point (zoom {zoom}, depth {float(point[2]):.1f} m)", fontsize=11)
     return fig
 
 
@@ -272,20 +272,20 @@ def theta_path_figure(history: pd.DataFrame, theta_star: Sequence[float] = SKY_S
     """theta~'s path during training, one colour per zoom level.
 
     Args:
-        history: :meth:`sdm.train.History.to_frame` (columns ``step, level, a, b``; theta after each step).
+        history: :meth:`sdm.train.History.to_frame` (columns ``step, zoom, a, b``; theta after each step).
     """
     a_star, b_star = theta_star
-    levels = sorted(history["level"].unique(), reverse=True)
-    colours = {level: LEVEL_COLOURS(i / max(1, len(levels) - 1)) for i, level in enumerate(levels)}
+    zooms = sorted(history["zoom"].unique(), reverse=True)
+    colours = {zoom: ZOOM_COLOURS(i / max(1, len(zooms) - 1)) for i, zoom in enumerate(zooms)}
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.8), constrained_layout=True)
     previous = (0.0, 0.0)
     distance = np.hypot(history["a"] - a_star, history["b"] - b_star)
-    for level in levels:
-        part = history[history["level"] == level]
+    for zoom in zooms:
+        part = history[history["zoom"] == zoom]
         a = np.concatenate([[previous[0]], part["a"].to_numpy()])
         b = np.concatenate([[previous[1]], part["b"].to_numpy()])
-        axes[0].plot(a, b, ".-", ms=3, lw=1, color=colours[level], label=f"level {level} (blocks of {2 ** level})")
-        axes[1].semilogy(part["step"], distance[part.index], ".-", ms=2, lw=1, color=colours[level], label=f"level {level}")
+        axes[0].plot(a, b, ".-", ms=3, lw=1, color=colours[zoom], label=f"zoom {zoom} (blocks of {2 ** zoom})")
+        axes[1].semilogy(part["step"], distance[part.index], ".-", ms=2, lw=1, color=colours[zoom], label=f"zoom {zoom}")
         previous = (float(part["a"].iloc[-1]), float(part["b"].iloc[-1]))
     axes[0].plot([0], [0], "ks", label="start (0, 0)")
     axes[0].plot([a_star], [b_star], "r*", ms=14, label=f"theta* = ({a_star}, {b_star})")

@@ -355,7 +355,7 @@ def verdict_facts(table: pd.DataFrame) -> dict:
     other is paired with (:func:`paired_with`; its loss and SDM rule), the number of training runs per loss, and per
     noise level its mean over the runs (1e-3 m), its mean over supervised regression's and over doing nothing's
     (the training set's mean theta*, else theta*'s mean), its paired ranking against each image-loss network
-    (:func:`ranking`: ``closer``, ``level`` or ``farther``) and whether it is closer than all of them beyond the
+    (:func:`ranking`: ``closer``, ``even`` or ``farther``) and whether it is closer than all of them beyond the
     runs' spread, and the network + k SDM steps against CMA-ES (the ratio of means, CMA-ES's CPU time over its
     own, and the configurations from which its training pays off). ``loss`` None where no network was trained
     through SDM."""

@@ -80,7 +80,7 @@ def build_report(
     Args:
         table1: :func:`sdm.experiments.report.tables.table1_frame`.
         table2: :func:`sdm.experiments.report.tables.table2_frame`.
-        distances: one row per noise run (``level, run, a, b, distance``; metres).
+        distances: one row per noise run (``noise_level, run, a, b, distance``; metres).
         sky_stats: statistics of the Sky dataset (``target_mean_depth``, ``configurations``, ...).
         data_summary: statistics of the annotations (``images``, ``cars_per_image``, ...).
         config: the workflow's configuration.

@@ -35,7 +35,7 @@ CMAES_FACTOR = 2.0
 
 def reference_rows(baseline_runs: pd.DataFrame | None, floor_runs: pd.DataFrame | None) -> pd.DataFrame:
     """CMA-ES's runs (``method == "cmaes"`` of Table 3's per-run rows) and the floor's runs as Table 4 rows
-    (``rule`` :data:`CMAES_ROW` / :data:`FLOOR_ROW`, ``level, run, distance``); either may be ``None``."""
+    (``rule`` :data:`CMAES_ROW` / :data:`FLOOR_ROW`, ``noise_level, run, distance``); either may be ``None``."""
     parts = []
     if baseline_runs is not None and "cmaes" in set(baseline_runs.get("method", ())):
         cmaes = baseline_runs[baseline_runs["method"] == "cmaes"]
@@ -46,7 +46,7 @@ def reference_rows(baseline_runs: pd.DataFrame | None, floor_runs: pd.DataFrame 
         return pd.DataFrame(columns=list(RULE_RUN_COLUMNS))
     return pd.concat(parts, ignore_index=True)[list(RULE_RUN_COLUMNS)]
 def half_paper_mean_m(noise_level: int) -> float:
-    """The bar "half the paper's mean" on a rule's mean distance at ``level`` (metres): half the paper's published
+    """The bar "half the paper's mean" on a rule's mean distance at ``noise_level`` (metres): half the paper's published
     Table 2 mean at a noisy level, the paper's own mean noise-free; NaN where the paper has no level."""
     published = paper.TABLE2.get(int(noise_level))
     if published is None:
@@ -62,7 +62,7 @@ def run_stats(values: np.ndarray) -> dict[str, float]:
 
 def gathered_runs(paths: Sequence[str | Path], keys: Sequence[str], expected: set, what: str) -> pd.DataFrame:
     """The run files at ``paths`` (CSVs, one row per run) concatenated, checked to hold exactly the runs
-    ``expected`` (tuples of the columns ``keys``, e.g. ``(rule, level, run)``); ``what`` names the table in
+    ``expected`` (tuples of the columns ``keys``, e.g. ``(rule, noise_level, run)``); ``what`` names the table in
     the error. The gathering stages of Tables 4 and 5 read their jobs' files with it."""
     frame = pd.concat([read_csv(path) for path in paths], ignore_index=True)
     found = set(zip(*(frame[key] for key in keys)))
@@ -79,18 +79,18 @@ def table4_frame(rule_runs: pd.DataFrame, table2_runs: pd.DataFrame,
     """Table 4: Table 2 again for each gradient rule, with the paper's rule's paired runs beside.
 
     Args:
-        rule_runs: one row per (rule, level, run) with :data:`RULE_RUN_COLUMNS` (distance in metres).
-        table2_runs: Table 2's runs (``level, run, distance``: the paper's rule on the same noise
-            draws); only the (level, run) pairs that ``rule_runs`` has are used, so the
+        rule_runs: one row per (rule, noise_level, run) with :data:`RULE_RUN_COLUMNS` (distance in metres).
+        table2_runs: Table 2's runs (``noise_level, run, distance``: the paper's rule on the same noise
+            draws); only the (noise_level, run) pairs that ``rule_runs`` has are used, so the
             comparison is paired.
 
     Returns:
         One row per (rule, level), rules in the order they first appear: ``rule, level, runs``;
         ``mean_m, std_m, median_m`` of the rule's distances; ``paper_rule_mean_m, paper_rule_std_m,
-        paper_rule_median_m`` (Table 2's runs of the same (level, run)) and ``paper_rule_runs``;
+        paper_rule_median_m`` (Table 2's runs of the same (noise_level, run)) and ``paper_rule_runs``;
         ``published_mean_m, published_std_m, published_median_m`` (the paper's Table 2, NaN for a
         level it lacks); ``bar_m`` (:func:`half_paper_mean_m`), ``meets_bar`` (``mean_m <= bar_m``) and
-        ``ratio_to_paper_rule`` (``mean_m / paper_rule_mean_m``). With ``cmaes_runs`` (rows ``level, run,
+        ``ratio_to_paper_rule`` (``mean_m / paper_rule_mean_m``). With ``cmaes_runs`` (rows ``noise_level, run,
         distance``: Table 3's CMA-ES) also the comparison with CMA-ES on the runs both have: ``cmaes_runs``
         (their number), ``on_cmaes_runs_mean_m`` (the row's mean over them), ``cmaes_mean_m``,
         ``ratio_to_cmaes`` and ``within_2x_cmaes`` (ratio at most :data:`CMAES_FACTOR`).
@@ -154,7 +154,7 @@ TABLE4_FORMAT = TableFormat(
     label="tab:table4",
     notes=(
         "Each rule's run r at level n trains on the noisy targets and shuffling of Table 2's run r (the same seed). "
-        "paper's rule: Table 2's runs with the same (level, run); paper: the published Table 2. "
+        "paper's rule: Table 2's runs with the same (noise_level, run); paper: the published Table 2. "
         "bar: half the paper's mean at levels 1-4, the paper's mean noise-free.",
         f"{CMAES_ROW}: Table 3's CMA-ES runs, all that its stage ran (baselines.runs_by_method; Table 3 itself reads "
         f"the first baselines.runs of them); {FLOOR_ROW}: per run, the theta minimising the exact zoom-0 pixel "
@@ -318,7 +318,7 @@ def bias_summary(bias: pd.DataFrame, frame: pd.DataFrame) -> str:
 
 
 def rules_against_baselines(rule_runs: pd.DataFrame, baseline_runs: pd.DataFrame) -> str:
-    """Each rule of Table 4 beside Table 3's baselines, paired: the same (level, run), hence the same noisy targets.
+    """Each rule of Table 4 beside Table 3's baselines, paired: the same (noise_level, run), hence the same noisy targets.
 
     Args:
         rule_runs: per-run rows with ``rule, level, run, distance`` (metres).
@@ -326,7 +326,7 @@ def rules_against_baselines(rule_runs: pd.DataFrame, baseline_runs: pd.DataFrame
 
     Returns:
         Markdown, one bullet per rule: per level its mean distance and the best baseline's over the
-        same runs (1e-3 m), and how many baselines it beats; empty when no (level, run) is shared.
+        same runs (1e-3 m), and how many baselines it beats; empty when no (noise_level, run) is shared.
     """
     require_columns(rule_runs, RULE_RUN_COLUMNS, "Table 4's runs", runs=True)
     require_columns(baseline_runs, ("method", "noise_level", "run", "distance"), "Table 3's runs", runs=True)

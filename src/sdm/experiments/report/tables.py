@@ -126,12 +126,12 @@ def table2_frame(distances: pd.DataFrame, avg_dist_mm: dict[int, float]) -> pd.D
     """Table 2: statistics of the distances per noise level beside the paper's.
 
     Args:
-        distances: one row per run with columns ``level`` and ``distance`` (metres).
+        distances: one row per run with columns ``noise_level`` and ``distance`` (metres).
         avg_dist_mm: "Avg. Dist." in mm per noise level (from the data's mean target depth;
             :func:`sdm.experiments.data.stats.avg_dist_mm`); level 0 may be missing (it is 0).
 
     Returns:
-        One row per level: ``level, runs, avg_dist_mm, paper_avg_dist_mm``, then for each of
+        One row per level: ``noise_level, runs, avg_dist_mm, paper_avg_dist_mm``, then for each of
         ``mean, std, q1, q2, q3`` our value and ``paper_<stat>`` (1e-3 m), and ``mean_ratio``
         (ours / paper). ``std`` is the sample standard deviation; quartiles interpolate linearly.
     """

@@ -80,7 +80,7 @@ def reproduction_facts(table1: pd.DataFrame, table2: pd.DataFrame) -> dict:
 
 def search_rows(table3: pd.DataFrame | None, table4: pd.DataFrame | None) -> pd.DataFrame | None:
     """Per noise level, the black-box search's mean and SDM's (the paper's rule) on the same runs, in metres
-    (``level, search_m, sdm_m, runs``): Table 4's CMA-ES row where it has one (all CMA-ES runs, paired with Table
+    (``noise_level, search_m, sdm_m, runs``): Table 4's CMA-ES row where it has one (all CMA-ES runs, paired with Table
     2's), else Table 3's paired runs; None without CMA-ES."""
     if table4 is not None and (table4["rule"] == CMAES_ROW).any():
         rows = table4[table4["rule"] == CMAES_ROW]
