@@ -133,6 +133,11 @@ def _schema_node(path: str) -> dict:
     return node
 
 
+def _allowed(schema: dict):
+    """A value the schema node allows: its first enum value, or for a list of integers ``[0]``."""
+    return schema["enum"][0] if "enum" in schema else [0] if schema.get("type") == "array" else 0
+
+
 @pytest.mark.parametrize("old, new", sorted(__import__("config_check").RENAMED.items()))
 def test_a_key_under_its_old_name_is_refused_naming_the_new_one(old, new):
     """Each renamed key (config_check.RENAMED), written under its old name where config.yaml has the new one (``*``:
@@ -143,7 +148,7 @@ def test_a_key_under_its_old_name_is_refused_naming_the_new_one(old, new):
     *parents, last = new.split(".")
     for key in parents:
         node = node[0 if key == "*" else key]
-    node[old.split(".")[-1]] = node.pop(last) if last in node else _schema_node(new)["enum"][0]
+    node[old.split(".")[-1]] = node.pop(last) if last in node else _allowed(_schema_node(new))
     shown = {name: re.escape(name.replace(".*.", "[0].")) for name in (old, new)}
     with pytest.raises(ConfigError, match=rf"^config key '{shown[old]}' is now '{shown[new]}'"):
         _checked(config)

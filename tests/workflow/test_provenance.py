@@ -82,7 +82,7 @@ def test_a_planted_edit_of_a_stages_code_makes_its_snapshot_stale(project, tmp_p
     assert provenance.stale_stages(part, recorded, before.fingerprint) == []
     assert provenance.ratchet({"objects": []}, known={}) == []
 
-    module = project / "src" / "sdm" / "report" / "objects.py"
+    module = project / "src" / "sdm" / "experiments" / "report" / "objects.py"
     module.write_text(module.read_text() + "\nPLANTED = 1\n")  # code, not a comment: its syntax tree changes
     after = _code_deps_of(project)
     stale = provenance.stale_stages(part, recorded, after.fingerprint)
