@@ -278,7 +278,7 @@ def test_a_notebook_prose_edit_reruns_its_stage(touched_project, stage):
 
 
 @pytest.mark.parametrize("script", ["workflow/scripts/run_notebook.py", "workflow/scripts/stage.py",
-                                    "workflow/scripts/code_deps.py"])
+                                    "workflow/scripts/kernel.py", "workflow/scripts/code_deps.py"])
 def test_a_runner_code_edit_reruns_every_stage(touched_project, script):
     project, _ = touched_project
     with _edited(project / script, "\n_rerun_probe = 1\n"):

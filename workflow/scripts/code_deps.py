@@ -1,7 +1,7 @@
 """The code each stage runs, and its fingerprint: the workflow's code rerun trigger.
 
 A stage runs its notebook (``notebooks/<name>.py``), the library modules the notebook imports,
-directly or through other modules, and the runner (``stage.py``, ``run_notebook.py``). The
+directly or through other modules, and the runner (``stage.py``, ``run_notebook.py``, ``kernel.py``). The
 rules put :func:`fingerprint` of those files into each stage's param ``stage`` (its ``code``), so
 that Snakemake's params trigger reruns a stage, and everything after it, when any of them
 changes, and no other stage. Read at parse time: the standard library only, never torch or
@@ -45,11 +45,11 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 #: The library's package, under ROOT/src.
 PACKAGE = "sdm"
-#: What every stage runs besides its notebook: the rule's script, the runner it calls, this file (the
-#: runner loads the atomic writer through it) and the writer itself (loaded from its file by
-#: :func:`library_io`, not by an import statement).
-RUNNER = ("workflow/scripts/stage.py", "workflow/scripts/run_notebook.py", "workflow/scripts/code_deps.py",
-          "src/sdm/io.py")
+#: What every stage runs besides its notebook: the rule's script, the runner it calls, the kernel's
+#: launcher, this file (the runner loads the atomic writer through it) and the writer itself (loaded from
+#: its file by :func:`library_io`, not by an import statement).
+RUNNER = ("workflow/scripts/stage.py", "workflow/scripts/run_notebook.py", "workflow/scripts/kernel.py",
+          "workflow/scripts/code_deps.py", "src/sdm/io.py")
 #: Files a module reads beside itself (not Python, hashed as they are): the module -> its files.
 #: tests/workflow/test_workflow_code.py checks that every non-Python file under src/sdm is listed here.
 RESOURCES = {"src/sdm/mapping/build.py": tuple(f"src/sdm/mapping/kernel/{name}" for name in (
