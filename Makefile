@@ -27,8 +27,10 @@ $(VENV)/.installed: pyproject.toml constraints.txt
 run:
 	@$(PYTHON) workflow/scripts/timed.py "make run" $(MAKE) --no-print-directory workflow
 
+# PYTHONDONTWRITEBYTECODE= : the jobs write the bytecode of what they import (the install writes none), so only the
+# first job to import a module compiles it; where the variable is set, every job would compile everything again.
 workflow: install
-	PATH="$(abspath $(BIN)):$$PATH" $(BIN)/snakemake --profile profiles/default --cores $(CORES) $(SNAKEMAKE_ARGS)
+	PYTHONDONTWRITEBYTECODE= PATH="$(abspath $(BIN)):$$PATH" $(BIN)/snakemake --profile profiles/default --cores $(CORES) $(SNAKEMAKE_ARGS)
 
 # The runs of the opt-in snapshots: config.yaml with the snapshot's overlay merged over it (Tables 5-7 switched on;
 # the real sample's own config, which writes to results/apollocar3d-sample/). `PARTS` in workflow/scripts/provenance.py
