@@ -43,7 +43,7 @@ wildcard_constraints:
     noise_level=r"\d+",
     chunk=r"\d+",
     method=one_of(BASELINES),
-    rule=one_of(RULE_LABELS),
+    schedule=one_of(RULE_LABELS),
     c=one_of(DEPTH_SHIFTS),
     sharing=one_of(SHARING_LABELS),
     scale=r"\d+",

@@ -29,7 +29,7 @@ sky = "results/sky/sky.bin"  # input
 split = "results/split/split.json"  # input
 best = "results/tuning/best.json"  # input: the tuned settings (Table 1)
 runs_files = ["results/research/rules/closed_level0.csv"]  # output: one per level of `levels`, one row per run
-rule = "closed"  # the gradient rule or schedule of the runs
+schedule = "closed"  # the gradient rule or schedule of the runs
 noise_levels = [0]  # the noise levels
 runs = 2  # the runs 0..runs-1 (Table 2's runs with the same indices)
 s = 4
@@ -49,7 +49,7 @@ from sdm.experiments.report.io import read_json, write_csv
 
 single_thread(threads)
 train_set, camera, settings = tuned_training(sky, read_json(split), read_json(best), s, batch_size, lr_decay, seed)
-print(f"{len(train_set)} training configurations; n_epoch {settings.n_epoch}, lr {settings.lr:g}, rule {rule}")
+print(f"{len(train_set)} training configurations; n_epoch {settings.n_epoch}, lr {settings.lr:g}, rule {schedule}")
 
 # %%
 run_indices = list(range(runs))
@@ -57,7 +57,7 @@ if len(runs_files) != len(noise_levels):
     raise ValueError(f"runs_files: one per level expected, got {len(runs_files)} for levels {noise_levels}")
 for noise_level, runs_file in zip(noise_levels, runs_files):
     started = time.perf_counter()
-    results = rule_noise_runs(train_set, rule, noise_level, run_indices, settings, shift=shift, camera=camera)
+    results = rule_noise_runs(train_set, schedule, noise_level, run_indices, settings, shift=shift, camera=camera)
     # trained together (as Table 2's noise chunks): a run's share is the level's wall time over its runs,
     # measured as notebooks/noise.py measures the paper's rule (Table 4 sets the two side by side)
     results["seconds"] = (time.perf_counter() - started) / len(run_indices)

@@ -9,13 +9,13 @@ notebook_stage(
     "rule_runs",
     "One rule's runs at every noise level (one file per level): Table 2's noisy targets and shuffling, the "
     "rule's flow.",
-    jobs=[{"rule": label} for label in RULE_LABELS],
-    job="research_rules_{rule}",
+    jobs=[{"schedule": label} for label in RULE_LABELS],
+    job="research_rules_{schedule}",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE, best=BEST_FILE),
-    output=dict(runs_files=[result(f"research/rules/{{rule}}_level{noise_level}.csv") for noise_level in NOISE_LEVELS]),
+    output=dict(runs_files=[result(f"research/rules/{{schedule}}_level{noise_level}.csv") for noise_level in NOISE_LEVELS]),
     params=dict(
         **training(seed=config["noise"]["seed"]),
-        rule=lambda wildcards: RULE_LABELS[wildcards.rule],
+        schedule=lambda wildcards: RULE_LABELS[wildcards.schedule],
         noise_levels=NOISE_LEVELS,
         runs=RULE_RUNS,
     ),
