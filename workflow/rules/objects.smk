@@ -6,7 +6,7 @@
 OBJECTS = RESEARCH.get("objects", {"enabled": False})
 OBJECTS_ON = bool(OBJECTS.get("enabled", False))
 OBJECT_CARS = [int(k) for k in OBJECTS.get("scaling", {}).get("cars", [])] if OBJECTS_ON else []
-#: The sharing levels by file label ("camera+car" is "camera_and_car" in a file name).
+#: The sharings by file label ("camera+car" is "camera_and_car" in a file name).
 SHARING_LABELS = {"configuration": "configuration", "car": "car", "camera_and_car": "camera+car"}
 #: Table 6's keys a screen may give for its own rows (each replaces the section's whole key).
 SCREEN_KEYS = ("disc", "configurations", "sharings", "noise_levels", "methods", "rows", "cmaes")

@@ -26,7 +26,7 @@ def prior_sd(sharing: S.Sharing, truth: S.TruthDistribution) -> torch.Tensor:
     if sharing.name == "camera+car":
         is_car = sharing.rows[:, 1].cpu() != S.NO_INDEX
         return torch.where(is_car, float(truth.residual_sd), float(truth.camera_sd)).to(torch.float64)
-    raise SDMInputError(f"sharing level must be one of {', '.join(S.ROW_SHARINGS)}, got {sharing.name!r}")
+    raise SDMInputError(f"sharing must be one of {', '.join(S.ROW_SHARINGS)}, got {sharing.name!r}")
 
 
 def prior_gate(theta: torch.Tensor, start: torch.Tensor, sd: torch.Tensor, gate: float

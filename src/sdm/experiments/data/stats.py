@@ -174,9 +174,9 @@ def target_mean_depth(configurations: Sequence[SkyConfiguration]) -> float:
     return total / count if count else math.nan
 
 
-def avg_dist_mm(mean_depth: float, levels: Sequence[int] = (1, 2, 3, 4), camera: Camera = APOLLO_CAMERA_5) -> dict[int, float]:
+def avg_dist_mm(mean_depth: float, noise_levels: Sequence[int] = (1, 2, 3, 4), camera: Camera = APOLLO_CAMERA_5) -> dict[int, float]:
     """Table 2's "Avg. Dist." (mm) per noise level for a target-point mean depth (m)."""
-    return {int(n): 1000.0 * noise_displacement(int(n), mean_depth, camera) for n in levels}
+    return {int(n): 1000.0 * noise_displacement(int(n), mean_depth, camera) for n in noise_levels}
 
 
 def summarize(
@@ -216,8 +216,8 @@ def summarize(
         "circle_overlap_rate": float(configs["overlapping"].sum() / n_circles) if n_circles else math.nan,
         "hidden_pixel_fraction": float(1 - configs["n_points"].sum() / painted) if painted else math.nan,
     }
-    for level, value in avg_dist_mm(depth, camera=camera).items():
-        summary[f"avg_dist_{level}_mm"] = value
+    for noise_level, value in avg_dist_mm(depth, camera=camera).items():
+        summary[f"avg_dist_{noise_level}_mm"] = value
     summary.update({f"plane_{key}": value for key, value in plane.items()})
     return summary
 
@@ -226,7 +226,7 @@ def summarize(
 TARGETS = {
     "cars_per_image": PAPER_CARS_PER_IMAGE,
     "target_mean_depth": PAPER_TARGET_DEPTH,
-    **{f"avg_dist_{level}_mm": value for level, value in PAPER_AVG_DIST_MM.items()},
+    **{f"avg_dist_{noise_level}_mm": value for noise_level, value in PAPER_AVG_DIST_MM.items()},
 }
 
 

@@ -134,7 +134,7 @@ def loss_bias(test: ShiftSet, noise_level: int, kind: str, settings: NetworkSett
     """Where a training loss's mean gradient vanishes on the test configurations, as :func:`sdm.experiments.rule_bias`
     measures it for the shared shift.
 
-    At zoom 0, the level every training ends at (:func:`sdm.experiments.network.epoch_levels`), each configuration's gradient
+    At zoom 0, where every training ends (:func:`sdm.experiments.network.epoch_zooms`), each configuration's gradient
     through :class:`sdm.experiments.network.BatchLoss` (SDM: the flow per point; the silhouette: its image loss's gradient) is
     evaluated at its own theta*_i (its *bias*) and at ``theta*_i +- step`` per axis (its *stiffness*, per metre). A
     network trained with the loss settles, on average, where the mean gradient vanishes: about
