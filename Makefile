@@ -8,7 +8,8 @@ CORES ?= 2
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 
 .PHONY: install run workflow test test-fast test-slurm sanitize bench timing report snapshot verdict clean \
-	run-depth run-objects run-network run-sample snapshot-depth snapshot-objects snapshot-network snapshot-sample
+	run-depth run-objects run-network run-sample snapshot-depth snapshot-objects snapshot-network snapshot-sample \
+	snapshot-all
 
 install: $(VENV)/.installed
 
@@ -93,6 +94,9 @@ snapshot:
 	$(PYTHON) workflow/scripts/snapshot.py take
 snapshot-depth snapshot-objects snapshot-network snapshot-sample:
 	$(PYTHON) workflow/scripts/snapshot.py take --part $(@:snapshot-%=%)
+# After `make run` and every `make run-<name>`: all five snapshots taken together, at one commit, one verdict.
+snapshot-all:
+	$(PYTHON) workflow/scripts/snapshot.py take --part default --part sample --part objects --part network --part depth
 
 # The README's verdict assembled again from the snapshots (no run, no copy).
 verdict:

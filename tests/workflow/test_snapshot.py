@@ -114,6 +114,28 @@ def test_take_copies_the_results_writes_the_provenance_and_the_verdict(tmp_path)
     assert f"commit {recorded['commit'][:7]}" in section
 
 
+def test_snapshots_taken_together_read_each_other_as_taken(tmp_path):
+    """Taken together, each snapshot's verdict facts are read from the take itself: Table 6's snapshot, which alone
+    needs the default's committed facts, is taken with the default's into an empty folder, and the README's verdict
+    names both at this commit. A run that is not complete leaves every snapshot and the README as they were."""
+    results, docs, readme = tmp_path / "results", tmp_path / "docs" / "results", _readme(tmp_path / "README.md")
+    fake_run(results)
+    fake_run(results, "objects")
+    with pytest.raises(SystemExit, match="missing"):  # alone, Table 6's take reads a default snapshot there is not
+        snapshot.take("objects", results, docs, readme)
+    before = readme.read_text()
+    (results / PARTS["objects"].files["table6.csv"]).unlink()
+    with pytest.raises(SystemExit, match="'objects' is not complete"):
+        snapshot.take_all(["default", "objects"], {"default": results, "objects": results}, docs, readme)
+    assert readme.read_text() == before and not (docs / "tables").exists()
+    fake_run(results, "objects")
+    snapshot.take_all(["default", "objects"], {"default": results, "objects": results}, docs, readme)
+    commit = provenance.read(docs)["commit"]
+    assert provenance.read(docs / "objects")["commit"] == commit
+    section = snapshot.readme_section(readme.read_text())
+    assert section == snapshot.assemble(docs).strip("\n") + "\n" and "docs/results/objects/" in section
+
+
 def test_an_opt_in_take_replaces_its_files_and_keeps_the_folders_own(tmp_path):
     """Table 6's snapshot beside the default's: its README and measurement logs stay, its files are the run's, and
     the README's verdict gains the answers that read it."""

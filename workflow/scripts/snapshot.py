@@ -1,6 +1,6 @@
 """The committed snapshots of the workflow's runs (``docs/results/``), their provenance, and the README's verdict.
 
-    python workflow/scripts/snapshot.py take [--part NAME]  # a run's files -> its snapshot folder, then the verdict
+    python workflow/scripts/snapshot.py take [--part NAME]...  # runs' files -> their snapshot folders, then the verdict
     python workflow/scripts/snapshot.py verdict             # the README's verdict, assembled from the snapshots
     python workflow/scripts/snapshot.py status              # each snapshot: its commit, fresh or stale, its command
     python workflow/scripts/snapshot.py check               # exit 1 (naming each) on a README or docs number not held
@@ -38,6 +38,7 @@ import re
 import secrets
 import shutil
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 
 import job_times as jobs
@@ -125,34 +126,50 @@ def _swap_in(part: provenance.Part, staging: Path, folder: Path) -> None:
 
 def take(name: str = "default", results: Path | None = None, snapshot: Path = SNAPSHOT, readme: Path = README,
          code=fingerprint) -> None:
-    """Copy the run's files of snapshot ``name`` into its folder with its provenance, then write the README's verdict.
+    """Copy the run's files of snapshot ``name`` into its folder with its provenance, then write the README's verdict
+    (:func:`take_all` of that one snapshot; ``results``: its run's folder, by default its own)."""
+    take_all([name], {name: results} if results is not None else None, snapshot, readme, code)
 
-    Exits (``SystemExit``, naming each problem, :func:`problems_of`) before touching anything where the run is not
-    complete and current; then builds the new files, their provenance and the verdict beside the old ones, swaps
-    the files in and writes the README atomically last.
+
+def take_all(names: Sequence[str], results: dict[str, Path] | None = None, snapshot: Path = SNAPSHOT,
+             readme: Path = README, code=fingerprint) -> None:
+    """Take the snapshots ``names`` together: the verdict is assembled once, from all of them as taken.
+
+    Exits (``SystemExit``, naming each problem, :func:`problems_of`) before touching anything where one run is not
+    complete and current; then builds every snapshot's new files, their provenance and the verdict beside the old
+    ones, swaps the files in and writes the README atomically last. Taking several at once is how the snapshots are
+    retaken at one commit when a change of the facts' form reaches all of them (one at a time, the verdict would
+    read the others in their old form).
     """
-    part = PARTS[name]
-    results = results if results is not None else ROOT / part.results
-    problems = problems_of(part, results, code)
-    if problems:
-        raise SystemExit(f"the run of snapshot {name!r} is not complete and current in {results} (run "
-                         f"`{part.run}` first); {part.path(snapshot)} is unchanged:\n" + "\n".join(problems))
+    parts = {name: PARTS[name] for name in dict.fromkeys(names)}
+    folders = {name: (results or {}).get(name) or ROOT / part.results for name, part in parts.items()}
+    problems = {name: problems_of(part, folders[name], code) for name, part in parts.items()}
+    for name, found in problems.items():
+        if found:
+            raise SystemExit(f"the run of snapshot {name!r} is not complete and current in {folders[name]} (run "
+                             f"`{parts[name].run}` first); {parts[name].path(snapshot)} is unchanged:\n"
+                             + "\n".join(found))
     text = with_verdict(readme.read_text(), "")  # the README has its one verdict section, before anything moves
-    folder = part.path(snapshot)
-    folder.mkdir(parents=True, exist_ok=True)
-    staging = folder / f".take-{secrets.token_hex(6)}"
+    staged = {}
     try:
-        for target, source in part.files.items():
-            (staging / target).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(results / source, staging / target)
-        ran = run_stages(results)
-        provenance.write(staging, provenance.record(part, staging, {stage: min(ran[stage]) for stage in part.stages},
-                                                    jobs=job_times(results, part.stages)))
-        verdict = assemble(snapshot, staged={name: staging})
-        _swap_in(part, staging, folder)
+        for name, part in parts.items():
+            folder = part.path(snapshot)
+            folder.mkdir(parents=True, exist_ok=True)
+            staged[name] = staging = folder / f".take-{secrets.token_hex(6)}"
+            for target, source in part.files.items():
+                (staging / target).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(folders[name] / source, staging / target)
+            ran = run_stages(folders[name])
+            provenance.write(staging, provenance.record(part, staging,
+                                                        {stage: min(ran[stage]) for stage in part.stages},
+                                                        jobs=job_times(folders[name], part.stages)))
+        verdict = assemble(snapshot, staged=staged)
+        for name, part in parts.items():
+            _swap_in(part, staged[name], part.path(snapshot))
         library_io().write_text(readme, with_verdict(text, verdict))
     finally:
-        shutil.rmtree(staging, ignore_errors=True)
+        for staging in staged.values():
+            shutil.rmtree(staging, ignore_errors=True)
 
 
 def snapshots_read(snapshot: Path = SNAPSHOT, known: dict | None = None,
@@ -293,10 +310,11 @@ def check(readme: Path = README, snapshot: Path = SNAPSHOT) -> list[str]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("command", choices=("take", "verdict", "status", "check"))
-    parser.add_argument("--part", default="default", choices=sorted(PARTS), help="the snapshot to take")
+    parser.add_argument("--part", action="append", choices=sorted(PARTS),
+                        help="the snapshot to take (default: default); given several times, they are taken together")
     args = parser.parse_args(argv)
     if args.command == "take":
-        take(args.part)
+        take_all(args.part or ["default"])
     elif args.command == "verdict":
         write_verdict()
     elif args.command == "status":
