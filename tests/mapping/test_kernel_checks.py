@@ -77,7 +77,7 @@ def program(data):
     orders = torch.stack([torch.randperm(len(data), generator=torch.Generator().manual_seed(i))[None]
                           for i in range(len(zooms))])
     return dict(points=data.points, pixels=data.pixels, rank=data.rank, offsets=data.offsets, camera=data.camera,
-                steps=4, zooms=zooms, n_epoch=1, batch_size=16, rates=[1e-4] * 5,
+                s=4, zooms=zooms, n_epoch=1, batch_size=16, rates=[1e-4] * 5,
                 windows=[native.KernelFlow.PAPER] * 5, orders=orders, targets=[[None] * 4 + [data.targets]],
                 theta0=torch.zeros(1, 2, dtype=torch.float64), bases=[data.targets])
 

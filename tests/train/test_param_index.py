@@ -172,8 +172,10 @@ def test_bad_param_index_is_named(bad, message):
 def test_row_rate_is_checked():
     data = configuration_set(16, seed=38)
     index = point_config(data)
-    for bad in (torch.ones(15, dtype=torch.float64), -torch.ones(16, dtype=torch.float64), torch.ones(16, dtype=torch.int64)):
-        with pytest.raises(SDMInputError, match="row_rate must be 16 positive"):
+    for bad, message in ((torch.ones(15, dtype=torch.float64), r"row_rate must hold one entry per row of param_index \(16\)"),
+                         (-torch.ones(16, dtype=torch.float64), "row_rate must be 16 positive"),
+                         (torch.ones(16, dtype=torch.int64), "row_rate must be 16 positive")):
+        with pytest.raises(SDMInputError, match=message):
             train_runs(data, [data.targets], [TrainSettings()], param_index=index, row_rate=bad)
     with pytest.raises(SDMInputError, match="row_rate needs param_index"):
         train_runs(data, [data.targets], [TrainSettings()], row_rate=torch.ones(1, dtype=torch.float64))
@@ -243,7 +245,7 @@ def test_row_zoom_is_checked():
     data = configuration_set(16, seed=38)
     index = point_config(data)
     settings = [TrainSettings(s=3)]
-    for bad, message in ((torch.zeros(15, dtype=torch.int64), "row_zoom must be 16 integers"),
+    for bad, message in ((torch.zeros(15, dtype=torch.int64), r"row_zoom must hold one entry per row of param_index \(16\)"),
                          (torch.zeros(16, dtype=torch.float64), "row_zoom must be 16 integers"),
                          (torch.full((16,), 4, dtype=torch.int64), r"must lie in the schedule's zooms 0 \.\. 3"),
                          (torch.full((16,), -1, dtype=torch.int64), "row_zoom must lie in")):

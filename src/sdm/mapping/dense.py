@@ -42,15 +42,15 @@ def dense_mapping(
     config: torch.Tensor,
     rank: torch.Tensor,
     target: torch.Tensor,
-    steps: int,
+    s: int,
     zoom: int,
     camera: Camera,
     sharpness: float = 1e9,
 ) -> MappingResult:
-    """Grid-formulation SDM over the zooms ``steps..zoom``; same contract as :func:`~sdm.mapping.fast.fast_mapping`.
+    """Grid-formulation SDM over the zooms ``s..zoom``; same contract as :func:`~sdm.mapping.fast.fast_mapping`.
 
     Args:
-        points, pixels, config, rank, target, steps, zoom, camera: as in
+        points, pixels, config, rank, target, s, zoom, camera: as in
             :func:`~sdm.mapping.fast.fast_mapping`; each configuration must hold
             at most one point per pixel (a proper 2D representation).
         sharpness: the kernel's sharpness, the paper's ``c`` in ``softmax(-c ||p - T||)``, 1/metres.
@@ -73,7 +73,7 @@ def dense_mapping(
         "rank": _scatter(cell, rank, n_configs, camera, NO_RANK),
     }
     device = points.device
-    for at in range(steps, zoom - 1, -1):  # each zoom, coarsest first
+    for at in range(s, zoom - 1, -1):  # each zoom, coarsest first
         sub = {name: space_to_depth(values, at) for name, values in grid.items()}
         active = sub["id"] >= 0  # (n, S, h, w)
         adjustments = _adjustments(sub["z"], at, camera)  # (n, S, 9, h, w, 2) metres

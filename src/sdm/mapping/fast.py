@@ -65,13 +65,13 @@ def fast_mapping(
     config: torch.Tensor,
     rank: torch.Tensor,
     target: torch.Tensor,
-    steps: int,
+    s: int,
     zoom: int,
     camera: Camera,
     flow_rule=dynamic_flow,
     native: bool | None = None,
 ) -> MappingResult:
-    """Run the SDM zooms ``steps, steps-1, ..., zoom`` on points; loss and flow at zoom ``zoom``.
+    """Run the SDM zooms ``s, s-1, ..., zoom`` on points; loss and flow at zoom ``zoom``.
 
     Args:
         points: ``(P, 3)`` float shifted points ``p`` in metres (detached, checked), ``z > 0``.
@@ -80,8 +80,8 @@ def fast_mapping(
         config: ``(P,)`` int64 configuration index of each point in ``[0, n)``.
         rank: ``(P,)`` int64 ``rmin`` priority, distinct within a configuration; lower wins.
         target: ``(n, H / 2^zoom, W / 2^zoom)`` bool zoomed-out target at the loss zoom.
-        steps: the coarsest zoom ``s``.
-        zoom: the loss zoom (the finest), ``0 <= zoom <= steps``.
+        s: the coarsest zoom.
+        zoom: the loss zoom (the finest), ``0 <= zoom <= s``.
         camera: camera and screen ``(H, W)``.
         flow_rule: the gradient rule (default the paper's :func:`~sdm.mapping.flow.dynamic_flow`;
             the flows of the rules in :data:`sdm.RULES`), called with the same arguments.
@@ -100,7 +100,7 @@ def fast_mapping(
     if native is not False and native_kernel.serves(projected_pixel, pixels, config, rank, target):
         scratch = _SCRATCH.buffer(points.device, 2 * n_cells + 1)  # the kernel's two rmin tables
         out_pixels, entered, landed, block, landing = native_kernel.chain(
-            projected_pixel, pixels, config, rank, scratch, height, width, steps, zoom)
+            projected_pixel, pixels, config, rank, scratch, height, width, s, zoom)
         if flow_rule is dynamic_flow and screen.dtype == torch.float64:
             flow, matched, pulled, window_l1 = native_kernel.paper_flow(screen, config, landed, block, landing,
                                                                         target, zoom)
@@ -112,7 +112,7 @@ def fast_mapping(
     alive = torch.ones(points.shape[0], dtype=torch.bool, device=points.device)
     current = pixels
     config_offset = config * (height * width)
-    for at in range(steps, zoom - 1, -1):  # each zoom, coarsest first
+    for at in range(s, zoom - 1, -1):  # each zoom, coarsest first
         block = current >> at
         # Landing block - input block, limited to the 3x3 kernel; the point keeps its phase,
         # so its new pixel is its old one moved by whole blocks.

@@ -52,8 +52,8 @@ class SDMFunction(torch.autograd.Function):
     """
 
     @staticmethod
-    def forward(points, pixels, config, rank, target, steps, zoom, camera, method, options):
-        result = METHODS[method](points.detach(), pixels, config, rank, target, steps, zoom, camera, **options)
+    def forward(points, pixels, config, rank, target, s, zoom, camera, method, options):
+        result = METHODS[method](points.detach(), pixels, config, rank, target, s, zoom, camera, **options)
         return (result.loss.to(points.dtype), result.flow.to(points.dtype), result.out_pixels, result.entered,
                 result.matched, result.landed)
 

@@ -57,20 +57,20 @@ def _check_range(call: str, name: str, values: torch.Tensor, low: int, high: int
                             f"[{int(values.min())}, {int(values.max())}]")
 
 
-def _check_screen(call: str, height, width, steps, zoom) -> None:
-    """:class:`SDMInputError` naming ``call`` unless the screen is positive and ``0 <= zoom <= steps <= 60``."""
-    for name, value in (("height", height), ("width", width), ("steps", steps), ("zoom", zoom)):
+def _check_screen(call: str, height, width, s, zoom) -> None:
+    """:class:`SDMInputError` naming ``call`` unless the screen is positive and ``0 <= zoom <= s <= 60``."""
+    for name, value in (("height", height), ("width", width), ("s", s), ("zoom", zoom)):
         if isinstance(value, bool) or not isinstance(value, int):
             raise SDMInputError(f"{call}: {name} must be an integer, got {value!r}")
-    if height < 1 or width < 1 or not 0 <= zoom <= steps <= 60:
-        raise SDMInputError(f"{call}: needs a positive screen and 0 <= zoom <= steps <= 60, got a {height} x {width} "
-                            f"screen, steps {steps}, zoom {zoom}")
+    if height < 1 or width < 1 or not 0 <= zoom <= s <= 60:
+        raise SDMInputError(f"{call}: needs a positive screen and 0 <= zoom <= s <= 60, got a {height} x {width} "
+                            f"screen, s {s}, zoom {zoom}")
 
 
 @eager_under_compile
 def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, rank: torch.Tensor,
-          scratch: torch.Tensor, height: int, width: int, steps: int, zoom: int):
-    """Zooms ``steps..zoom`` of the zoom chain (the zoom loop of :func:`~sdm.mapping.fast.fast_mapping`).
+          scratch: torch.Tensor, height: int, width: int, s: int, zoom: int):
+    """Zooms ``s..zoom`` of the zoom chain (the zoom loop of :func:`~sdm.mapping.fast.fast_mapping`).
 
     Args:
         projected: ``(P, 2)`` int64 ``floor(P(p))``, screen pixels ``(row, col)``.
@@ -78,7 +78,7 @@ def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, r
         config: ``(P,)`` int64 configuration of each point; ``rank``: ``(P,)`` int64 ``rmin`` priority.
         scratch: ``(>= 2 * (n * H * W + 1),)`` int64 (the kernel's two alternating rmin tables), every entry
             :data:`~sdm.representation.NO_RANK` (and so again on return).
-        height, width: the screen; steps, zoom: the coarsest and the finest zoom.
+        height, width: the screen; s, zoom: the coarsest and the finest zoom.
 
     All tensors on the CPU (see :func:`serves`; non-contiguous ones are copied); the results too.
     :func:`check_arrays` checks their shapes against each other first; the kernel checks ``config`` against the
@@ -93,7 +93,7 @@ def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, r
     int64 = torch.int64
     check_arrays("chain", projected=(projected, int64, ("P", 2)), pixels=(pixels, int64, ("P", 2)),
                  config=(config, int64, ("P",)), rank=(rank, int64, ("P",)), scratch=(scratch, int64, ("M",)))
-    _check_screen("chain", height, width, steps, zoom)
+    _check_screen("chain", height, width, s, zoom)
     n_points = pixels.shape[0]
     out_pixels = torch.empty_like(pixels)
     entered = torch.empty(n_points, dtype=torch.bool, device=pixels.device)
@@ -101,7 +101,7 @@ def chain(projected: torch.Tensor, pixels: torch.Tensor, config: torch.Tensor, r
     block, landing = torch.empty_like(pixels), torch.empty_like(pixels)
     current, cell, alive = _workspace(n_points, pixels.device)
     code = _library().sdm_chain(n_points, projected.data_ptr(), pixels.data_ptr(), config.data_ptr(),
-                                rank.data_ptr(), height, width, steps, zoom, scratch.data_ptr(), scratch.numel(),
+                                rank.data_ptr(), height, width, s, zoom, scratch.data_ptr(), scratch.numel(),
                                 NO_RANK, out_pixels.data_ptr(), entered.data_ptr(), landed.data_ptr(),
                                 block.data_ptr(), landing.data_ptr(), current.data_ptr(), cell.data_ptr(),
                                 alive.data_ptr())
@@ -180,7 +180,7 @@ def trains_screen(screen_shape) -> bool:
 
 
 def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor, offsets: torch.Tensor,
-                  camera, steps: int, zooms: list[int], n_epoch: int, batch_size: int, rates: list[float],
+                  camera, s: int, zooms: list[int], n_epoch: int, batch_size: int, rates: list[float],
                   windows: list[KernelFlow], orders: torch.Tensor, targets: list[list[torch.Tensor | None]],
                   theta0: torch.Tensor, bases: list[torch.Tensor] | None = None,
                   param_index: torch.Tensor | None = None, record_every: int = 1,
@@ -191,7 +191,7 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
         points: ``(P, 3)`` float64 points ``Q`` (metres), ``pixels`` ``(P, 2)`` int64, ``rank`` ``(P,)`` int64,
             ``offsets`` ``(N + 1,)`` int64: the packed set (:class:`~sdm.batch.ConfigurationSet`).
         camera: :class:`~sdm.camera.Camera` (intrinsics and screen ``(H, W)``).
-        steps: the chain's coarsest zoom ``s``; ``zooms``: the loss zooms (each in ``0..s``), one after
+        s: the chain's coarsest zoom; ``zooms``: the loss zooms (each in ``0..s``), one after
             another (the paper's ``s, s - 1, ...``; a refinement's ``0, 0, ...``).
         n_epoch, batch_size: epochs per zoom, configurations per mini-batch (the last incomplete one dropped).
         rates: the learning rate at each of ``zooms``.
@@ -236,7 +236,7 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     if isinstance(param_index, torch.Tensor) and param_index.dim() == 1:
         param_index = param_index[:, None]
     param_index, row_rate = _contiguous(param_index), _contiguous(row_rate)
-    check_program(points, pixels, rank, offsets, camera, steps, zooms, n_epoch, batch_size, rates, windows, orders,
+    check_program(points, pixels, rank, offsets, camera, s, zooms, n_epoch, batch_size, rates, windows, orders,
                   targets, theta0, bases, param_index, record_every, row_rate, crossing_widths)
     n_runs, n_configs = orders.shape[1], orders.shape[2]
     device = points.device
@@ -257,7 +257,7 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     height, width = camera.screen_shape
     # as sdm_train lays it out: the zoomed-out targets where it zooms any out, then the closed targets
     zooms_out = any(target is None and zoom > 0 for run in targets for target, zoom in zip(run, zooms))
-    pyramid = _pyramid_scratch(n_configs * sum((height >> k) * (width >> k) for k in range(1, steps + 1)) * zooms_out
+    pyramid = _pyramid_scratch(n_configs * sum((height >> k) * (width >> k) for k in range(1, s + 1)) * zooms_out
                                + n_configs * height * width * (KernelFlow.CENTRED in windows), device)
     base_addresses = torch.tensor([base.data_ptr() for base in bases] if bases is not None else [0] * n_runs,
                                   dtype=torch.int64, device=device)
@@ -266,7 +266,7 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     failed = torch.empty(n_runs, dtype=torch.int64, device=device)
     code = _library().sdm_train(
         n_runs, n_configs, offsets.data_ptr(), points.data_ptr(), pixels.data_ptr(), rank.data_ptr(), height, width,
-        constants.data_ptr(), steps, len(zooms), n_epoch, batch_size, zooms_t.data_ptr(), rates_t.data_ptr(),
+        constants.data_ptr(), s, len(zooms), n_epoch, batch_size, zooms_t.data_ptr(), rates_t.data_ptr(),
         modes_t.data_ptr(), *(group.data_ptr() for group in groups), crossing.data_ptr(), orders.data_ptr(),
         addresses.data_ptr(), base_addresses.data_ptr(), pyramid.data_ptr(), NO_RANK, n_rows,
         param_index.shape[1] if param_index is not None else 1,
@@ -276,40 +276,40 @@ def train_program(points: torch.Tensor, pixels: torch.Tensor, rank: torch.Tensor
     if code == -2:
         raise ValueError(f"sdm_train: a {height} x {width} screen is beyond its int32 chain (trains_screen)")
     if code == -3:
-        raise ValueError(f"sdm_train: zooms {zooms} outside 0..{steps}, or CROSSING above zoom 0: "
+        raise ValueError(f"sdm_train: zooms {zooms} outside 0..{s}, or CROSSING above zoom 0: "
                          f"{[(window.name, zoom) for window, zoom in zip(windows, zooms)]}")
     if code != 0:
         raise MemoryError("sdm_train: no memory for one configuration's working rows")
     return thetas, losses, failed
 
 
-def check_program(points, pixels, rank, offsets, camera, steps, zooms, n_epoch, batch_size, rates, windows, orders,
+def check_program(points, pixels, rank, offsets, camera, s, zooms, n_epoch, batch_size, rates, windows, orders,
                   targets, theta0, bases=None, param_index=None, record_every=1, row_rate=None,
                   crossing_widths=None) -> None:
     """:func:`train_program`'s arguments checked against each other, as ``sdm_train`` reads them.
 
     The sizes: ``P`` points, ``N`` configurations (``offsets``: ``0``, non-decreasing, ``P`` last), ``R`` runs
-    (``orders``, ``targets``, ``bases``, ``theta0``), ``L`` loss zooms (``zooms`` in ``0..steps``, ``rates``,
+    (``orders``, ``targets``, ``bases``, ``theta0``), ``L`` loss zooms (``zooms`` in ``0..s``, ``rates``,
     ``windows``, ``crossing_widths``, each run's ``targets`` and ``row_rate``'s rows), ``K`` rows of theta
     (``theta0``, ``row_rate``'s columns, the entries of ``param_index``). Every shuffled configuration lies in
     ``0..N-1``; every target at zoom ``k`` is ``(N, H >> k, W >> k)`` bool; the screen divides into blocks of
-    ``2^steps``; the steps are a multiple of ``record_every``.
+    ``2^s``; the steps are a multiple of ``record_every``.
 
     Raises:
         SDMInputError: naming ``train_program`` and the argument.
     """
     call, int64 = "train_program", torch.int64
     height, width = camera.screen_shape
-    _check_screen(call, height, width, steps, 0)
-    if height % (1 << steps) or width % (1 << steps):
-        raise SDMInputError(f"{call}: a {height} x {width} screen does not divide into blocks of 2^{steps} pixels")
+    _check_screen(call, height, width, s, 0)
+    if height % (1 << s) or width % (1 << s):
+        raise SDMInputError(f"{call}: a {height} x {width} screen does not divide into blocks of 2^{s} pixels")
     for name, value in (("n_epoch", n_epoch), ("batch_size", batch_size), ("record_every", record_every)):
         if isinstance(value, bool) or not isinstance(value, int) or value < 1:
             raise SDMInputError(f"{call}: {name} must be a positive integer, got {value!r}")
     n_zooms = len(zooms)
-    if n_zooms == 0 or any(isinstance(zoom, bool) or not isinstance(zoom, int) or not 0 <= zoom <= steps
+    if n_zooms == 0 or any(isinstance(zoom, bool) or not isinstance(zoom, int) or not 0 <= zoom <= s
                            for zoom in zooms):
-        raise SDMInputError(f"{call}: zooms must be integers in 0..{steps}, at least one, got {zooms}")
+        raise SDMInputError(f"{call}: zooms must be integers in 0..{s}, at least one, got {zooms}")
     for name, per_zoom in (("rates", rates), ("windows", windows), ("crossing_widths", crossing_widths)):
         if per_zoom is not None and len(per_zoom) != n_zooms:
             raise SDMInputError(f"{call}: {name} must hold one entry per zoom ({n_zooms}), got {len(per_zoom)}")

@@ -149,15 +149,25 @@ def theta0_rows(theta0) -> int | None:
     return int(first.shape[0]) if first.dim() == 2 and first.shape[0] > 0 else None
 
 
+def _per_row(name: str, value, rows, what: str) -> tuple[torch.Tensor, int]:
+    """``value`` as a tensor and ``K``, the rows of the checked ``rows``; :class:`SDMInputError` naming ``name``
+    where there are no rows (``what`` the argument does with them) or ``value`` is not one entry per row."""
+    if rows is None:
+        raise SDMInputError(f"{name} needs param_index ({what})")
+    n_rows = int(rows.max()) + 1
+    tensor = torch.as_tensor(value)
+    if tensor.shape != (n_rows,):
+        raise SDMInputError(f"{name} must hold one entry per row of param_index ({n_rows}), got {tensor.dtype} "
+                            f"{tuple(tensor.shape)}")
+    return tensor, n_rows
+
+
 def checked_row_rate(row_rate, rows, device) -> torch.Tensor | None:
     """``row_rate`` checked against the checked ``rows``: ``(K,)`` float64 on ``device``, or ``None``."""
     if row_rate is None:
         return None
-    if rows is None:
-        raise SDMInputError("row_rate needs param_index (it scales the rows' rates)")
-    n_rows = int(rows.max()) + 1
-    rate = torch.as_tensor(row_rate)
-    if rate.shape != (n_rows,) or not rate.is_floating_point() or not bool((torch.isfinite(rate) & (rate > 0)).all()):
+    rate, n_rows = _per_row("row_rate", row_rate, rows, "it scales the rows' rates")
+    if not rate.is_floating_point() or not bool((torch.isfinite(rate) & (rate > 0)).all()):
         raise SDMInputError(f"row_rate must be {n_rows} positive finite numbers (one per row of param_index), got "
                             f"{rate.dtype} {tuple(rate.shape)}")
     return rate.to(dtype=torch.float64, device=device)
@@ -168,11 +178,8 @@ def checked_row_zoom(row_zoom, rows, common: TrainSettings) -> torch.Tensor | No
     ``(K,)`` int64 on the CPU, or ``None``."""
     if row_zoom is None:
         return None
-    if rows is None:
-        raise SDMInputError("row_zoom needs param_index (it names each row's first zoom)")
-    n_rows = int(rows.max()) + 1
-    first = torch.as_tensor(row_zoom)
-    if first.shape != (n_rows,) or first.is_floating_point() or first.is_complex() or first.dtype == torch.bool:
+    first, n_rows = _per_row("row_zoom", row_zoom, rows, "it names each row's first zoom")
+    if first.is_floating_point() or first.is_complex() or first.dtype == torch.bool:
         raise SDMInputError(f"row_zoom must be {n_rows} integers (one per row of param_index), got {first.dtype} "
                             f"{tuple(first.shape)}")
     first = first.to("cpu", torch.int64)
