@@ -27,7 +27,9 @@ notebook_stage(
     jobs=[{"method": method} for method in BASELINES],
     job="baselines_{method}",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE, tuning_file=result("baselines/tuning_{method}.csv")),
-    output=dict(runs_files=[result(f"baselines/runs_{{method}}_level{noise_level}.csv") for noise_level in NOISE_LEVELS]),
+    output=dict(
+        runs_files=[result(f"baselines/runs_{{method}}_level{noise_level}.csv") for noise_level in NOISE_LEVELS]
+    ),
     params=dict(
         method=wildcard("method"),
         noise_levels=NOISE_LEVELS,

@@ -5,7 +5,9 @@
 notebook_stage(
     "noise",
     "One chunk of noise runs at one level: noisy train targets, train, distance to theta*.",
-    jobs=[{"noise_level": level, "chunk": chunk} for level in NOISE_LEVELS for chunk in range(-(-N_RUNS // CHUNK_SIZE))],
+    jobs=[
+        {"noise_level": level, "chunk": chunk} for level in NOISE_LEVELS for chunk in range(-(-N_RUNS // CHUNK_SIZE))
+    ],
     job="noise_level{noise_level}_chunk{chunk}",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE, best=BEST_FILE),
     output=dict(

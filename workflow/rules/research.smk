@@ -12,7 +12,9 @@ notebook_stage(
     jobs=[{"schedule": label} for label in RULE_LABELS],
     job="research_rules_{schedule}",
     input=dict(sky=SKY_FILE, split=SPLIT_FILE, best=BEST_FILE),
-    output=dict(runs_files=[result(f"research/rules/{{schedule}}_level{noise_level}.csv") for noise_level in NOISE_LEVELS]),
+    output=dict(
+        runs_files=[result(f"research/rules/{{schedule}}_level{noise_level}.csv") for noise_level in NOISE_LEVELS]
+    ),
     params=dict(
         **training(seed=config["noise"]["seed"]),
         schedule=lambda wildcards: RULE_LABELS[wildcards.schedule],
