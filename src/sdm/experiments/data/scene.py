@@ -282,19 +282,21 @@ def _visibility(
     v1 = (camera.fy * (cy + half_hgt) / cz + camera.cy).max(axis=1)
     full = (u1 - u0) * (v1 - v0) / (scale * scale)  # box area in grid cells
     shrink = (1 - math.sqrt(m.occluder_fill)) / 2
-    for i in range(n):
-        c0, c1 = max(math.floor(u0[i] / scale), 0), min(math.ceil(u1[i] / scale), grid_w)
-        r0, r1 = max(math.floor(v0[i] / scale), 0), min(math.ceil(v1[i] / scale), grid_h)
-        if c1 <= c0 or r1 <= r0 or full[i] <= 0:
+    # Python floats in the loop over the cars: the same doubles as the arrays' elements, the same arithmetic
+    for i, (left, right, top, bottom, box) in enumerate(zip(u0.tolist(), u1.tolist(), v0.tolist(), v1.tolist(),
+                                                            full.tolist())):
+        c0, c1 = max(math.floor(left / scale), 0), min(math.ceil(right / scale), grid_w)
+        r0, r1 = max(math.floor(top / scale), 0), min(math.ceil(bottom / scale), grid_h)
+        if c1 <= c0 or r1 <= r0 or box <= 0:
             continue
         window = occupied[r0:r1, c0:c1]
         free = window.size - int(np.count_nonzero(window))
-        visible[i] = min(free / max(full[i], window.size), 1.0)
-        area[i] = m.box_fill * visible[i] * full[i] * scale * scale
+        visible[i] = min(free / max(box, window.size), 1.0)
+        area[i] = m.box_fill * visible[i] * box * scale * scale
         # the car hides the central part of its box (a silhouette does not fill its box)
-        du, dv = shrink * (u1[i] - u0[i]), shrink * (v1[i] - v0[i])
-        o0, o1 = max(round((u0[i] + du) / scale), 0), min(round((u1[i] - du) / scale), grid_w)
-        q0, q1 = max(round((v0[i] + dv) / scale), 0), min(round((v1[i] - dv) / scale), grid_h)
+        du, dv = shrink * (right - left), shrink * (bottom - top)
+        o0, o1 = max(round((left + du) / scale), 0), min(round((right - du) / scale), grid_w)
+        q0, q1 = max(round((top + dv) / scale), 0), min(round((bottom - dv) / scale), grid_h)
         occupied[q0:q1, o0:o1] = True
     return visible, area
 
