@@ -116,8 +116,12 @@ def _job_rows(jobs: list[dict]) -> list[str]:
         return ["No job ran: `make run` wrote no benchmark file."]
     stages = stage_times(jobs)
     rows = [
-        "From `results/benchmarks/<job>.tsv` of that `make run` (Snakemake's `benchmark:` files), each job's stage",
-        "from its executed notebook. CPU time is each job's processes' user + system time; wall time is its span.",
+        "From that `make run`'s `results/logs/<job>.log` (the CPU time of each job's processes, user + system,",
+        "counted whole at its end) and `results/benchmarks/<job>.tsv` (Snakemake's `benchmark:` files: its wall",
+        "time, its span), each job's stage from its executed notebook."
+        + ("" if all(job.get("cpu_from", "log") == "log" for job in jobs) else
+           " A job whose log has no count shows the benchmark file's CPU time, Snakemake's last sample of it: up"
+           " to 30 s short for a job longer than 15 s."),
         f"All jobs together: {minutes(sum(job['cpu'] for job in jobs))} of CPU time, "
         f"{minutes(sum(job['wall'] for job in jobs))} of wall time ({len(jobs)} jobs).",
         "",
@@ -185,7 +189,8 @@ def main(argv: list[str] | None = None) -> int:
             results.append(run_timed(command, clone, clone.parent / f"{command.replace(' ', '_')}.log", args.every))
             print(f"  {minutes(results[-1]['cpu'])} CPU, {minutes(results[-1]['seconds'])} wall, exit status "
                   f"{results[-1]['status']}", flush=True)
-        jobs = job_times(clone / "results" / "benchmarks", clone / "results" / "notebooks")
+        made = clone / "results"
+        jobs = job_times(made / "benchmarks", made / "notebooks", made / "logs")
     finally:
         if not args.keep and not args.clone:
             shutil.rmtree(clone.parent, ignore_errors=True)

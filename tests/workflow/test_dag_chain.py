@@ -41,3 +41,15 @@ def test_longest_chain_by_jobs_and_by_cpu_seconds(tmp_path):
     out = subprocess.run([sys.executable, str(ROOT / "workflow" / "scripts" / "dag_jobs.py"), "chain", str(dump)],
                          capture_output=True, text=True, check=True).stdout
     assert "by CPU" not in out
+
+
+def test_the_chain_by_cpu_takes_a_jobs_whole_count_from_its_log(tmp_path):
+    """A job's log's last line (its CPU counted whole) wins over its benchmark file's sampled cpu_time."""
+    bench = {name: write_benchmark(tmp_path / f"{name}.tsv", 1.0) for name in ("a", "b", "c")}
+    (tmp_path / "b.log").write_text("cpu: 30.00 s of this job's processes (user + system)\n")
+    jobs = [job("a", [], ["a.out"], bench["a"]), job("b", ["a.out"], ["b.out"], bench["b"]),
+            job("c", ["a.out"], ["c.out"], bench["c"]), job("d", ["c.out"], ["d.out"], bench["c"])]
+    for one in jobs:
+        one["log"] = {"by_name": {"stderr": [str(tmp_path / f"{one['rule']}.log")]}}
+    by_cpu, cpu = dag_jobs.longest_chain(jobs, dag_jobs._cpu_seconds)
+    assert [one["rule"] for one in by_cpu] == ["a", "b"] and cpu == 31.0

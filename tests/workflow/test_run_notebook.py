@@ -234,3 +234,25 @@ def test_a_temporary_notebook_left_by_a_killed_run_is_removed_by_the_next(tmp_pa
     runner = _runner_module()
     assert runner.remove_stale_temporaries(executed) == [left]
     assert not left.exists() and other.exists()
+
+
+def test_the_log_ends_with_the_cpu_seconds_of_the_runner_and_its_kernel(tmp_path):
+    """The kernel spends 2 s of CPU in a cell: the log's last line (run_notebook.CPU_LINE) counts them with the
+    runner's own, so it says more than 2 s; the runner's process alone spends about 1 s."""
+    module = _runner_module()
+    source = tmp_path / "burn.py"
+    source.write_text("\n".join([HEADER, "# %% tags=[\"parameters\"]\nseconds = 2.0\n",
+                                 "# %%\nimport time\nstart = time.process_time()\n"
+                                 "while time.process_time() - start < seconds:\n    pass\nprint('burnt')\n"]))
+    executed, html, log = tmp_path / "burn.ipynb", tmp_path / "burn.html", tmp_path / "logs" / "burn.log"
+    env = {key: value for key, value in os.environ.items() if key != "MPLBACKEND"}
+    env["PYTHONPATH"] = str(ROOT / "src") + os.pathsep + env.get("PYTHONPATH", "")
+    script = (f"import sys; sys.path.insert(0, {str(RUNNER.parent)!r}); import run_notebook; "
+              f"sys.exit(run_notebook.main({str(source)!r}, {str(executed)!r}, {str(html)!r}, '{{}}', {str(log)!r}))")
+    process = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, env=env, cwd=tmp_path,
+                             timeout=300)
+    assert process.returncode == 0, process.stderr
+    last = log.read_text().splitlines()[-1]
+    found = re.match(module.CPU_LINE, last)
+    assert found, last
+    assert float(found.group(1)) > 2.0

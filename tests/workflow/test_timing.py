@@ -92,3 +92,25 @@ def test_make_timing_measures_each_command_of_a_fresh_clone(tiny_repository, tmp
     bench_cpu = float(rows["`make bench`"][0].removesuffix(" s"))
     assert bench_cpu >= 0.1  # the loop's CPU, measured in the processes make started
     assert "| `sky` | 1 | 11.0 s | 12.5 s |" in text and "| `sky` | 11.0 s | 12.5 s |" in text
+
+
+def test_a_jobs_cpu_is_its_logs_whole_count_where_the_log_has_one(tmp_path):
+    """Snakemake's benchmark file has the CPU at its last sample (every 30 s after 15 s): the job's log's last line
+    counts it whole and wins; a job without that line keeps the benchmark file's, and the page says so."""
+    _job(tmp_path, "baselines_chamfer", 58.0, 44.5, "baseline_runs")
+    _job(tmp_path, "sky", 12.5, 11.0, "sky")
+    _job(tmp_path, "split", 4.0, 3.5, "split")
+    logs = tmp_path / "logs"
+    logs.mkdir()
+    (logs / "baselines_chamfer.log").write_text("a warning\ncpu: 57.25 s of this job's processes (user + system)\n")
+    (logs / "sky.log").write_text("cpu: 12.00 s of this job's processes (user + system)\nthen something else\n")
+    jobs = timing.job_times(tmp_path / "benchmarks", tmp_path / "notebooks", logs)
+    assert [(job["job"], job["cpu"], job["cpu_from"]) for job in jobs] == [
+        ("baselines_chamfer", 57.25, "log"), ("sky", 11.0, "benchmark"), ("split", 3.5, "benchmark")]
+    text = timing.page([], jobs, "abc1234", "2026-12-04 06:00")
+    assert "| `baselines_chamfer` | 57.2 s | 58.0 s |" in text and "up to 30 s short" in text
+    (logs / "sky.log").write_text("cpu: 12.00 s of this job's processes (user + system)\n")
+    (logs / "split.log").write_text("cpu: 3.75 s of this job's processes (user + system)\n")
+    text = timing.page([], timing.job_times(tmp_path / "benchmarks", tmp_path / "notebooks", logs), "abc1234",
+                       "2026-12-04 06:00")
+    assert "up to 30 s short" not in text and "| `sky` | 12.0 s | 12.5 s |" in text

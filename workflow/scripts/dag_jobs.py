@@ -20,6 +20,9 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
+
+from job_times import logged_cpu
 
 
 def _files(files) -> dict:
@@ -92,7 +95,12 @@ def _job_name(job: dict) -> str:
 
 
 def _cpu_seconds(job: dict) -> float | None:
-    """The CPU seconds in a job's benchmark file (Snakemake's ``cpu_time`` column), None without one."""
+    """The CPU seconds of a job's run: its text log's whole count (:func:`job_times.logged_cpu`), else Snakemake's
+    ``cpu_time`` in its benchmark file; None with neither."""
+    for log in job.get("log", {}).get("by_name", {}).get("stderr", [])[:1]:
+        whole = logged_cpu(Path(log).parent, Path(log).stem)
+        if whole is not None:
+            return whole
     try:
         with open(job["benchmark"]) as table:
             header, row = (table.readline().rstrip("\n").split("\t") for _ in range(2))

@@ -1,18 +1,22 @@
-"""Each job's CPU and wall seconds from Snakemake's ``benchmark:`` files, and its stage from its executed notebook:
-the one reader of both that the snapshots' provenance (``snapshot.py``) and ``make timing``
+"""Each job's CPU and wall seconds from Snakemake's ``benchmark:`` files and its text log, and its stage from its
+executed notebook: the one reader of them that the snapshots' provenance (``snapshot.py``) and ``make timing``
 (``benchmarks/tools/timing.py``) share.
 
-A job ``J`` wrote ``results/benchmarks/J.tsv`` (its last line: ``cpu_time``, the CPU seconds of its processes, and
-``s``, its wall seconds) and ``results/notebooks/J.ipynb``, whose metadata names its stage
-(``run_notebook.STAGE_METADATA``). The standard library only.
+A job ``J`` wrote ``results/benchmarks/J.tsv`` (its last line: ``s``, its wall seconds, and ``cpu_time``, the CPU
+seconds of its processes at Snakemake's last sample of them), ``results/logs/J.log``, whose last line is the CPU
+seconds of its processes counted whole at its end (``run_notebook.CPU_LINE``; Snakemake samples a job every 30 s
+after its first 15 s, so a long job's ``cpu_time`` falls short by up to 30 s), and ``results/notebooks/J.ipynb``,
+whose metadata names its stage (``run_notebook.STAGE_METADATA``). The CPU seconds are the log's where it has them,
+else the benchmark file's. The standard library only.
 """
 from __future__ import annotations
 
 import csv
 import json
+import re
 from pathlib import Path
 
-from run_notebook import STAGE_METADATA
+from run_notebook import CPU_LINE, STAGE_METADATA
 
 #: The stage of a job whose notebook records none.
 NO_STAGE = "?"
@@ -29,10 +33,22 @@ def job_stage(notebooks: Path, job: str) -> str:
     return str(stage["name"]) if isinstance(stage, dict) and "name" in stage else NO_STAGE
 
 
-def job_times(benchmarks: Path, notebooks: Path | None = None) -> list[dict]:
+def logged_cpu(logs: Path, job: str) -> float | None:
+    """The CPU seconds that the last line of ``logs/<job>.log`` gives (``run_notebook.CPU_LINE``), None where there is
+    no such file or line."""
+    try:
+        lines = (logs / f"{job}.log").read_text(encoding="utf-8").splitlines()
+    except (OSError, ValueError):
+        return None
+    found = re.match(CPU_LINE, lines[-1]) if lines else None
+    return float(found.group(1)) if found else None
+
+
+def job_times(benchmarks: Path, notebooks: Path | None = None, logs: Path | None = None) -> list[dict]:
     """Per benchmark file of ``benchmarks`` with a measured line: ``job``, ``stage`` (from ``notebooks``;
-    :data:`NO_STAGE` without it), ``cpu`` and ``wall`` seconds (``cpu`` NaN where Snakemake wrote ``-``); the most
-    CPU first, then by job."""
+    :data:`NO_STAGE` without it), ``cpu`` and ``wall`` seconds and ``cpu_from``, where ``cpu`` comes from: ``"log"``
+    (the job's log in ``logs`` counted it whole, :func:`logged_cpu`) or ``"benchmark"`` (Snakemake's last sample; NaN
+    where it wrote ``-``); the most CPU first, then by job."""
     jobs = []
     for path in sorted(benchmarks.glob("*.tsv")):
         try:
@@ -41,8 +57,10 @@ def job_times(benchmarks: Path, notebooks: Path | None = None) -> list[dict]:
             cpu, wall = rows[-1].get("cpu_time") or "-", float(rows[-1]["s"])
         except (OSError, ValueError, KeyError, IndexError, TypeError):
             continue
+        whole = logged_cpu(logs, path.stem) if logs else None
         jobs.append({"job": path.stem, "stage": job_stage(notebooks, path.stem) if notebooks else NO_STAGE,
-                     "cpu": float(cpu) if cpu != "-" else float("nan"), "wall": wall})
+                     "cpu": whole if whole is not None else float(cpu) if cpu != "-" else float("nan"), "wall": wall,
+                     "cpu_from": "log" if whole is not None else "benchmark"})
     return sorted(jobs, key=lambda job: (-(job["cpu"] if job["cpu"] == job["cpu"] else 0.0), job["job"]))
 
 

@@ -29,6 +29,7 @@ import contextlib
 import json
 import os
 import re
+import resource
 import signal
 import sys
 import tempfile
@@ -247,6 +248,21 @@ def page(executed):
 #: The executed notebook's metadata key that holds the stage's name and the fingerprint of the code it ran
 #: (``workflow/scripts/snapshot.py`` reads it into a snapshot's provenance).
 STAGE_METADATA = "sdm_stage"
+#: The last line of a job's text log: the CPU seconds of its processes (:func:`cpu_line`), which
+#: ``workflow/scripts/job_times.py`` reads (:data:`CPU_LINE` with the number in its one group).
+CPU_LINE = r"^cpu: ([0-9]+\.[0-9]+) s of this job's processes \(user \+ system\)$"
+
+
+def cpu_line() -> str:
+    """The CPU seconds (user + system) of this process and of every process it has waited for, the notebook's kernel
+    and whatever the kernel waited for, as the log's last line (:data:`CPU_LINE`).
+
+    Snakemake's ``benchmark:`` file samples a job's processes every 0.5 s for its first 15 s, then every 30 s: a
+    longer job's ``cpu_time`` is its CPU at the last sample, short of the end by up to 30 s. This count is whole: it
+    is taken after the kernel has exited and the page is written, when only the log is left to write.
+    """
+    used = [resource.getrusage(who) for who in (resource.RUSAGE_SELF, resource.RUSAGE_CHILDREN)]
+    return f"cpu: {sum(usage.ru_utime + usage.ru_stime for usage in used):.2f} s of this job's processes (user + system)"
 
 
 def main(source: str, executed: str, html: str, parameters: str | dict, stderr_log: str | None = None,
@@ -295,7 +311,7 @@ def main(source: str, executed: str, html: str, parameters: str | dict, stderr_l
     if failure is None:
         try:
             if log is not None:
-                _write_log(log, strip_ansi(noise).strip())
+                _write_log(log, "\n".join(filter(None, [strip_ansi(noise).strip(), cpu_line()])))
             elif noise.strip():
                 sys.stderr.write(strip_ansi(noise))
             return 0

@@ -80,10 +80,10 @@ def run_stages(results: Path) -> dict[str, set[str]]:
 
 
 def job_times(results: Path, stages) -> dict[str, dict]:
-    """Job -> its stage and the CPU and wall seconds Snakemake's ``benchmark:`` file measured
-    (:func:`job_times.job_times` on ``results/benchmarks/`` and ``results/notebooks/``), for every job of ``stages``
-    with a measured CPU time; in job order."""
-    measured = jobs.job_times(results / "benchmarks", results / "notebooks")
+    """Job -> its stage, its CPU seconds (its log's whole count, else Snakemake's ``benchmark:`` file's) and its wall
+    seconds (:func:`job_times.job_times` on ``results/benchmarks/``, ``results/notebooks/`` and ``results/logs/``),
+    for every job of ``stages`` with a measured CPU time; in job order."""
+    measured = jobs.job_times(results / "benchmarks", results / "notebooks", results / "logs")
     return {job["job"]: {"stage": job["stage"], "cpu_s": round(job["cpu"], 2), "wall_s": round(job["wall"], 2)}
             for job in sorted(measured, key=lambda job: job["job"])
             if job["stage"] in stages and job["cpu"] == job["cpu"]}
