@@ -209,6 +209,9 @@ def test_dag_jobs_finds_a_changed_param_and_nothing_else(tmp_path):
     assert chain.endswith(" -> best -> noise_level0_chunk0 -> tables -> table3 -> report"), chain
     jobs = (tmp_path / "before.jsonl").read_text().splitlines()
     assert len(jobs) == sum(planned(snakemake("-n", "--quiet", "rules", cwd=tmp_path)).values()) + 1  # + all
+    # the longest jobs, and the tuning that gates them, are started first of the ready ones
+    first = {json.loads(line)["rule"] for line in jobs if json.loads(line)["priority"] > 0}
+    assert first == {"baseline_tune", "baseline_runs", "floor_runs"}, first
     same = subprocess.run([*tool, "compare", "before.jsonl", "again.jsonl"], cwd=tmp_path, capture_output=True,
                           text=True)
     assert same.returncode == 0 and same.stdout.strip() == f"SAME {len(jobs)} jobs"

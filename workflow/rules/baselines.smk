@@ -3,7 +3,9 @@
 # like Table 1), then one job for its paired runs at every noise level (one job, not one per level: a
 # job's start-up, about 4-5 CPU seconds for the interpreter, torch and the notebook kernel, cost as much
 # as a level's runs; each level keeps its own file); then the table. SDM is not rerun: its rows are Table 2's runs (noise/distances.csv), its time
-# per run the one the noise jobs record.
+# per run the one the noise jobs record. The tuning, the runs and the floor start before the other stages'
+# ready jobs (priority 1): they are the run's longest jobs, and on few cores one of them left to the end
+# would run alone.
 
 notebook_stage(
     "baseline_tune",
@@ -19,6 +21,7 @@ notebook_stage(
         train_seed=config["train"]["seed"],
         shift=config["sky"]["shift"],
     ),
+    priority=1,
 )
 
 notebook_stage(
@@ -38,6 +41,7 @@ notebook_stage(
         shift=config["sky"]["shift"],
     ),
     runtime=15 * len(NOISE_LEVELS),
+    priority=1,
 )
 
 notebook_stage(
@@ -56,6 +60,7 @@ notebook_stage(
         shift=config["sky"]["shift"],
     ),
     runtime=20 * len(NOISE_LEVELS),
+    priority=1,
 )
 
 notebook_stage(

@@ -11,7 +11,9 @@
 # notebook, rendering, log, benchmark, environment and resources) is the same for every stage.
 
 
-def notebook_stage(name, doc, *, jobs=({},), job=None, input={}, output={}, params={}, tracked={}, runtime=10):
+def notebook_stage(
+    name, doc, *, jobs=({},), job=None, input={}, output={}, params={}, tracked={}, runtime=10, priority=0
+):
     """Add the stage `name`, described by `doc`, that runs notebooks/<name>.py, as its rule (one notebook per
     stage: a notebook serves no other stage, and switches on no parameter to choose what it does).
 
@@ -21,6 +23,8 @@ def notebook_stage(name, doc, *, jobs=({},), job=None, input={}, output={}, para
     job: the name of a job's rendered notebook, log and benchmark, with the rule's wildcards (default: name).
     input, output, params: the stage's own named inputs, outputs and params; runtime: minutes on a cluster.
     tracked: digests of what the stage reads without a file input (the annotation files), beside its code.
+    priority: which ready jobs Snakemake starts first (higher first; 0 by default): the longest jobs, and those
+        that gate them, start early, so that the cores are not left to one long job at the end.
     """
     if "html" in output or "stage" in params:
         raise WorkflowError(
@@ -44,6 +48,7 @@ def notebook_stage(name, doc, *, jobs=({},), job=None, input={}, output={}, para
             stderr=f"{LOGS}/{job}.log",
         benchmark:
             f"{BENCHMARKS}/{job}.tsv"
+        priority: priority
         conda:
             "../envs/sdm.yaml"
         threads: 1

@@ -6,7 +6,7 @@
 
 ``dump`` runs ``snakemake -n`` with the given arguments (from where snakemake would run) and writes one
 JSON line per job: its rule, wildcards, named inputs, outputs and logs with their flags (``report``
-captions included), benchmark, params, threads, resources, conda environment, script and whether it
+captions included), benchmark, params, threads, priority, resources, conda environment, script and whether it
 is a local rule, then prints the DAG's longest chain (``chain``). ``compare`` prints the jobs and fields that differ and ``SAME n jobs`` or ``DIFFERENT``
 (exit status 0 or 1). What means nothing to a stage is left out of the comparison: the order of a rule's
 named files (stages read them by name) and the order of the target rule's inputs.
@@ -53,7 +53,7 @@ def dump(out_path: str, arguments: list[str]) -> int:
                 "input": _files(one.input), "output": _files(one.output), "log": _files(one.log),
                 "benchmark": str(one.benchmark), "params": {name: repr(value) for name, value in one.params.items()},
                 "positional_params": sorted(repr(value) for value in one.params),
-                "threads": one.threads,
+                "threads": one.threads, "priority": one.priority,
                 "resources": {key: repr(value) for key, value in one.resources.items() if key != "tmpdir"},
                 "conda": str(one.rule.conda_env), "script": str(one.rule.script),
                 "localrule": one.rule.name in one.dag.workflow._localrules,
