@@ -132,13 +132,7 @@ PARTS = {
 #: The snapshots known to be stale, each with why (``tests/workflow/test_provenance.py`` checks that every listed one is stale
 #: and every other one fresh, and names the command that refreshes a snapshot: :attr:`Part.refresh`; take one off
 #: the list once it is taken again, then write the README's verdict again: ``make verdict``).
-KNOWN_STALE: dict[str, str] = {
-    "default": "the code changed under it (the runner counts each job's CPU; the synthetic writer is faster), its files not yet retaken",
-    "depth": "the code changed under it (the runner counts each job's CPU; the synthetic writer is faster), its files not yet retaken",
-    "objects": "the code changed under it (the runner counts each job's CPU; the synthetic writer is faster), its files not yet retaken",
-    "network": "the code changed under it (the runner counts each job's CPU; the synthetic writer is faster), its files not yet retaken",
-    "sample": "the code changed under it (the runner counts each job's CPU; the synthetic writer is faster), its files not yet retaken",
-}
+KNOWN_STALE: dict[str, str] = {}
 
 
 def sha256(path: Path) -> str:
