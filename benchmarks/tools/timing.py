@@ -14,7 +14,8 @@ Each command is measured three ways: its CPU seconds (user + system of every pro
 seconds while it ran. On a shared machine the wall time grows with the load; the CPU time barely moves, so the
 page leads with it. It then reads the default run's per-job times: each job's CPU seconds from the last line of the
 clone's ``results/logs/<job>.log`` (counted whole at the job's end), its wall seconds ``s`` from
-``results/benchmarks/<job>.tsv`` (Snakemake's ``benchmark:`` file), each job's stage from its executed notebook (``results/notebooks/<job>.ipynb``, which records it), and rewrites docs/results/timing.md whole: the
+``results/benchmarks/<job>.tsv`` (Snakemake's ``benchmark:`` file), each job's stage from its executed notebook
+(``results/notebooks/<job>.ipynb``, which records it), and rewrites docs/results/timing.md whole: the
 current figures only, with the commit and the date. A command that fails is written as failed, with its exit
 status. The clone is deleted afterwards unless ``--keep``. The standard library only.
 """

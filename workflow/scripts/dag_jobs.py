@@ -22,7 +22,7 @@ import json
 import sys
 from pathlib import Path
 
-from job_times import logged_cpu
+from job_times import job_cpu
 
 
 def _files(files) -> dict:
@@ -95,18 +95,17 @@ def _job_name(job: dict) -> str:
 
 
 def _cpu_seconds(job: dict) -> float | None:
-    """The CPU seconds of a job's run: its text log's whole count (:func:`job_times.logged_cpu`), else Snakemake's
-    ``cpu_time`` in its benchmark file; None with neither."""
-    for log in job.get("log", {}).get("by_name", {}).get("stderr", [])[:1]:
-        whole = logged_cpu(Path(log).parent, Path(log).stem)
-        if whole is not None:
-            return whole
+    """The CPU seconds of a job's run (:func:`job_times.job_cpu`: its text log's whole count, else Snakemake's
+    ``cpu_time`` in its benchmark file); None with neither."""
     try:
         with open(job["benchmark"]) as table:
             header, row = (table.readline().rstrip("\n").split("\t") for _ in range(2))
-        return float(row[header.index("cpu_time")])
+        sampled = str(float(row[header.index("cpu_time")]))  # "-" or no number: none
     except (OSError, ValueError, IndexError):
-        return None
+        sampled = None
+    logs = job.get("log", {}).get("by_name", {}).get("stderr", [])
+    seconds, _ = job_cpu(sampled, Path(logs[0]) if logs else None)
+    return None if seconds != seconds else seconds
 
 
 def longest_chain(jobs: list[dict], weight) -> tuple[list[dict], float]:

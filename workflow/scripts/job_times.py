@@ -33,34 +33,43 @@ def job_stage(notebooks: Path, job: str) -> str:
     return str(stage["name"]) if isinstance(stage, dict) and "name" in stage else NO_STAGE
 
 
-def logged_cpu(logs: Path, job: str) -> float | None:
-    """The CPU seconds that the last line of ``logs/<job>.log`` gives (``run_notebook.CPU_LINE``), None where there is
-    no such file or line."""
+def logged_cpu(log: Path) -> float | None:
+    """The CPU seconds that the last line of the job's log ``log`` gives (``run_notebook.CPU_LINE``), None where there
+    is no such file or line."""
     try:
-        lines = (logs / f"{job}.log").read_text(encoding="utf-8").splitlines()
+        lines = log.read_text(encoding="utf-8").splitlines()
     except (OSError, ValueError):
         return None
     found = re.match(CPU_LINE, lines[-1]) if lines else None
     return float(found.group(1)) if found else None
 
 
+def job_cpu(sampled: str | None, log: Path | None) -> tuple[float, str]:
+    """A job's CPU seconds and where they come from: ``(seconds, "log")`` from its log's whole count
+    (:func:`logged_cpu`), else ``(seconds, "benchmark")`` from ``sampled``, its benchmark file's ``cpu_time`` (NaN
+    where Snakemake wrote ``-`` or there is none)."""
+    whole = logged_cpu(log) if log is not None else None
+    if whole is not None:
+        return whole, "log"
+    return (float(sampled) if sampled not in (None, "", "-") else float("nan")), "benchmark"
+
+
 def job_times(benchmarks: Path, notebooks: Path | None = None, logs: Path | None = None) -> list[dict]:
     """Per benchmark file of ``benchmarks`` with a measured line: ``job``, ``stage`` (from ``notebooks``;
     :data:`NO_STAGE` without it), ``cpu`` and ``wall`` seconds and ``cpu_from``, where ``cpu`` comes from: ``"log"``
-    (the job's log in ``logs`` counted it whole, :func:`logged_cpu`) or ``"benchmark"`` (Snakemake's last sample; NaN
+    (the job's log in ``logs`` counted it whole, :func:`job_cpu`) or ``"benchmark"`` (Snakemake's last sample; NaN
     where it wrote ``-``); the most CPU first, then by job."""
     jobs = []
     for path in sorted(benchmarks.glob("*.tsv")):
         try:
             with path.open(encoding="utf-8") as handle:
                 rows = list(csv.DictReader(handle, delimiter="\t"))
-            cpu, wall = rows[-1].get("cpu_time") or "-", float(rows[-1]["s"])
+            sampled, wall = rows[-1].get("cpu_time"), float(rows[-1]["s"])
         except (OSError, ValueError, KeyError, IndexError, TypeError):
             continue
-        whole = logged_cpu(logs, path.stem) if logs else None
+        cpu, cpu_from = job_cpu(sampled, logs / f"{path.stem}.log" if logs else None)
         jobs.append({"job": path.stem, "stage": job_stage(notebooks, path.stem) if notebooks else NO_STAGE,
-                     "cpu": whole if whole is not None else float(cpu) if cpu != "-" else float("nan"), "wall": wall,
-                     "cpu_from": "log" if whole is not None else "benchmark"})
+                     "cpu": cpu, "wall": wall, "cpu_from": cpu_from})
     return sorted(jobs, key=lambda job: (-(job["cpu"] if job["cpu"] == job["cpu"] else 0.0), job["job"]))
 
 
