@@ -22,7 +22,7 @@ import json
 import sys
 from pathlib import Path
 
-from job_times import job_cpu
+from job_times import benchmark_row, job_cpu
 
 
 def _files(files) -> dict:
@@ -98,10 +98,9 @@ def _cpu_seconds(job: dict) -> float | None:
     """The CPU seconds of a job's run (:func:`job_times.job_cpu`: its text log's whole count, else Snakemake's
     ``cpu_time`` in its benchmark file); None with neither."""
     try:
-        with open(job["benchmark"]) as table:
-            header, row = (table.readline().rstrip("\n").split("\t") for _ in range(2))
-        sampled = str(float(row[header.index("cpu_time")]))  # "-" or no number: none
-    except (OSError, ValueError, IndexError):
+        sampled = benchmark_row(Path(job["benchmark"]))["cpu_time"]
+        float(sampled)  # "-" (Snakemake measured nothing) or no number: no sample
+    except (OSError, ValueError, KeyError, IndexError, TypeError):
         sampled = None
     logs = job.get("log", {}).get("by_name", {}).get("stderr", [])
     seconds, _ = job_cpu(sampled, Path(logs[0]) if logs else None)
@@ -132,10 +131,11 @@ def chain(path: str) -> int:
     jobs = [json.loads(line) for line in open(path)]
     by_count, count = longest_chain(jobs, lambda job: 1)
     print(f"longest chain: {int(count)} jobs: {' -> '.join(_job_name(job) for job in by_count)}")
-    if jobs and all(_cpu_seconds(job) is not None for job in jobs if job["rule"] != "all"):
-        by_cpu, seconds = longest_chain(jobs, _cpu_seconds)
-        every = sum(_cpu_seconds(job) for job in jobs if job["rule"] != "all")
-        steps = " -> ".join(f"{_job_name(job)} ({_cpu_seconds(job):.1f} s)" for job in by_cpu)
+    cpu = {id(job): _cpu_seconds(job) for job in jobs if job["rule"] != "all"}  # each job's files read once
+    if jobs and None not in cpu.values():
+        by_cpu, seconds = longest_chain(jobs, lambda job: cpu[id(job)])
+        every = sum(cpu.values())
+        steps = " -> ".join(f"{_job_name(job)} ({cpu[id(job)]:.1f} s)" for job in by_cpu)
         print(f"longest chain by CPU: {seconds:.1f} s of the jobs' {every:.1f} s: {steps}")
     return 0
 

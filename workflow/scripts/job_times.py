@@ -44,6 +44,13 @@ def logged_cpu(log: Path) -> float | None:
     return float(found.group(1)) if found else None
 
 
+def benchmark_row(path: Path) -> dict[str, str]:
+    """The measured line of the Snakemake ``benchmark:`` file ``path`` (its last), column name to text; raises
+    OSError where it cannot be read and IndexError where it has no line under its header."""
+    with path.open(encoding="utf-8") as handle:
+        return list(csv.DictReader(handle, delimiter="\t"))[-1]
+
+
 def job_cpu(sampled: str | None, log: Path | None) -> tuple[float, str]:
     """A job's CPU seconds and where they come from: ``(seconds, "log")`` from its log's whole count
     (:func:`logged_cpu`), else ``(seconds, "benchmark")`` from ``sampled``, its benchmark file's ``cpu_time`` (NaN
@@ -62,9 +69,8 @@ def job_times(benchmarks: Path, notebooks: Path | None = None, logs: Path | None
     jobs = []
     for path in sorted(benchmarks.glob("*.tsv")):
         try:
-            with path.open(encoding="utf-8") as handle:
-                rows = list(csv.DictReader(handle, delimiter="\t"))
-            sampled, wall = rows[-1].get("cpu_time"), float(rows[-1]["s"])
+            row = benchmark_row(path)
+            sampled, wall = row.get("cpu_time"), float(row["s"])
         except (OSError, ValueError, KeyError, IndexError, TypeError):
             continue
         cpu, cpu_from = job_cpu(sampled, logs / f"{path.stem}.log" if logs else None)
